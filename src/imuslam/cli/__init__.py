@@ -1,0 +1,35 @@
+"""The ``imuslam`` command line: thin typer commands over library functions.
+
+Each command lives in its own module of this package and is registered here.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import typer
+
+app = typer.Typer(
+    name="imuslam",
+    help="IMU calibration without external equipment, INS alignment and IMU-aided SLAM.",
+    no_args_is_help=True,
+    add_completion=False,
+)
+
+
+@app.callback()
+def _root(
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="Log debug messages."),
+) -> None:
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+
+
+# Command registrations (one line per command module).
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()

@@ -1,0 +1,51 @@
+"""Pure maths: SO(3), SE(3), Hamilton quaternions and their integration. No I/O, no imports of ours.
+
+Conventions, stated once for the whole package:
+- ``R_a_b`` (3, 3) maps a vector from frame b into frame a; ``T_a_b`` (4, 4) likewise for points.
+- Quaternions are Hamilton, scalar first: ``quat_wxyz`` (..., 4); ``quat_wxyz`` and ``-quat_wxyz`` are
+  the same rotation, and functions returning quaternions return the one with w >= 0 only where stated.
+- Tangent vectors of SE(3) are ordered rotation first, then translation: ``xi = [theta, rho]`` (6,).
+- Perturbations are on the right: ``R ⊞ theta = R @ exp(theta)`` (``rplus``), ``rminus(R1, R2) =
+  log(R2^T R1)``.
+Every function accepts a single element or a stack with leading batch dimensions.
+"""
+
+from imuslam.geometry.quaternion import (
+    quat_conj,
+    quat_from_matrix,
+    quat_from_rotvec,
+    quat_mul,
+    quat_normalize,
+    quat_to_matrix,
+    quat_to_rotvec,
+    rk4_integrate_gyro,
+)
+from imuslam.geometry.so3 import (
+    exp,
+    hat,
+    left_jacobian,
+    log,
+    right_jacobian,
+    rminus,
+    rplus,
+    vee,
+)
+
+__all__ = [
+    "exp",
+    "hat",
+    "left_jacobian",
+    "log",
+    "quat_conj",
+    "quat_from_matrix",
+    "quat_from_rotvec",
+    "quat_mul",
+    "quat_normalize",
+    "quat_to_matrix",
+    "quat_to_rotvec",
+    "right_jacobian",
+    "rk4_integrate_gyro",
+    "rminus",
+    "rplus",
+    "vee",
+]
