@@ -1,0 +1,1 @@
+"""Trajectory association, alignment (Umeyama, yaw-only), ATE/RPE, reports and plots."""

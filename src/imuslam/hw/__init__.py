@@ -1,0 +1,1 @@
+"""Real hardware: WitMotion serial IMU, servo gimbal, RPLIDAR."""

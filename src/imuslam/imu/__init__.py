@@ -1,0 +1,1 @@
+"""IMU error model, static detection, calibration, Allan variance and the online calibrator."""

@@ -1,0 +1,1 @@
+"""Strapdown mechanisation and INS alignment (coarse, Kalman, strong tracking, RWNN)."""

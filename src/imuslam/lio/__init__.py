@@ -1,0 +1,1 @@
+"""LiDAR-inertial odometry: deskew, features, iterated error-state Kalman filter, map."""

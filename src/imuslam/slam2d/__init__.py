@@ -1,0 +1,1 @@
+"""2D scan matching with IMU and wheel odometry, occupancy grid."""

@@ -1,0 +1,1 @@
+"""Stereo visual odometry and its EKF fusion with the IMU."""
