@@ -1,0 +1,191 @@
+"""A simulated 2-axis gimbal turning an IMU through static poses: the log of a multi-position calibration.
+
+Gimbal kinematics: the outer joint turns about the world x axis (roll), the inner joint about the
+rotated y axis (pitch), so ``R_w_i = Rx(roll) Ry(pitch)`` and the body rate is
+``omega_i = Ry(pitch)^T [roll_rate, 0, 0] + [0, pitch_rate, 0]``. The specific force at rest is
+``f_i = R_i_w [0, 0, g]`` (ENU, z up). Every reachable "up" direction in the IMU frame,
+``u = [-sin(p) cos(r), sin(r), cos(p) cos(r)]``, is reached with roll in [-90, 90] deg and pitch in
+[-180, 180] deg (a 360 deg serial-bus servo of 4096 steps per turn: 0.088 deg, as in seed 000).
+Joints move with a minimum-jerk profile (Flash & Hogan 1985), so rates are smooth and exact.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imuslam.io.imulog import ImuLog
+from imuslam.sim.imu_errors import (
+    BWT901CL_ACCEL_DENSITY,
+    BWT901CL_GYRO_DENSITY,
+    SEED000_ACCEL,
+    SEED000_GYRO,
+    TriadErrors,
+    add_sensor_noise,
+    raw_from_errors,
+)
+
+FloatArray = NDArray[np.float64]
+
+GIMBAL_RESOLUTION_DEG = 360.0 / 4096.0
+ROLL_LIMITS_DEG = (-90.0, 90.0)
+PITCH_LIMITS_DEG = (-180.0, 180.0)
+
+
+def up_to_gimbal_deg(up_i: FloatArray) -> FloatArray:
+    """Gimbal angles (N, 2) [roll, pitch] in deg that put the unit 'up' direction ``up_i`` (N, 3) in z."""
+    u = np.asarray(up_i, dtype=float)
+    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    roll = np.arcsin(np.clip(u[..., 1], -1.0, 1.0))
+    pitch = np.arctan2(-u[..., 0], u[..., 2])
+    return np.rad2deg(np.stack([roll, pitch], axis=-1))
+
+
+def gimbal_up_i(angles_deg: FloatArray) -> FloatArray:
+    """The 'up' unit vector in the IMU frame (N, 3) for gimbal angles (N, 2) [roll, pitch] in deg."""
+    a = np.deg2rad(np.asarray(angles_deg, dtype=float))
+    r, p = a[..., 0], a[..., 1]
+    return np.stack([-np.sin(p) * np.cos(r), np.sin(r), np.cos(p) * np.cos(r)], axis=-1)
+
+
+def sphere_plan_deg(n_poses: int, rng: np.random.Generator | None = None) -> FloatArray:
+    """A standard plan: ``n_poses`` up-directions spread over the sphere (Fibonacci lattice), as gimbal angles.
+
+    With ``rng`` the lattice is randomly rotated (a different but equally spread plan per run).
+    """
+    k = np.arange(n_poses) + 0.5
+    z = 1.0 - 2.0 * k / n_poses
+    phi = np.pi * (1.0 + 5.0**0.5) * k
+    rho = np.sqrt(1.0 - z**2)
+    up = np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=-1)
+    if rng is not None:
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        w, x, y, zq = q
+        R = np.array(
+            [
+                [1 - 2 * (y * y + zq * zq), 2 * (x * y - w * zq), 2 * (x * zq + w * y)],
+                [2 * (x * y + w * zq), 1 - 2 * (x * x + zq * zq), 2 * (y * zq - w * x)],
+                [2 * (x * zq - w * y), 2 * (y * zq + w * x), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+        up = up @ R.T
+    return up_to_gimbal_deg(up)
+
+
+@dataclass
+class MultiPoseTruth:
+    """Ground truth of a multi-pose log.
+
+    t_s: (N,) s; angles_deg: (N, 2) gimbal roll/pitch; R_w_i: (N, 3, 3); accel_i: (N, 3) true specific
+    force, m/s^2; omega_i: (N, 3) true rate, rad/s; static: (N,) bool, True while the gimbal holds;
+    accel/gyro: the error parameters used; g: gravity magnitude, m/s^2.
+    """
+
+    t_s: FloatArray
+    angles_deg: FloatArray
+    R_w_i: FloatArray
+    accel_i: FloatArray
+    omega_i: FloatArray
+    static: NDArray[np.bool_]
+    accel: TriadErrors
+    gyro: TriadErrors
+    g: float
+
+
+@dataclass
+class MultiPoseSim:
+    """A simulated calibration log (``log``, raw units) and its ground truth (``truth``)."""
+
+    log: ImuLog
+    truth: MultiPoseTruth
+
+
+def simulate_multipose(
+    plan_deg: FloatArray,
+    rng: np.random.Generator,
+    *,
+    rate_hz: float = 100.0,
+    t_init_s: float = 50.0,
+    t_wait_s: float = 3.0,
+    joint_speed_dps: float = 90.0,
+    min_move_s: float = 1.0,
+    accel: TriadErrors = SEED000_ACCEL,
+    gyro: TriadErrors = SEED000_GYRO,
+    accel_noise_std: float | None = None,
+    gyro_noise_std: float | None = None,
+    accel_quant: float | None = None,
+    gyro_quant: float | None = None,
+    g: float = 9.80665,
+    resolution_deg: float = GIMBAL_RESOLUTION_DEG,
+) -> MultiPoseSim:
+    """Simulate the IMU on a gimbal: still for ``t_init_s`` at the first pose, then each pose held ``t_wait_s``.
+
+    plan_deg: (P, 2) gimbal [roll, pitch] targets, deg (clipped to the joint limits and rounded to the
+        servo resolution). Noise std default to BWT901CL-class densities at ``rate_hz``.
+    Returns the raw log (accel in m/s^2, gyro in rad/s, with the error model applied) and the truth.
+    """
+    plan = np.asarray(plan_deg, dtype=float).reshape(-1, 2)
+    plan = np.stack(
+        [np.clip(plan[:, 0], *ROLL_LIMITS_DEG), np.clip(plan[:, 1], *PITCH_LIMITS_DEG)], axis=-1
+    )
+    plan = np.round(plan / resolution_deg) * resolution_deg
+    dist = np.max(np.abs(np.diff(plan, axis=0)), axis=1) if len(plan) > 1 else np.zeros(0)
+    move_s = np.maximum(
+        dist / joint_speed_dps * 1.875, min_move_s
+    )  # min-jerk peak rate 1.875x mean
+    # Timeline: [init hold][move 1][hold 1][move 2][hold 2]...
+    seg_start = [0.0]
+    for m in move_s:
+        seg_start.append(seg_start[-1] + (t_init_s if len(seg_start) == 1 else t_wait_s) + m)
+    seg_start_arr = np.array(seg_start)  # time each hold (after the first) begins
+    total = seg_start_arr[-1] + (t_wait_s if len(plan) > 1 else t_init_s)
+    n = int(np.floor(total * rate_hz)) + 1
+    t = np.arange(n) / rate_hz
+
+    # For each sample: which move it belongs to and where in the move.
+    move_end = seg_start_arr[1:]
+    move_begin = move_end - move_s
+    idx = np.searchsorted(move_end, t, side="right")  # moves completed
+    idx_c = np.minimum(idx, len(move_s) - 1) if len(move_s) else idx
+    angles = plan[np.minimum(idx, len(plan) - 1)].copy()
+    rates = np.zeros((n, 2))
+    if len(move_s):
+        in_move = (idx < len(move_s)) & (t >= move_begin[idx_c])
+        k = idx_c[in_move]
+        T = move_s[k]
+        tau = (t[in_move] - move_begin[k]) / T
+        s = 10 * tau**3 - 15 * tau**4 + 6 * tau**5
+        ds = (30 * tau**2 - 60 * tau**3 + 30 * tau**4) / T
+        delta = plan[k + 1] - plan[k]
+        angles[in_move] = plan[k] + s[:, None] * delta
+        rates[in_move] = ds[:, None] * delta
+        static = ~in_move
+    else:
+        static = np.ones(n, dtype=bool)
+
+    r, p = np.deg2rad(angles[:, 0]), np.deg2rad(angles[:, 1])
+    dr, dp = np.deg2rad(rates[:, 0]), np.deg2rad(rates[:, 1])
+    cr, sr, cp, sp = np.cos(r), np.sin(r), np.cos(p), np.sin(p)
+    Rx = np.zeros((n, 3, 3))
+    Rx[:, 0, 0] = 1.0
+    Rx[:, 1, 1], Rx[:, 1, 2], Rx[:, 2, 1], Rx[:, 2, 2] = cr, -sr, sr, cr
+    Ry = np.zeros((n, 3, 3))
+    Ry[:, 1, 1] = 1.0
+    Ry[:, 0, 0], Ry[:, 0, 2], Ry[:, 2, 0], Ry[:, 2, 2] = cp, sp, -sp, cp
+    R_w_i = Rx @ Ry
+    accel_i = g * np.stack([-sp * cr, sr, cp * cr], axis=-1)
+    omega_i = np.stack([cp * dr, dp, sp * dr], axis=-1)  # Ry^T [dr, 0, 0] + [0, dp, 0]
+
+    a_std = (
+        BWT901CL_ACCEL_DENSITY * np.sqrt(rate_hz) if accel_noise_std is None else accel_noise_std
+    )
+    g_std = BWT901CL_GYRO_DENSITY * np.sqrt(rate_hz) if gyro_noise_std is None else gyro_noise_std
+    acc_raw = add_sensor_noise(raw_from_errors(accel_i, accel), rng, a_std, accel_quant)
+    gyr_raw = add_sensor_noise(raw_from_errors(omega_i, gyro), rng, g_std, gyro_quant)
+    t_ns = np.round(t * 1e9).astype(np.int64)
+    log = ImuLog(t_ns, acc_raw, gyr_raw, "m/s^2", "rad/s", source="simulated gimbal")
+    truth = MultiPoseTruth(t, angles, R_w_i, accel_i, omega_i, static, accel, gyro, g)
+    return MultiPoseSim(log, truth)
