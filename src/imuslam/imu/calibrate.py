@@ -1,0 +1,663 @@
+"""Multi-position IMU calibration without external equipment (Tedaldi, Pretto, Menegatti, ICRA 2014).
+
+1. Static detection with a threshold sweep (``imu/static.py``).
+2. Accelerometer: Levenberg-Marquardt on the gravity-norm residual ``r = g - |T K (a_S ± b)|`` over the
+   static samples (Tedaldi 2014, eq. 10; the seed's eq. 12 squares both norms, which has the same
+   minimiser for small residuals), with an analytic Jacobian. The threshold kept is the one with the
+   lowest residual per sample.
+3. Gyroscope: bias = mean over the initial still period; misalignment and scale by integrating the
+   corrected rate (RK4 on the quaternion, eq. 14) between consecutive static intervals and comparing the
+   predicted gravity direction with the measured one (eq. 13): ``r = R^T u_0 - u_1``.
+4. Covariance ``s^2 (J^T J)^-1`` at the solution with ``s^2`` the residual variance, and an
+   observability verdict.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, Field, field_validator
+from scipy.optimize import least_squares
+
+from imuslam.imu.model import (
+    ACCEL_PARAM_NAMES,
+    GYRO_PARAM_NAMES,
+    ImuCalibration,
+    TriadModel,
+    misalignment_matrix,
+)
+from imuslam.imu.static import (
+    StaticDetection,
+    detect,
+    init_variance_norm,
+    window_half_size,
+    windowed_variance_norm,
+)
+from imuslam.io.imulog import ImuLog, InputError
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+class CalibrationConfig(BaseModel):
+    """Settings of the multi-position calibration (YAML keys equal these names)."""
+
+    g: float = Field(9.80665, gt=0, description="local gravity magnitude, m/s^2")
+    t_init_s: float = Field(50.0, gt=0, description="initial still period, s")
+    window_s: float = Field(1.0, gt=0, description="static detector window, s")
+    k_values: list[float] = Field(
+        default_factory=lambda: [2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0],
+        description="threshold multiples of the initial variance norm to sweep",
+    )
+    samples_per_interval: int = Field(
+        100, ge=10, description="samples used from each static interval (and its minimum length)"
+    )
+    use_means: bool = Field(
+        False,
+        description="fit one mean per interval instead of its first samples_per_interval samples",
+    )
+    bias_sign: Literal["plus", "minus"] = Field(
+        "plus",
+        description="model x_O = T K (x_S + b) ('plus', seed 000) or (x_S - b) ('minus', imu_tk)",
+    )
+    estimate_gyro_bias: bool = Field(
+        False,
+        description="refine the gyro bias in the fit instead of keeping the still-period mean",
+    )
+    min_intervals: int = Field(12, ge=9, description="fewest static intervals a threshold may give")
+
+    @field_validator("k_values")
+    @classmethod
+    def _k_positive(cls, v: list[float]) -> list[float]:
+        if not v or any(k <= 0 for k in v):
+            raise ValueError("k_values must be a non-empty list of positive multiples")
+        return v
+
+
+@dataclass
+class SweepRow:
+    """One threshold of the sweep."""
+
+    k: float
+    n_intervals: int
+    residual_per_sample: float  # mean squared gravity-norm residual, (m/s^2)^2; inf if not solvable
+    ok: bool
+    message: str = ""
+
+
+@dataclass
+class CalibrationResult:
+    """Everything a calibration produced: the model, the evidence and the verdict."""
+
+    calibration: ImuCalibration
+    config: CalibrationConfig
+    k: float
+    intervals: IntArray  # (K, 2) static intervals used, [start, end] sample indices
+    detector: FloatArray  # (N,) detector value
+    threshold: float
+    sweep: list[SweepRow]
+    accel_residual_before: FloatArray  # (K,) |a| - g per interval with the initial guess, m/s^2
+    accel_residual_after: FloatArray  # (K,) |a| - g per interval, calibrated, m/s^2
+    accel_rms: float  # per-sample RMS of |a| - g over the fitted samples, m/s^2
+    gyro_residual_before_deg: FloatArray  # (K-1,) angle between predicted and measured gravity, deg
+    gyro_residual_after_deg: FloatArray
+    std_accel: FloatArray  # (9,) 1-sigma of the accel parameters
+    std_gyro: FloatArray  # (9,)
+    poorly_determined: list[str]
+    warnings: list[str] = field(default_factory=list)
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def gyro_rms_deg(self) -> float:
+        """RMS gravity-direction error per pair of poses after calibration, deg."""
+        return float(np.sqrt(np.mean(self.gyro_residual_after_deg**2)))
+
+
+# ----------------------------------------------------------------------------------------------
+# Accelerometer
+
+
+def _accel_model(theta: FloatArray, sign: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    T = misalignment_matrix(theta[0], theta[1], theta[2])
+    return T, theta[3:6], sign * theta[6:9]
+
+
+def accel_residual_jacobian(
+    theta: FloatArray, samples: FloatArray, g: float, sign: float
+) -> tuple[FloatArray, FloatArray]:
+    """Residuals (M,) ``g - |T K (a + sign*b)|`` and their analytic Jacobian (M, 9) (Tedaldi 2014, eq. 10)."""
+    T, K, off = _accel_model(theta, sign)
+    u = samples + off  # (M, 3)
+    v = u * K  # K u
+    h = v @ T.T
+    nh = np.linalg.norm(h, axis=1)
+    r = g - nh
+    e = h / nh[:, None]  # d|h|/dh
+    J = np.empty((samples.shape[0], 9))
+    # dh/d a_yz = [-v_y, 0, 0]; dh/d a_zy = [v_z, 0, 0]; dh/d a_zx = [0, -v_z, 0]
+    J[:, 0] = e[:, 0] * v[:, 1]
+    J[:, 1] = -e[:, 0] * v[:, 2]
+    J[:, 2] = e[:, 1] * v[:, 2]
+    # dh/ds_j = T[:, j] u_j ; dh/db_j = sign * T[:, j] s_j
+    eT = e @ T  # (M, 3): e^T T[:, j]
+    J[:, 3:6] = -eT * u
+    J[:, 6:9] = -eT * K * sign
+    return r, J
+
+
+def accel_initial_guess(means: FloatArray, g: float) -> tuple[FloatArray, FloatArray]:
+    """Scale (3,) and offset o (3,) with ``|K (m - o)| = g`` from static means (K, 3) in any unit.
+
+    Linear least squares on the axis-aligned ellipsoid ``sum_j p_j m_j^2 + q_j m_j = 1``; then
+    ``o_j = -q_j / (2 p_j)`` and ``s_j = g sqrt(p_j / G)``, ``G = 1 + sum_j p_j o_j^2``.
+    """
+    m = np.asarray(means, dtype=float)
+    c = m.mean(axis=0)
+    sc = np.maximum(np.abs(m - c).max(axis=0), 1e-12)
+    z = (m - c) / sc  # conditioning
+    A = np.hstack([z * z, z])
+    sol, *_ = np.linalg.lstsq(A, np.ones(len(z)), rcond=None)
+    p, q = sol[:3], sol[3:]
+    if np.any(p <= 0):
+        raise InputError(
+            "the static poses do not outline a sphere: the IMU must be turned to many attitudes"
+        )
+    oz = -q / (2 * p)
+    G = 1.0 + np.sum(p * oz * oz)
+    if G <= 0:
+        raise InputError(
+            "the static poses do not outline a sphere: the IMU must be turned to many attitudes"
+        )
+    s = g * np.sqrt(p / G) / sc
+    o = oz * sc + c
+    return s, o
+
+
+def _interval_samples(x: FloatArray, intervals: IntArray, n: int, use_means: bool) -> FloatArray:
+    if use_means:
+        return np.stack([x[s : e + 1].mean(axis=0) for s, e in intervals])
+    idx = (intervals[:, 0][:, None] + np.arange(n)[None, :]).ravel()
+    return x[idx]
+
+
+def _solve_accel(
+    samples: FloatArray, theta0: FloatArray, g: float, sign: float
+) -> tuple[FloatArray, FloatArray, FloatArray, bool, str]:
+    def fun(th: FloatArray) -> FloatArray:
+        return accel_residual_jacobian(th, samples, g, sign)[0]
+
+    def jac(th: FloatArray) -> FloatArray:
+        return accel_residual_jacobian(th, samples, g, sign)[1]
+
+    x_scale = np.concatenate(
+        [np.full(3, 1e-3), np.abs(theta0[3:6]), np.abs(theta0[3:6]) ** -1 * 1e-2]
+    )
+    res = least_squares(fun, theta0, jac=jac, method="lm", x_scale=x_scale, xtol=1e-12, ftol=1e-12)
+    r, J = accel_residual_jacobian(res.x, samples, g, sign)
+    return res.x, r, J, bool(res.success and np.all(np.isfinite(res.x))), str(res.message)
+
+
+# ----------------------------------------------------------------------------------------------
+# Gyroscope
+
+
+@numba.njit(cache=True, inline="always")
+def _qdot(
+    qw: float, qx: float, qy: float, qz: float, wx: float, wy: float, wz: float
+) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
+    """``0.5 q (x) [0, w]``."""
+    return (
+        0.5 * (-qx * wx - qy * wy - qz * wz),
+        0.5 * (qw * wx + qy * wz - qz * wy),
+        0.5 * (qw * wy - qx * wz + qz * wx),
+        0.5 * (qw * wz + qx * wy - qy * wx),
+    )
+
+
+@numba.njit(cache=True)
+def _rk4_segments(
+    w: FloatArray, t_s: FloatArray, segs: IntArray, Ms: FloatArray
+) -> FloatArray:  # pragma: no cover - compiled
+    """Integrated rotations R_start_end (P, S, 3, 3) of ``M_p @ w`` over each segment [a, b] of samples.
+
+    RK4 on the quaternion with the rate at the step midpoint taken as the mean of its ends
+    (Tedaldi 2014, eq. 14); the slow reference is ``imuslam.geometry.rk4_integrate_gyro``.
+    """
+    P = Ms.shape[0]
+    S = segs.shape[0]
+    out = np.empty((P, S, 3, 3))
+    for p in range(P):
+        M = Ms[p]
+        for s in range(S):
+            a, b = segs[s, 0], segs[s, 1]
+            qw, qx, qy, qz = 1.0, 0.0, 0.0, 0.0
+            x0 = M[0, 0] * w[a, 0] + M[0, 1] * w[a, 1] + M[0, 2] * w[a, 2]
+            y0 = M[1, 0] * w[a, 0] + M[1, 1] * w[a, 1] + M[1, 2] * w[a, 2]
+            z0 = M[2, 0] * w[a, 0] + M[2, 1] * w[a, 1] + M[2, 2] * w[a, 2]
+            for k in range(a, b):
+                x1 = M[0, 0] * w[k + 1, 0] + M[0, 1] * w[k + 1, 1] + M[0, 2] * w[k + 1, 2]
+                y1 = M[1, 0] * w[k + 1, 0] + M[1, 1] * w[k + 1, 1] + M[1, 2] * w[k + 1, 2]
+                z1 = M[2, 0] * w[k + 1, 0] + M[2, 1] * w[k + 1, 1] + M[2, 2] * w[k + 1, 2]
+                h = t_s[k + 1] - t_s[k]
+                xm, ym, zm = 0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.5 * (z0 + z1)
+                a1 = _qdot(qw, qx, qy, qz, x0, y0, z0)
+                a2 = _qdot(
+                    qw + 0.5 * h * a1[0],
+                    qx + 0.5 * h * a1[1],
+                    qy + 0.5 * h * a1[2],
+                    qz + 0.5 * h * a1[3],
+                    xm,
+                    ym,
+                    zm,
+                )
+                a3 = _qdot(
+                    qw + 0.5 * h * a2[0],
+                    qx + 0.5 * h * a2[1],
+                    qy + 0.5 * h * a2[2],
+                    qz + 0.5 * h * a2[3],
+                    xm,
+                    ym,
+                    zm,
+                )
+                a4 = _qdot(
+                    qw + h * a3[0], qx + h * a3[1], qy + h * a3[2], qz + h * a3[3], x1, y1, z1
+                )
+                c = h / 6.0
+                qw = qw + c * (a1[0] + 2.0 * a2[0] + 2.0 * a3[0] + a4[0])
+                qx = qx + c * (a1[1] + 2.0 * a2[1] + 2.0 * a3[1] + a4[1])
+                qy = qy + c * (a1[2] + 2.0 * a2[2] + 2.0 * a3[2] + a4[2])
+                qz = qz + c * (a1[3] + 2.0 * a2[3] + 2.0 * a3[3] + a4[3])
+                nrm = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+                qw, qx, qy, qz = qw / nrm, qx / nrm, qy / nrm, qz / nrm
+                x0, y0, z0 = x1, y1, z1
+            out[p, s, 0, 0] = 1 - 2 * (qy * qy + qz * qz)
+            out[p, s, 0, 1] = 2 * (qx * qy - qw * qz)
+            out[p, s, 0, 2] = 2 * (qx * qz + qw * qy)
+            out[p, s, 1, 0] = 2 * (qx * qy + qw * qz)
+            out[p, s, 1, 1] = 1 - 2 * (qx * qx + qz * qz)
+            out[p, s, 1, 2] = 2 * (qy * qz - qw * qx)
+            out[p, s, 2, 0] = 2 * (qx * qz - qw * qy)
+            out[p, s, 2, 1] = 2 * (qy * qz + qw * qx)
+            out[p, s, 2, 2] = 1 - 2 * (qx * qx + qy * qy)
+    return out
+
+
+def integrate_segments(
+    w: FloatArray, t_s: FloatArray, segs: IntArray, Ms: FloatArray
+) -> FloatArray:
+    """Rotations R_start_end (P, S, 3, 3) of the rates ``Ms[p] @ w`` over the segments (S, 2) of samples."""
+    return _rk4_segments(
+        np.ascontiguousarray(w, dtype=np.float64),
+        np.ascontiguousarray(t_s, dtype=np.float64),
+        np.ascontiguousarray(segs, dtype=np.int64),
+        np.ascontiguousarray(Ms, dtype=np.float64),
+    )
+
+
+def _gyro_M(theta: FloatArray) -> FloatArray:
+    T = misalignment_matrix(*theta[:6])
+    return T * theta[6:9][None, :]
+
+
+def _gyro_residuals(
+    theta_stack: FloatArray,
+    w: FloatArray,
+    t_s: FloatArray,
+    segs: IntArray,
+    u0: FloatArray,
+    u1: FloatArray,
+) -> FloatArray:
+    """Residuals (P, 3S) ``R^T u0 - u1`` for each parameter vector of ``theta_stack`` (P, 9 or 12)."""
+    P = theta_stack.shape[0]
+    Ms = np.stack([_gyro_M(th) for th in theta_stack])
+    if theta_stack.shape[1] == 12:
+        # bias refinement: rates M (w - db); integrate each parameter set with its own shifted samples
+        out = np.empty((P, 3 * len(segs)))
+        for p in range(P):
+            R = integrate_segments(w - theta_stack[p, 9:12], t_s, segs, Ms[p : p + 1])[0]
+            out[p] = (np.einsum("sji,sj->si", R, u0) - u1).ravel()
+        return out
+    R = integrate_segments(w, t_s, segs, Ms)
+    return (np.einsum("psji,sj->psi", R, u0) - u1[None]).reshape(P, -1)
+
+
+def _gyro_solve(
+    theta0: FloatArray,
+    w: FloatArray,
+    t_s: FloatArray,
+    segs: IntArray,
+    u0: FloatArray,
+    u1: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    n = theta0.size
+    step = np.concatenate([np.full(6, 1e-7), np.abs(theta0[6:9]) * 1e-7])
+    if n == 12:
+        step = np.concatenate([step, np.full(3, 1e-7) / np.maximum(np.abs(theta0[6:9]), 1e-12)])
+
+    def fun(th: FloatArray) -> FloatArray:
+        return _gyro_residuals(th[None], w, t_s, segs, u0, u1)[0]
+
+    def jac(th: FloatArray) -> FloatArray:
+        stack = np.repeat(th[None], n + 1, axis=0)
+        stack[1:] += np.diag(step)
+        r = _gyro_residuals(stack, w, t_s, segs, u0, u1)
+        return ((r[1:] - r[0]) / step[:, None]).T
+
+    x_scale = np.concatenate([np.full(6, 1e-2), np.abs(theta0[6:9])])
+    if n == 12:
+        x_scale = np.concatenate([x_scale, 1e-3 / np.abs(theta0[6:9])])
+    res = least_squares(fun, theta0, jac=jac, method="lm", x_scale=x_scale, xtol=1e-12, ftol=1e-12)
+    return res.x, fun(res.x), jac(res.x)
+
+
+def _gyro_scale_guess(
+    w: FloatArray, t_s: FloatArray, segs: IntArray, u0: FloatArray, u1: FloatArray
+) -> float:
+    """A unit-free first scale: the angle between gravity directions over the integrated rate norm.
+
+    ``angle(u0, u1) <= true rotation <= integral of |omega|``, so the ratio bounds the scale from below and
+    reaches it for rotations about a horizontal axis; the upper quantile of the ratios is taken.
+    """
+    ang = np.arccos(np.clip(np.sum(u0 * u1, axis=1), -1.0, 1.0))
+    norms = np.linalg.norm(w, axis=1)
+    dt = np.diff(t_s)
+    c = np.concatenate([[0.0], np.cumsum(0.5 * (norms[1:] + norms[:-1]) * dt)])
+    phi = c[segs[:, 1]] - c[segs[:, 0]]
+    ok = (ang > np.deg2rad(20.0)) & (phi > 0)
+    if not np.any(ok):
+        raise InputError(
+            "no rotation of more than 20 deg between static poses: the gyro cannot be calibrated"
+        )
+    return float(np.quantile(ang[ok] / phi[ok], 0.9))
+
+
+def _angle_free_resid(R: FloatArray, u0: FloatArray, u1: FloatArray) -> FloatArray:
+    """Stacked residuals (3S,) ``R^T u0 - u1``."""
+    return (np.einsum("sji,sj->si", R, u0) - u1).ravel()
+
+
+def _angle_deg(R: FloatArray, u0: FloatArray, u1: FloatArray) -> FloatArray:
+    pred = np.einsum("sji,sj->si", R, u0)
+    return np.rad2deg(np.arccos(np.clip(np.sum(pred * u1, axis=1), -1.0, 1.0)))
+
+
+# ----------------------------------------------------------------------------------------------
+# Driver
+
+
+def _check_log(log_: ImuLog) -> None:
+    n = len(log_)
+    if n == 0:
+        raise InputError(f"{log_.source}: the log is empty")
+    for name, x in (("accel", log_.accel), ("gyro", log_.gyro)):
+        bad = ~np.isfinite(x).all(axis=1)
+        if bad.any():
+            raise InputError(f"{log_.source}: {name} sample {int(np.argmax(bad))} is not finite")
+    dt = np.diff(log_.t_ns)
+    if np.any(dt <= 0):
+        i = int(np.argmax(dt <= 0))
+        raise InputError(f"{log_.source}: time is not strictly increasing at sample {i + 1}")
+    # Saturation: a clipped axis sits exactly at its extreme value for many samples.
+    for name, x in (("accel", log_.accel), ("gyro", log_.gyro)):
+        for j, ax in enumerate("xyz"):
+            col = x[:, j]
+            for extreme in (col.max(), col.min()):
+                hits = int(np.count_nonzero(col == extreme))
+                if hits > max(10, n // 200):
+                    raise InputError(
+                        f"{log_.source}: {name} {ax} axis is saturated ({hits} samples at {extreme:g}): "
+                        "the sensor's range was exceeded, those poses cannot be used"
+                    )
+
+
+def _verdict(
+    std_a: FloatArray, std_g: FloatArray, theta_a: FloatArray, theta_g: FloatArray, n_poses: int
+) -> list[str]:
+    """Names of poorly determined parameters: angles worse than 1 mrad (accel) / 2 mrad (gyro),
+    scale worse than 0.1 % (accel) / 0.5 % (gyro), accel bias worse than 0.02 m/s^2."""
+    poor: list[str] = []
+    lim_a = np.concatenate(
+        [np.full(3, 1e-3), np.abs(theta_a[3:6]) * 1e-3, 0.02 / np.abs(theta_a[3:6])]
+    )
+    lim_g = np.concatenate([np.full(6, 2e-3), np.abs(theta_g[6:9]) * 5e-3])
+    poor += [nm for nm, s, lim in zip(ACCEL_PARAM_NAMES, std_a, lim_a, strict=True) if not s <= lim]
+    poor += [nm for nm, s, lim in zip(GYRO_PARAM_NAMES, std_g, lim_g, strict=True) if not s <= lim]
+    return poor
+
+
+def _cov(J: FloatArray, r: FloatArray, dof: int) -> FloatArray:
+    s2 = float(r @ r) / max(dof, 1)
+    try:
+        return np.asarray(s2 * np.linalg.inv(J.T @ J), dtype=np.float64)
+    except np.linalg.LinAlgError:
+        return np.full((J.shape[1], J.shape[1]), np.inf)
+
+
+def calibrate(log_: ImuLog, config: CalibrationConfig | None = None) -> CalibrationResult:
+    """Calibrate accelerometer and gyroscope from a multi-position log.
+
+    log_: raw IMU log (any units): a still period of ``config.t_init_s`` first, then static poses with
+        rotations between them.
+    Raises InputError when the data cannot give a calibration (too short, no rotations, saturation,
+    too few static intervals), never returns an identity calibration.
+    """
+    cfg = config or CalibrationConfig()
+    t0 = time.perf_counter()
+    _check_log(log_)
+    t_s = log_.t_s
+    rate = log_.rate_hz
+    n_init = int(np.searchsorted(t_s, cfg.t_init_s, side="right")) - 1
+    if t_s[-1] < cfg.t_init_s * 1.1 or n_init < 20:
+        raise InputError(
+            f"{log_.source}: the log lasts {t_s[-1]:.1f} s; it needs the initial still period of "
+            f"{cfg.t_init_s:g} s and static poses after it"
+        )
+    acc = log_.accel
+    half = window_half_size(cfg.window_s, rate)
+    det = windowed_variance_norm(acc, half)
+    n0 = init_variance_norm(acc, n_init)
+    if not n0 > 0:
+        raise InputError(
+            f"{log_.source}: the accelerometer is constant over the still period (no noise?)"
+        )
+    nmin = cfg.samples_per_interval
+    sign = 1.0 if cfg.bias_sign == "plus" else -1.0
+
+    sweep: list[SweepRow] = []
+    best: tuple[float, StaticDetection, FloatArray, FloatArray, FloatArray, FloatArray] | None = (
+        None
+    )
+    max_found = 0
+    for k in cfg.k_values:
+        d = detect(acc, det, n0, k, nmin)
+        n_iv = len(d.valid)
+        max_found = max(max_found, n_iv)
+        if n_iv < cfg.min_intervals:
+            sweep.append(
+                SweepRow(k, n_iv, np.inf, False, f"{n_iv} intervals < {cfg.min_intervals}")
+            )
+            continue
+        means = np.stack([acc[s : e + 1].mean(axis=0) for s, e in d.valid])
+        try:
+            s0, o0 = accel_initial_guess(means, cfg.g)
+        except InputError as exc:
+            sweep.append(SweepRow(k, n_iv, np.inf, False, str(exc)))
+            continue
+        theta0 = np.concatenate([np.zeros(3), s0, sign * o0 * -1.0])  # x + sign*b = x - o
+        samples = _interval_samples(acc, d.valid, nmin, cfg.use_means)
+        theta, r, J, ok, msg = _solve_accel(samples, theta0, cfg.g, sign)
+        rps = float(r @ r) / len(r) if ok else np.inf
+        sweep.append(SweepRow(k, n_iv, rps, ok, msg))
+        if ok and (best is None or rps < best[0]):
+            best = (rps, d, theta, theta0, r, J)
+    if best is None:
+        if max_found < 9:
+            raise InputError(
+                f"{log_.source}: found at most {max_found} static intervals of {nmin} samples; the "
+                "accelerometer has 9 parameters and needs many more poses (36-50 recommended): "
+                "was the IMU turned and held still between turns?"
+            )
+        raise InputError(
+            f"{log_.source}: no threshold gave a calibration ({'; '.join(r.message for r in sweep)})"
+        )
+    _, d, theta_a, theta_a0, r_a, J_a = best
+    t_acc = time.perf_counter()
+    warnings: list[str] = []
+
+    accel_model = TriadModel(
+        misalignment_matrix(*theta_a[:3]), theta_a[3:6], theta_a[6:9], cfg.bias_sign
+    )
+    accel_init = TriadModel(
+        misalignment_matrix(*theta_a0[:3]), theta_a0[3:6], theta_a0[6:9], cfg.bias_sign
+    )
+    cov_a = _cov(J_a, r_a, len(r_a) - 9)
+    iv = d.valid
+
+    def per_interval_norm_err(model: TriadModel) -> FloatArray:
+        return np.array(
+            [np.mean(np.linalg.norm(model.apply(acc[s : e + 1]), axis=1)) - cfg.g for s, e in iv]
+        )
+
+    # Gravity directions from the calibrated means of each interval (imu_tk: the whole interval).
+    means_c = np.stack([accel_model.apply(acc[s : e + 1].mean(axis=0)[None])[0] for s, e in iv])
+    u = means_c / np.linalg.norm(means_c, axis=1, keepdims=True)
+    u0, u1 = u[:-1], u[1:]
+    # From the end of one interval to the start of the next, widened by the detector's half window
+    # (a gentle start of motion may hide inside the last static window), kept inside the intervals.
+    mid = (iv[:, 0] + iv[:, 1]) // 2
+    segs = np.stack(
+        [np.maximum(iv[:-1, 1] - half, mid[:-1]), np.minimum(iv[1:, 0] + half, mid[1:])], axis=1
+    )
+    gyro_bias = log_.gyro[: n_init + 1].mean(axis=0)
+    w = log_.gyro - gyro_bias
+    spread = np.linalg.svd(u - u.mean(axis=0), compute_uv=False)
+    if spread[1] < 0.1:
+        raise InputError(
+            f"{log_.source}: the static poses span too few directions (gravity stays within a cone): "
+            "turn the IMU about at least two axes"
+        )
+    s_g0 = _gyro_scale_guess(w, t_s, segs, u0, u1)
+    theta_g0 = np.concatenate([np.zeros(6), np.full(3, s_g0)])
+    # A one-dimensional refinement of the common scale before LM keeps LM in its basin for any unit.
+    cands = s_g0 * np.linspace(0.8, 1.25, 10)
+    cost = [
+        np.sum(
+            _gyro_residuals(
+                np.concatenate([np.zeros(6), np.full(3, c)])[None], w, t_s, segs, u0, u1
+            )
+            ** 2
+        )
+        for c in cands
+    ]
+    theta_g0[6:9] = cands[int(np.argmin(cost))]
+    R_before = integrate_segments(w, t_s, segs, _gyro_M(theta_g0)[None])[0]
+    if cfg.estimate_gyro_bias:
+        theta_g0 = np.concatenate([theta_g0, np.zeros(3)])
+    theta_g, r_g, J_g = _gyro_solve(theta_g0, w, t_s, segs, u0, u1)
+    # Each residual R^T u0 - u1 has two degrees of freedom (both are unit vectors).
+    cov_g_full = _cov(J_g, r_g, 2 * len(segs) - theta_g.size)
+    bias_total = gyro_bias + (theta_g[9:12] if cfg.estimate_gyro_bias else 0.0)
+    n_init_s = n_init + 1
+    cov_bias = (
+        cov_g_full[9:12, 9:12]
+        if cfg.estimate_gyro_bias
+        else np.diag(np.var(log_.gyro[:n_init_s], axis=0, ddof=1) / n_init_s)
+    )
+    # Two-step estimation: the gyro fit takes the accelerometer calibration (through u0, u1) and the
+    # still-period bias as known. Their uncertainty is propagated into the gyro covariance
+    # (Murphy & Topel 1985): d theta_g = -(J^T J)^-1 J^T D d theta_other.
+    R_fit = integrate_segments(w, t_s, segs, _gyro_M(theta_g[:9])[None])[0]
+    raw_means = np.stack([acc[s : e + 1].mean(axis=0) for s, e in iv])
+
+    def resid_for_accel(th_a: FloatArray) -> FloatArray:
+        T, K, off = _accel_model(th_a, sign)
+        m = ((raw_means + off) * K) @ T.T
+        uu = m / np.linalg.norm(m, axis=1, keepdims=True)
+        return (np.einsum("sji,sj->si", R_fit, uu[:-1]) - uu[1:]).ravel()
+
+    r0 = resid_for_accel(theta_a)
+    h_a = np.sqrt(np.maximum(np.diag(cov_a), 1e-30))
+    D_a = np.stack(
+        [(resid_for_accel(theta_a + h_a[j] * np.eye(9)[j]) - r0) / h_a[j] for j in range(9)], axis=1
+    )
+    try:
+        A = np.linalg.solve(J_g.T @ J_g, J_g.T)
+        extra = D_a @ cov_a @ D_a.T
+        if not cfg.estimate_gyro_bias:
+            h_b = np.sqrt(np.maximum(np.diag(cov_bias), 1e-30))
+            Mfit = _gyro_M(theta_g[:9])[None]
+            D_b = np.stack(
+                [
+                    (
+                        _angle_free_resid(
+                            integrate_segments(w - h_b[j] * np.eye(3)[j], t_s, segs, Mfit)[0],
+                            u0,
+                            u1,
+                        )
+                        - r0
+                    )
+                    / h_b[j]
+                    for j in range(3)
+                ],
+                axis=1,
+            )
+            extra = extra + D_b @ cov_bias @ D_b.T
+        cov_g_full = cov_g_full + A @ extra @ A.T
+    except np.linalg.LinAlgError:
+        cov_g_full = np.full_like(cov_g_full, np.inf)
+    gyro_b = -bias_total if cfg.bias_sign == "plus" else bias_total
+    gyro_model = TriadModel(misalignment_matrix(*theta_g[:6]), theta_g[6:9], gyro_b, cfg.bias_sign)
+    R_after = integrate_segments(
+        w - (theta_g[9:12] if cfg.estimate_gyro_bias else 0.0),
+        t_s,
+        segs,
+        _gyro_M(theta_g[:9])[None],
+    )[0]
+    t_gyro = time.perf_counter()
+
+    std_a = np.sqrt(np.diag(cov_a))
+    std_g = np.sqrt(np.diag(cov_g_full))[:9]
+    poor = _verdict(std_a, std_g, theta_a, theta_g[:9], len(iv))
+    if poor:
+        warnings.append("poorly determined: " + ", ".join(poor))
+    if len(iv) < 36:
+        warnings.append(f"only {len(iv)} static poses; 36-50 keep every parameter well observable")
+    calib = ImuCalibration(
+        accel=accel_model,
+        gyro=gyro_model,
+        cov_accel=cov_a,
+        cov_gyro=cov_g_full[:9, :9],
+        cov_gyro_bias=cov_bias,
+        accel_unit=log_.accel_unit,
+        gyro_unit=log_.gyro_unit,
+        g=cfg.g,
+        source=log_.source,
+        notes={"k": d.k, "n_intervals": int(len(iv)), "warnings": list(warnings)},
+    )
+    rms = float(np.sqrt(np.mean(r_a**2)))
+    return CalibrationResult(
+        calibration=calib,
+        config=cfg,
+        k=d.k,
+        intervals=iv,
+        detector=det,
+        threshold=d.threshold,
+        sweep=sweep,
+        accel_residual_before=per_interval_norm_err(accel_init),
+        accel_residual_after=per_interval_norm_err(accel_model),
+        accel_rms=rms,
+        gyro_residual_before_deg=_angle_deg(R_before, u0, u1),
+        gyro_residual_after_deg=_angle_deg(R_after, u0, u1),
+        std_accel=std_a,
+        std_gyro=std_g,
+        poorly_determined=poor,
+        warnings=warnings + list(log_.warnings),
+        timings_s={"accel": t_acc - t0, "gyro": t_gyro - t_acc, "total": t_gyro - t0},
+    )

@@ -1,0 +1,122 @@
+"""Calibration against simulated ground truth: accuracy, covariance consistency, bad input."""
+
+import numpy as np
+import pytest
+
+from imuslam.imu.calibrate import CalibrationConfig, calibrate
+from imuslam.imu.model import ImuCalibration, TriadModel
+from imuslam.io.imulog import ImuLog, InputError
+from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO
+from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
+
+TRUTH = ImuCalibration(
+    TriadModel(SEED000_ACCEL.T, SEED000_ACCEL.K, SEED000_ACCEL.b),
+    TriadModel(SEED000_GYRO.T, SEED000_GYRO.K, SEED000_GYRO.b),
+)
+N_RUNS = 100
+
+
+def test_monte_carlo_errors_consistent_with_covariance() -> None:
+    """100 seeded 40-pose logs with seed-000 errors and BWT901CL-class noise.
+
+    If the reported covariance is right, each run's NEES e^T P^-1 e is chi-square with 9 dof, and the sum
+    over 100 runs is chi-square with 900 dof: mean 9, std of the mean sqrt(18 / 100) = 0.42. The band is
+    +-3 of those sigmas (99.7 %), widened by the 3 % a residual-estimated variance adds to the gyro NEES
+    (69 degrees of freedom: 69 / 67).
+    """
+    nees_a, nees_g = [], []
+    for seed in range(N_RUNS):
+        rng = np.random.default_rng(seed)
+        sim = simulate_multipose(sphere_plan_deg(40, rng), rng)
+        res = calibrate(sim.log, CalibrationConfig(g=sim.truth.g))
+        c = res.calibration
+        assert c.cov_accel is not None and c.cov_gyro is not None
+        ea = c.accel_params - TRUTH.accel_params
+        eg = c.gyro_params - TRUTH.gyro_params
+        nees_a.append(ea @ np.linalg.solve(c.cov_accel, ea))
+        nees_g.append(eg @ np.linalg.solve(c.cov_gyro, eg))
+        # Accuracy for BWT901CL-class noise (docs/calibration.md): angles and scales to ~1e-3, bias
+        # to ~5e-3 m/s^2; 6 sigma of the reported std so a single run cannot fail by chance.
+        assert np.all(np.abs(ea) < 6 * res.std_accel)
+        assert np.all(np.abs(eg) < 6 * res.std_gyro)
+    band = 3 * np.sqrt(2 * 9 / N_RUNS)
+    assert abs(np.mean(nees_a) - 9) < band
+    assert abs(np.mean(nees_g) - 9 * 69 / 67) < band
+
+
+def test_recovers_seed000_parameters_and_residuals_shrink() -> None:
+    rng = np.random.default_rng(123)
+    sim = simulate_multipose(sphere_plan_deg(40, rng), rng)
+    res = calibrate(sim.log, CalibrationConfig(g=sim.truth.g))
+    c = res.calibration
+    np.testing.assert_allclose(c.accel.K, SEED000_ACCEL.K, atol=6e-4)
+    np.testing.assert_allclose(c.gyro.K, SEED000_GYRO.K, atol=5e-3)
+    np.testing.assert_allclose(c.gyro.T, SEED000_GYRO.T, atol=5e-3)
+    np.testing.assert_allclose(c.gyro.b, SEED000_GYRO.b, atol=1e-4)
+    assert len(res.intervals) == 40  # 40 poses, the first one held for the still start
+    assert not res.poorly_determined
+    # White noise 0.029 m/s^2 per sample: the per-sample RMS of |a| - g after calibration is that noise.
+    assert res.accel_rms == pytest.approx(0.0294, rel=0.05)
+    assert res.gyro_rms_deg < 0.1 < float(np.sqrt(np.mean(res.gyro_residual_before_deg**2)))
+
+
+def test_any_units_without_initial_guess() -> None:
+    """Raw 16-bit counts with a bias near 32768: the initial guess is found from the data alone."""
+    rng = np.random.default_rng(7)
+    sim = simulate_multipose(sphere_plan_deg(40, rng), rng)
+    counts_a = sim.log.accel / (16 * 9.80665 / 32768) + 32768
+    counts_g = sim.log.gyro / np.deg2rad(2000 / 32768) + 32768
+    log = ImuLog(sim.log.t_ns, counts_a, counts_g, "counts", "counts", "counts")
+    res = calibrate(log, CalibrationConfig(g=sim.truth.g))
+    ref = calibrate(sim.log, CalibrationConfig(g=sim.truth.g))
+    x = sim.log.accel[::100]
+    np.testing.assert_allclose(
+        res.calibration.accel.apply(x / (16 * 9.80665 / 32768) + 32768),
+        ref.calibration.accel.apply(x),
+        atol=1e-6,
+    )
+    np.testing.assert_allclose(res.calibration.gyro.T, ref.calibration.gyro.T, atol=1e-6)
+
+
+def _sim(n_poses: int, seed: int = 0) -> ImuLog:
+    rng = np.random.default_rng(seed)
+    return simulate_multipose(sphere_plan_deg(n_poses, rng), rng).log
+
+
+def test_no_rotation_is_an_error() -> None:
+    rng = np.random.default_rng(0)
+    log = simulate_multipose(np.zeros((1, 2)), rng, t_init_s=120.0).log
+    with pytest.raises(InputError, match="static intervals"):
+        calibrate(log)
+
+
+def test_too_few_poses_is_an_error() -> None:
+    with pytest.raises(InputError, match="static intervals"):
+        calibrate(_sim(6))
+
+
+def test_saturated_axis_is_an_error() -> None:
+    log = _sim(40)
+    acc = log.accel.copy()
+    acc[:, 2] = np.minimum(acc[:, 2], 6.0)
+    with pytest.raises(InputError, match="accel z axis is saturated"):
+        calibrate(ImuLog(log.t_ns, acc, log.gyro, source="sat.csv"))
+
+
+def test_nan_and_empty_are_errors() -> None:
+    log = _sim(40)
+    acc = log.accel.copy()
+    acc[500, 1] = np.nan
+    with pytest.raises(InputError, match="sample 500 is not finite"):
+        calibrate(ImuLog(log.t_ns, acc, log.gyro, source="nan.csv"))
+    with pytest.raises(InputError, match="empty"):
+        calibrate(ImuLog(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), source="empty.csv"))
+
+
+def test_poses_in_one_plane_name_the_weak_parameters() -> None:
+    """Poses turning about x only: gravity stays in the y-z plane and x-axis terms are unobservable."""
+    plan = np.stack([np.linspace(-85, 85, 40), np.zeros(40)], axis=1)
+    rng = np.random.default_rng(3)
+    log = simulate_multipose(plan, rng).log
+    with pytest.raises(InputError):
+        calibrate(log)

@@ -1,0 +1,92 @@
+"""The error model: apply/invert, sign conventions, YAML and imu_tk .calib round trips, the RK4 kernel."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imuslam.geometry import quat_to_matrix, rk4_integrate_gyro
+from imuslam.imu.calibrate import integrate_segments
+from imuslam.imu.model import ImuCalibration, TriadModel
+from imuslam.io.imulog import ImuLog, InputError
+from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO, raw_from_errors
+
+
+def _calib() -> ImuCalibration:
+    a, g = SEED000_ACCEL, SEED000_GYRO
+    return ImuCalibration(
+        TriadModel(a.T, a.K, a.b, "plus"),
+        TriadModel(g.T, g.K, g.b, "plus"),
+        cov_accel=np.diag(np.arange(1.0, 10.0)) * 1e-8,
+        cov_gyro=np.eye(9) * 1e-7,
+        sensor_id="bwt901cl-1",
+    )
+
+
+def test_apply_inverts_the_simulated_sensor() -> None:
+    rng = np.random.default_rng(0)
+    truth = rng.normal(size=(100, 3)) * 9.8
+    c = _calib()
+    raw = raw_from_errors(truth, SEED000_ACCEL)
+    np.testing.assert_allclose(c.accel.apply(raw), truth, atol=1e-12)
+    np.testing.assert_allclose(c.accel.invert(truth), raw, atol=1e-12)
+    minus = c.accel.with_sign("minus")
+    np.testing.assert_allclose(minus.apply(raw), truth, atol=1e-12)
+
+
+def test_yaml_round_trip(tmp_path: Path) -> None:
+    c = _calib()
+    c.save_yaml(tmp_path / "c.yaml")
+    d = ImuCalibration.load_yaml(tmp_path / "c.yaml")
+    for a, b in ((c.accel, d.accel), (c.gyro, d.gyro)):
+        np.testing.assert_array_equal(a.T, b.T)
+        np.testing.assert_array_equal(a.K, b.K)
+        np.testing.assert_array_equal(a.b, b.b)
+    np.testing.assert_array_equal(c.cov_accel, d.cov_accel)
+    assert d.sensor_id == "bwt901cl-1" and d.date == c.date
+
+
+def test_imutk_calib_round_trip(tmp_path: Path) -> None:
+    c = _calib()
+    c.export_imutk(tmp_path / "acc.calib", tmp_path / "gyro.calib")
+    d = ImuCalibration.import_imutk(
+        tmp_path / "acc.calib", tmp_path / "gyro.calib", "m/s^2", "rad/s"
+    )
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(50, 3))
+    np.testing.assert_allclose(d.accel.apply(x), c.accel.apply(x), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(d.gyro.apply(x), c.gyro.apply(x), rtol=1e-9, atol=1e-9)
+    text = (tmp_path / "acc.calib").read_text().split("\n\n")
+    assert len([t for t in text if t.strip()]) == 3  # T, K, B blocks as imu_tk writes them
+
+
+def test_bad_calibration_files(tmp_path: Path) -> None:
+    p = tmp_path / "bad.calib"
+    p.write_text("1 0 0\n0 1 0\n")
+    with pytest.raises(InputError, match="21 numbers"):
+        TriadModel.load_imutk(p)
+    y = tmp_path / "bad.yaml"
+    y.write_text("accel: {T: [[1,0],[0,1]], K: [1,1,1], b: [0,0,0]}\ngyro: {}\n")
+    with pytest.raises(InputError, match="field 'accel'"):
+        ImuCalibration.load_yaml(y)
+
+
+def test_correct_checks_units() -> None:
+    c = _calib()
+    log = ImuLog(np.arange(3), np.zeros((3, 3)), np.zeros((3, 3)), "counts", "counts", "x.txt")
+    with pytest.raises(InputError, match="x.txt"):
+        c.correct(log)
+
+
+def test_numba_rk4_kernel_matches_reference() -> None:
+    """The compiled segment integrator equals the vectorised reference in imuslam.geometry."""
+    rng = np.random.default_rng(2)
+    n = 400
+    t = np.cumsum(rng.uniform(0.009, 0.011, n))
+    w = np.cumsum(rng.normal(size=(n, 3)) * 0.05, axis=0)
+    segs = np.array([[0, 120], [100, 399], [250, 260]])
+    M = np.eye(3) + rng.normal(size=(3, 3)) * 0.02
+    R = integrate_segments(w, t, segs, M[None])[0]
+    for s, (a, b) in enumerate(segs):
+        q = rk4_integrate_gyro(w[a : b + 1] @ M.T, np.diff(t[a : b + 1]))
+        np.testing.assert_allclose(R[s], quat_to_matrix(q), atol=1e-12)
