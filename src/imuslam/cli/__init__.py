@@ -28,6 +28,13 @@ def _root(
 
 
 # Command registrations (one line per command module).
+from imuslam.cli import allan as _allan  # noqa: E402
+from imuslam.cli import calibrate as _calibrate  # noqa: E402
+from imuslam.cli import correct as _correct  # noqa: E402
+from imuslam.cli import demo as _demo  # noqa: E402
+
+for _m in (_calibrate, _correct, _allan, _demo):
+    _m.register(app)
 
 
 def main() -> None:

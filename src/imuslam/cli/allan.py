@@ -1,0 +1,100 @@
+"""``imuslam allan``: Allan deviation of a static log, noise terms and a Kalibr imu.yaml."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import typer  # noqa: E402
+import yaml  # noqa: E402
+
+from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log, table, write_json  # noqa: E402
+from imuslam.imu.allan import AllanResult, allan  # noqa: E402
+from imuslam.imu.report import save_figure  # noqa: E402
+from imuslam.io.atomic import write_atomic  # noqa: E402
+
+
+def plot_allan(res: AllanResult) -> plt.Figure:
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    for ax, adev, terms, unit, name in (
+        (axes[0], res.accel_adev, res.accel_terms, res.accel_unit, "accelerometer"),
+        (axes[1], res.gyro_adev, res.gyro_terms, res.gyro_unit, "gyroscope"),
+    ):
+        for j in range(3):
+            ax.loglog(res.taus, adev[:, j], color=f"C{j}", label="xyz"[j])
+            t = terms[j]
+            ax.loglog(res.taus, t.white / np.sqrt(res.taus), color=f"C{j}", ls=":", lw=0.8)
+            if t.random_walk is not None:
+                ax.loglog(
+                    res.taus, t.random_walk * np.sqrt(res.taus / 3), color=f"C{j}", ls="--", lw=0.8
+                )
+        ax.set_xlabel("tau [s]")
+        ax.set_ylabel(f"Allan deviation [{unit}]")
+        ax.set_title(f"{name}: dotted -1/2 (white), dashed +1/2 (random walk)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    return fig
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("allan")
+    @friendly_errors
+    def allan_cmd(
+        log_path: Path = typer.Argument(..., metavar="LOG", help="a long static IMU log"),
+        gyro: Path | None = typer.Argument(
+            None, help="gyroscope file, for imu_tk text in two files"
+        ),
+        fmt: str = typer.Option("auto", "--format", help=FORMAT_HELP),
+        topic: str | None = typer.Option(None, help="IMU topic of a bag"),
+        accel_unit: str | None = typer.Option(None, help="m/s^2, g or counts"),
+        gyro_unit: str | None = typer.Option(None, help="rad/s, deg/s or counts"),
+        columns: str | None = typer.Option(None, help="CSV column mapping"),
+        out: Path = typer.Option(Path("allan_out"), "--out", help="results folder"),
+    ) -> None:
+        """Overlapped Allan deviation per axis: noise density, bias instability, random walk, Kalibr yaml."""
+        log = load_log(log_path, gyro, fmt, topic, accel_unit, gyro_unit, columns)
+        res = allan(log)
+        rows = []
+        data = []
+        for sensor, terms, u in (
+            ("accel", res.accel_terms, res.accel_unit),
+            ("gyro", res.gyro_terms, res.gyro_unit),
+        ):
+            for j, t in enumerate(terms):
+                rw = (
+                    "-"
+                    if t.random_walk is None
+                    else f"{t.random_walk:.3g} ± {100 * (t.random_walk_rel_std or 0):.0f}%"
+                )
+                rows.append([f"{sensor} {'xyz'[j]}", f"{t.white:.3g} ± {100 * t.white_rel_std:.1f}%",
+                             f"{t.bias_instability:.3g} @ {t.bias_instability_tau_s:.3g} s", rw,
+                             f"{u}/sqrt(Hz) | {u} | {u}*sqrt(Hz)"])  # fmt: skip
+                data.append({"sensor": sensor, "axis": "xyz"[j], **t.__dict__})
+        console.print(
+            table(
+                "Allan noise terms",
+                ["term", "white (N)", "bias instability (B)", "random walk (K)", "unit"],
+                rows,
+            )
+        )
+        for w in res.warnings:
+            console.print(f"[yellow]warning:[/] {w}")
+        save_figure(plot_allan(res), out / "allan.png")
+        write_json(
+            out / "noise_terms.json", {"source": res.source, "rate_hz": res.rate_hz, "terms": data}
+        )
+        csv = "tau_s," + ",".join(f"accel_{a},gyro_{a}" for a in "xyz") + "\n"
+        csv += "\n".join(
+            f"{t:.6g},"
+            + ",".join(f"{res.accel_adev[i, j]:.6g},{res.gyro_adev[i, j]:.6g}" for j in range(3))
+            for i, t in enumerate(res.taus)
+        )
+        write_atomic(out / "allan.csv", csv + "\n")
+        write_atomic(
+            out / "imu.yaml", yaml.safe_dump(res.kalibr(topic or "/imu0"), sort_keys=False)
+        )
+        console.print(f"wrote {out}/allan.png, allan.csv, noise_terms.json, imu.yaml (Kalibr)")

@@ -1,0 +1,109 @@
+"""``imuslam calibrate``: multi-position calibration of a log, with report."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log, table
+from imuslam.config import dump_config, load_config
+from imuslam.imu.calibrate import CalibrationConfig, CalibrationResult, calibrate
+from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
+from imuslam.imu.report import write_report
+from imuslam.io.imulog import ImuLog
+
+
+def print_result(
+    res: CalibrationResult, truth_a: np.ndarray | None = None, truth_g: np.ndarray | None = None
+) -> None:
+    """Rich tables of the parameters (with units) and the fit quality."""
+    c = res.calibration
+    au, gu = c.accel_unit, c.gyro_unit
+    units_a = ["rad"] * 3 + (["1"] if au == "m/s^2" else [f"m/s^2 per {au}"]) * 3 + [au] * 3
+    units_g = ["rad"] * 6 + (["1"] if gu == "rad/s" else [f"rad/s per {gu}"]) * 3
+    cols = ["parameter", "estimate", "1-sigma", "unit"] + (
+        ["truth", "error/sigma"] if truth_a is not None else []
+    )
+    for title, names, est, std, units, truth in (
+        ("Accelerometer", ACCEL_PARAM_NAMES, c.accel_params, res.std_accel, units_a, truth_a),
+        ("Gyroscope", GYRO_PARAM_NAMES, c.gyro_params, res.std_gyro, units_g, truth_g),
+    ):
+        rows = []
+        for i, n in enumerate(names):
+            r = [n, f"{est[i]:.8g}", f"{std[i]:.2g}", units[i]]
+            if truth is not None:
+                r += [f"{truth[i]:.8g}", f"{(est[i] - truth[i]) / std[i]:+.2f}"]
+            rows.append(r)
+        console.print(table(title, cols, rows))
+    console.print(
+        table(
+            "Fit",
+            ["quantity", "value", "unit"],
+            [
+                ["threshold multiple k", f"{res.k:g}", ""],
+                ["static intervals", str(len(res.intervals)), ""],
+                ["RMS |a| - g per sample", f"{res.accel_rms:.5f}", "m/s^2"],
+                ["gravity direction RMS per pair", f"{res.gyro_rms_deg:.3f}", "deg"],
+                ["gyro bias", np.array2string(c.gyro.b, precision=6), gu],
+                ["time", f"{1e3 * res.timings_s['total']:.0f}", "ms"],
+            ],
+        )
+    )
+    for w in res.warnings:
+        console.print(f"[yellow]warning:[/] {w}")
+
+
+def write_outputs(
+    res: CalibrationResult, log: ImuLog, out: Path, **truth: np.ndarray | None
+) -> None:
+    c = res.calibration
+    c.save_yaml(out / "calibration.yaml")
+    c.export_imutk(out / "acc.calib", out / "gyro.calib")
+    dump_config(res.config, out / "config.yaml")
+    write_report(res, log, out, truth.get("truth_accel"), truth.get("truth_gyro"))
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("calibrate")
+    @friendly_errors
+    def calibrate_cmd(
+        acc: Path = typer.Argument(
+            ..., help="accelerometer file (or the whole log: bag, EuRoC, 7-column text)"
+        ),
+        gyro: Path | None = typer.Argument(
+            None, help="gyroscope file, for imu_tk text in two files"
+        ),
+        fmt: str = typer.Option("auto", "--format", help=FORMAT_HELP),
+        topic: str | None = typer.Option(None, help="IMU topic of a bag"),
+        g: float | None = typer.Option(None, "--g", help="local gravity, m/s^2 (default 9.80665)"),
+        t_init: float | None = typer.Option(
+            None, "--t-init", help="initial still period, s (default 50)"
+        ),
+        bias_sign: str | None = typer.Option(
+            None, help="plus: T K (x + b) (default); minus: T K (x - b) (imu_tk)"
+        ),
+        accel_unit: str | None = typer.Option(None, help="m/s^2, g or counts (guessed if absent)"),
+        gyro_unit: str | None = typer.Option(
+            None, help="rad/s, deg/s or counts (guessed if absent)"
+        ),
+        columns: str | None = typer.Option(
+            None, help="CSV column mapping: t=..,ax=..,ay=..,az=..,gx=..,gy=..,gz=.."
+        ),
+        config: Path | None = typer.Option(None, help="YAML with CalibrationConfig fields"),
+        out: Path = typer.Option(Path("calib_out"), "--out", help="results folder"),
+    ) -> None:
+        """Calibrate accelerometer and gyroscope from a log of static poses (Tedaldi 2014, imu_tk's method)."""
+        cfg = load_config(config, CalibrationConfig) if config else CalibrationConfig()
+        upd = {
+            k: v
+            for k, v in {"g": g, "t_init_s": t_init, "bias_sign": bias_sign}.items()
+            if v is not None
+        }
+        cfg = CalibrationConfig.model_validate({**cfg.model_dump(), **upd})
+        log = load_log(acc, gyro, fmt, topic, accel_unit, gyro_unit, columns)
+        res = calibrate(log, cfg)
+        print_result(res)
+        write_outputs(res, log, out)
+        console.print(f"wrote {out}/calibration.yaml, acc.calib, gyro.calib, report.html")

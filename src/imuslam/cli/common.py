@@ -1,0 +1,93 @@
+"""Helpers shared by the commands: error reporting, log loading options, result tables."""
+
+from __future__ import annotations
+
+import functools
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TypeVar, cast
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from imuslam.io.atomic import write_atomic
+from imuslam.io.imulog import AccelUnit, GyroUnit, ImuLog, InputError
+from imuslam.io.load import FORMATS, ImuFormat, load_imu
+
+console = Console()
+err_console = Console(stderr=True)
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def friendly_errors(fn: F) -> F:
+    """Turn an InputError into a one-line message on stderr and exit code 2 (no traceback)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except InputError as exc:
+            err_console.print(f"[bold red]error:[/] {exc}")
+            raise typer.Exit(2) from None
+
+    return wrapper  # type: ignore[return-value]
+
+
+def parse_columns(spec: str | None) -> dict[str, str | int] | None:
+    """``t=time,ax=acc_x,...`` (names or 0-based indices) -> a column mapping."""
+    if not spec:
+        return None
+    out: dict[str, str | int] = {}
+    for part in spec.split(","):
+        if "=" not in part:
+            raise InputError(
+                f"--columns: '{part}' is not key=column (keys t, ax, ay, az, gx, gy, gz)"
+            )
+        k, v = (s.strip() for s in part.split("=", 1))
+        out[k] = int(v) if v.isdigit() else v
+    return out
+
+
+def load_log(
+    acc: Path,
+    gyro: Path | None,
+    fmt: str,
+    topic: str | None,
+    accel_unit: str | None,
+    gyro_unit: str | None,
+    columns: str | None,
+) -> ImuLog:
+    """Load a log from the command-line options (see :func:`imuslam.io.load.load_imu`)."""
+    if accel_unit is not None and accel_unit not in ("m/s^2", "g", "counts"):
+        raise InputError(f"--accel-unit: '{accel_unit}'; expected m/s^2, g or counts")
+    if gyro_unit is not None and gyro_unit not in ("rad/s", "deg/s", "counts"):
+        raise InputError(f"--gyro-unit: '{gyro_unit}'; expected rad/s, deg/s or counts")
+    if fmt not in FORMATS:
+        raise InputError(f"--format: '{fmt}'; expected one of {', '.join(FORMATS)}")
+    return load_imu(
+        acc,
+        gyro,
+        cast(ImuFormat, fmt),
+        topic,
+        cast(AccelUnit | None, accel_unit),
+        cast(GyroUnit | None, gyro_unit),
+        parse_columns(columns),
+    )
+
+
+def write_json(path: Path, data: Any) -> None:
+    write_atomic(path, json.dumps(data, indent=2, default=float) + "\n")
+
+
+def table(title: str, columns: list[str], rows: list[list[str]]) -> Table:
+    t = Table(title=title)
+    for c in columns:
+        t.add_column(c, justify="right" if c not in ("parameter", "quantity", "term") else "left")
+    for r in rows:
+        t.add_row(*r)
+    return t
+
+
+FORMAT_HELP = "input format: auto, imutk, euroc, csv or bag"

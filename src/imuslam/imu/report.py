@@ -1,0 +1,148 @@
+"""Plots and an HTML report of a calibration; every file is written atomically."""
+
+from __future__ import annotations
+
+import html
+import io
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+
+from imuslam.imu.calibrate import CalibrationResult  # noqa: E402
+from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES  # noqa: E402
+from imuslam.io.atomic import write_atomic  # noqa: E402
+from imuslam.io.imulog import ImuLog  # noqa: E402
+
+
+def save_figure(fig: Figure, path: str | Path) -> None:
+    """Render ``fig`` to PNG in memory and write it atomically."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    write_atomic(path, buf.getvalue())
+
+
+def plot_static_detection(res: CalibrationResult, log: ImuLog) -> Figure:
+    """The raw accelerometer with the static detector's verdict over it (seed 000, figure 3)."""
+    t = log.t_s
+    static = np.zeros(len(t), dtype=bool)
+    for s, e in res.intervals:
+        static[s:e] = True
+    fig, axes = plt.subplots(4, 1, figsize=(11, 8), sharex=True)
+    for j, ax in enumerate(axes[:3]):
+        ax.plot(t, log.accel[:, j], lw=0.6, color="C0")
+        lo, hi = np.min(log.accel[:, j]), np.max(log.accel[:, j])
+        ax.fill_between(t, lo, hi, where=static, color="C2", alpha=0.15, lw=0, label="static")
+        ax.set_ylabel(f"a_{'xyz'[j]} [{log.accel_unit}]")
+    axes[0].legend(loc="upper right")
+    axes[3].semilogy(t, res.detector, lw=0.6, color="C1", label="detector")
+    axes[3].axhline(res.threshold, color="k", ls="--", lw=0.8, label=f"threshold (k = {res.k:g})")
+    axes[3].set_ylabel(f"s(t) [{log.accel_unit}^2]")
+    axes[3].set_xlabel("time [s]")
+    axes[3].legend(loc="upper right")
+    fig.suptitle(f"Static detection: {len(res.intervals)} intervals")
+    return fig
+
+
+def plot_residuals(res: CalibrationResult) -> Figure:
+    """Gravity-norm error per interval and gravity-direction error per pair, before and after."""
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(11, 6))
+    k = np.arange(len(res.accel_residual_after))
+    a1.bar(k - 0.2, res.accel_residual_before, 0.4, label="initial guess")
+    a1.bar(k + 0.2, res.accel_residual_after, 0.4, label="calibrated")
+    a1.set_ylabel("|a| - g per interval [m/s^2]")
+    a1.legend()
+    p = np.arange(len(res.gyro_residual_after_deg))
+    a2.bar(p - 0.2, res.gyro_residual_before_deg, 0.4, label="bias removed, unit scale")
+    a2.bar(p + 0.2, res.gyro_residual_after_deg, 0.4, label="calibrated")
+    a2.set_ylabel("gravity direction error [deg]")
+    a2.set_xlabel("interval / pair of intervals")
+    a2.legend()
+    return fig
+
+
+def plot_sweep(res: CalibrationResult) -> Figure:
+    """Residual per sample and interval count against the threshold multiple k."""
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ks = [r.k for r in res.sweep]
+    rr = [
+        r.residual_per_sample if np.isfinite(r.residual_per_sample) else np.nan for r in res.sweep
+    ]
+    ax.plot(ks, rr, "o-", label="residual per sample")
+    ax.axvline(res.k, color="k", ls="--", lw=0.8)
+    ax.set_xlabel("threshold multiple k")
+    ax.set_ylabel("mean (g - |a|)^2 [(m/s^2)^2]")
+    ax2 = ax.twinx()
+    ax2.plot(ks, [r.n_intervals for r in res.sweep], "s:", color="C1")
+    ax2.set_ylabel("static intervals", color="C1")
+    return fig
+
+
+def _param_rows(
+    names: tuple[str, ...], est: np.ndarray, std: np.ndarray, truth: np.ndarray | None
+) -> str:
+    rows = []
+    for i, n in enumerate(names):
+        tv = (
+            ""
+            if truth is None
+            else f"<td>{truth[i]:.6g}</td><td>{(est[i] - truth[i]) / std[i]:+.2f}</td>"
+        )
+        rows.append(f"<tr><td>{n}</td><td>{est[i]:.8g}</td><td>{std[i]:.2g}</td>{tv}</tr>")
+    return "\n".join(rows)
+
+
+def write_report(
+    res: CalibrationResult,
+    log: ImuLog,
+    out_dir: str | Path,
+    truth_accel: np.ndarray | None = None,
+    truth_gyro: np.ndarray | None = None,
+) -> list[Path]:
+    """PNG plots and ``report.html`` in ``out_dir``; returns the files written."""
+    out = Path(out_dir)
+    files = {
+        "static_detection.png": plot_static_detection(res, log),
+        "residuals.png": plot_residuals(res),
+        "sweep.png": plot_sweep(res),
+    }
+    for name, fig in files.items():
+        save_figure(fig, out / name)
+    c = res.calibration
+    head = "<tr><th>parameter</th><th>estimate</th><th>1-sigma</th>"
+    head_t = head + (
+        "<th>truth</th><th>error / sigma</th></tr>" if truth_accel is not None else "</tr>"
+    )
+    sweep = "\n".join(
+        f"<tr><td>{r.k:g}</td><td>{r.n_intervals}</td><td>{r.residual_per_sample:.4g}</td>"
+        f"<td>{'yes' if r.ok else html.escape(r.message)}</td></tr>"
+        for r in res.sweep
+    )
+    warn = "".join(f"<li>{html.escape(w)}</li>" for w in res.warnings) or "<li>none</li>"
+    doc = f"""<!doctype html><html><head><meta charset="utf-8"><title>IMU calibration</title>
+<style>body{{font-family:sans-serif;max-width:1100px;margin:auto}} table{{border-collapse:collapse}}
+td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}</style></head><body>
+<h1>IMU calibration</h1>
+<p>Data: {html.escape(c.source)} &mdash; {len(log)} samples at {log.rate_hz:.2f} Hz; raw units
+accel {html.escape(c.accel_unit)}, gyro {html.escape(c.gyro_unit)}; g = {c.g} m/s^2; date {html.escape(c.date)}.</p>
+<p>Model: x_O = T diag(K) (x_S {"+" if c.accel.bias_sign == "plus" else "-"} b) (Tedaldi et al., ICRA 2014).
+Threshold k = {res.k:g}, {len(res.intervals)} static intervals. Per-sample RMS of |a| - g:
+{res.accel_rms:.5f} m/s^2. Gravity-direction RMS error per pair: {res.gyro_rms_deg:.3f} deg.
+Time {1e3 * res.timings_s.get("total", float("nan")):.0f} ms.</p>
+<h2>Warnings</h2><ul>{warn}</ul>
+<h2>Accelerometer</h2><table>{head_t}{_param_rows(ACCEL_PARAM_NAMES, c.accel_params, res.std_accel, truth_accel)}</table>
+<h2>Gyroscope</h2><table>{head_t}{_param_rows(GYRO_PARAM_NAMES, c.gyro_params, res.std_gyro, truth_gyro)}</table>
+<p>Gyro bias: {np.array2string(c.gyro.b, precision=6)} (raw units)</p>
+<h2>Threshold sweep</h2><table><tr><th>k</th><th>intervals</th><th>residual / sample</th><th>solved</th></tr>{sweep}</table>
+<h2>Static detection</h2><img src="static_detection.png" width="100%">
+<h2>Residuals before and after</h2><img src="residuals.png" width="100%">
+<h2>Sweep</h2><img src="sweep.png">
+</body></html>
+"""
+    write_atomic(out / "report.html", doc)
+    return [out / n for n in files] + [out / "report.html"]

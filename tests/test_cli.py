@@ -1,0 +1,109 @@
+"""The command line end to end: outputs written, numbers consistent, errors clean and atomic."""
+
+from pathlib import Path
+
+import numpy as np
+import yaml
+from typer.testing import CliRunner
+
+from imuslam.cli import app
+from imuslam.imu.model import ImuCalibration
+from imuslam.io.load import load_imu, write_imu
+from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
+
+runner = CliRunner()
+
+
+def test_calibrate_xsens_writes_everything(shared_data: Path, tmp_path: Path) -> None:
+    d = shared_data / "imu_tk_xsens"
+    out = tmp_path / "out"
+    r = runner.invoke(
+        app,
+        ["calibrate", str(d / "xsens_acc.mat"), str(d / "xsens_gyro.mat"), "--g", "9.81744",
+         "--t-init", "50", "--bias-sign", "minus", "--out", str(out)],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    for f in (
+        "calibration.yaml",
+        "acc.calib",
+        "gyro.calib",
+        "report.html",
+        "static_detection.png",
+        "config.yaml",
+    ):
+        assert (out / f).stat().st_size > 0
+    cal = ImuCalibration.load_yaml(out / "calibration.yaml")
+    np.testing.assert_allclose(cal.accel.K, [0.00241278, 0.00242712, 0.00241168], rtol=5e-6)
+    assert yaml.safe_load((out / "config.yaml").read_text())["g"] == 9.81744
+
+
+def test_correct_bag_round_trip(tmp_path: Path) -> None:
+    """Calibrate a simulated log, write its raw IMU as MCAP, correct it: the result is the truth + noise."""
+    rng = np.random.default_rng(5)
+    sim = simulate_multipose(sphere_plan_deg(40, rng), rng)
+    write_imu(sim.log, tmp_path / "raw.mcap", "bag", topic="/imu")
+    write_imu(sim.log, tmp_path / "raw.txt", "imutk")
+    r = runner.invoke(
+        app,
+        ["calibrate", str(tmp_path / "raw.txt"), "--g", "9.80665", "--out", str(tmp_path / "c")],
+    )
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(
+        app, ["correct", str(tmp_path / "raw.mcap"), "--calib", str(tmp_path / "c" / "calibration.yaml"),
+              "--out", str(tmp_path / "fixed.mcap")],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    fixed = load_imu(tmp_path / "fixed.mcap")
+    # Corrected static samples equal the true specific force up to the white noise (0.029 m/s^2).
+    st = sim.truth.static
+    err = fixed.accel[st] - sim.truth.accel_i[st]
+    assert abs(np.mean(err)) < 0.005 and np.std(err) < 0.035
+
+
+def test_allan_command(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    n = 20_000
+    log_path = tmp_path / "static.txt"
+    t = np.arange(n) * 0.01
+    acc = rng.normal(size=(n, 3)) * 0.02 + [0, 0, 9.81]
+    gyr = rng.normal(size=(n, 3)) * 0.001
+    np.savetxt(log_path, np.column_stack([t, acc, gyr]))
+    r = runner.invoke(
+        app,
+        [
+            "allan",
+            str(log_path),
+            "--accel-unit",
+            "m/s^2",
+            "--gyro-unit",
+            "rad/s",
+            "--out",
+            str(tmp_path / "a"),
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    k = yaml.safe_load((tmp_path / "a" / "imu.yaml").read_text())
+    # white std 0.02 at 100 Hz -> density 0.02 / sqrt(100) = 2e-3; 1e-4 for the gyro
+    assert abs(k["accelerometer_noise_density"] / 2e-3 - 1) < 0.05
+    assert abs(k["gyroscope_noise_density"] / 1e-4 - 1) < 0.05
+    assert (tmp_path / "a" / "allan.png").exists()
+
+
+def test_errors_are_one_line_and_leave_no_output(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.txt"
+    bad.write_text("0 1 2 3 4 5 6\n0.01 1 2 nan 4 5 6\n")
+    out = tmp_path / "out"
+    r = runner.invoke(app, ["calibrate", str(bad), "--out", str(out)])
+    assert r.exit_code == 2
+    assert "line 2" in r.output and "Traceback" not in r.output
+    assert not out.exists()
+    r = runner.invoke(app, ["calibrate", str(bad), "--format", "xml", "--out", str(out)])
+    assert r.exit_code == 2 and "--format" in r.output
+
+
+def test_demo(tmp_path: Path) -> None:
+    r = runner.invoke(app, ["demo", "--out", str(tmp_path / "d")])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "d" / "report.html").exists() and (
+        tmp_path / "d" / "corrected_imu.mcap"
+    ).exists()
