@@ -72,6 +72,12 @@ class CalibrationConfig(BaseModel):
         description="refine the gyro bias in the fit instead of keeping the still-period mean",
     )
     min_intervals: int = Field(12, ge=9, description="fewest static intervals a threshold may give")
+    gyro_margin_s: float = Field(
+        0.5,
+        ge=0,
+        description="how far a gyro segment may reach into a static interval to catch a gentle start or "
+        "end of motion that the accelerometer detector took for still, s",
+    )
 
     @field_validator("k_values")
     @classmethod
@@ -378,6 +384,33 @@ def _gyro_scale_guess(
     return float(np.quantile(ang[ok] / phi[ok], 0.9))
 
 
+def _extend_to_motion(
+    segs: IntArray, iv: IntArray, w: FloatArray, n_init: int, margin: int
+) -> IntArray:
+    """Widen each gyro segment into its static intervals while the rate is above the still-period noise.
+
+    The accelerometer detector sees a slow rotation start late (gravity barely moves at first); a rotation
+    missed by the integration biases the scale. Each end moves outwards, at most ``margin`` samples and
+    never past the middle of its interval, while |w| exceeds the 99.9 % level of the still period.
+    """
+    if margin <= 0:
+        return segs
+    gn = np.linalg.norm(w, axis=1)
+    thr = float(np.quantile(gn[: n_init + 1], 0.999))
+    moving = gn > thr
+    out = segs.copy()
+    mid = (iv[:, 0] + iv[:, 1]) // 2
+    for i in range(len(segs)):
+        a, b = int(segs[i, 0]), int(segs[i, 1])
+        lo = max(a - margin, int(mid[i]))
+        quiet = np.flatnonzero(~moving[lo : a + 1])
+        out[i, 0] = lo + int(quiet[-1]) if quiet.size else lo
+        hi = min(b + margin, int(mid[i + 1]))
+        quiet = np.flatnonzero(~moving[b : hi + 1])
+        out[i, 1] = b + int(quiet[0]) if quiet.size else hi
+    return out
+
+
 def _angle_free_resid(R: FloatArray, u0: FloatArray, u1: FloatArray) -> FloatArray:
     """Stacked residuals (3S,) ``R^T u0 - u1``."""
     return (np.einsum("sji,sj->si", R, u0) - u1).ravel()
@@ -529,14 +562,11 @@ def calibrate(log_: ImuLog, config: CalibrationConfig | None = None) -> Calibrat
     means_c = np.stack([accel_model.apply(acc[s : e + 1].mean(axis=0)[None])[0] for s, e in iv])
     u = means_c / np.linalg.norm(means_c, axis=1, keepdims=True)
     u0, u1 = u[:-1], u[1:]
-    # From the end of one interval to the start of the next, widened by the detector's half window
-    # (a gentle start of motion may hide inside the last static window), kept inside the intervals.
-    mid = (iv[:, 0] + iv[:, 1]) // 2
-    segs = np.stack(
-        [np.maximum(iv[:-1, 1] - half, mid[:-1]), np.minimum(iv[1:, 0] + half, mid[1:])], axis=1
-    )
+    # From the end of one interval to the start of the next (imu_tk's segments) ...
+    segs = np.stack([iv[:-1, 1], iv[1:, 0]], axis=1)
     gyro_bias = log_.gyro[: n_init + 1].mean(axis=0)
     w = log_.gyro - gyro_bias
+    segs = _extend_to_motion(segs, iv, w, n_init, int(round(cfg.gyro_margin_s * rate)))
     spread = np.linalg.svd(u - u.mean(axis=0), compute_uv=False)
     if spread[1] < 0.1:
         raise InputError(
