@@ -107,3 +107,28 @@ def test_demo(tmp_path: Path) -> None:
     assert (tmp_path / "d" / "report.html").exists() and (
         tmp_path / "d" / "corrected_imu.mcap"
     ).exists()
+
+
+def test_eval_command(shared_data: Path, tmp_path: Path) -> None:
+    d = shared_data / "evo_testdata"
+    r = runner.invoke(
+        app, ["eval", str(d / "fr2_desk_groundtruth.txt"), str(d / "fr2_desk_ORB.txt"), "--align", "sim3",
+              "--out", str(tmp_path / "e")],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    import json
+
+    m = json.loads((tmp_path / "e" / "metrics.json").read_text())
+    assert m["n_pairs"] == 2174 and m["align"] == "sim3"
+    assert (tmp_path / "e" / "trajectories.png").exists()
+    r = runner.invoke(
+        app,
+        [
+            "eval",
+            str(d / "fr2_desk_groundtruth.txt"),
+            str(d / "fr2_desk_ORB.txt"),
+            "--align",
+            "xyz",
+        ],
+    )
+    assert r.exit_code == 2 and "--align" in r.output

@@ -1,0 +1,197 @@
+"""ATE and RPE with the definitions of evo (Grupp, "evo: Python package for the evaluation of odometry and
+SLAM", 2017) and the KITTI odometry benchmark (Geiger et al., CVPR 2012), vectorised.
+
+APE: ``E_i = P_ref,i^-1 P_est,i``; translation error ``|t(E_i)|`` = ``|p_est - p_ref|``, rotation error
+the angle of ``R(E_i)``. RPE over pairs (i, j): ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)``, Q the reference.
+Pairs by frames: i = 0, d, 2d, ... consecutive; by distance: each pair spans ``delta`` metres of the
+estimate's path (evo's rule). KITTI drift: for every start frame (step 10) and segment length, the
+relative pose error over the first frame that lies that far along the reference path, in % of length.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from imuslam.eval.align import AlignMethod, align, apply
+from imuslam.eval.associate import associate
+from imuslam.io.imulog import InputError
+from imuslam.io.trajectory import Trajectory
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+KITTI_LENGTHS = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
+
+
+@dataclass
+class Stats:
+    """Statistics of an error series (std is the population std, as evo)."""
+
+    rmse: float
+    mean: float
+    median: float
+    std: float
+    min: float
+    max: float
+    sse: float
+    n: int
+
+    @classmethod
+    def of(cls, e: FloatArray) -> Stats:
+        e = np.asarray(e, dtype=float)
+        return cls(
+            float(np.sqrt(np.mean(e**2))), float(np.mean(e)), float(np.median(e)), float(np.std(e)),
+            float(np.min(e)), float(np.max(e)), float(np.sum(e**2)), int(e.size),
+        )  # fmt: skip
+
+
+def rotation_angle_deg(R: FloatArray) -> FloatArray:
+    """Angle (N,) in degrees of rotation matrices (N, 3, 3) (projected onto SO(3) first, as scipy does)."""
+    return np.rad2deg(Rotation.from_matrix(R).magnitude())
+
+
+def ape(ref: Trajectory, est: Trajectory) -> tuple[FloatArray, FloatArray]:
+    """Per-pose translation error (m) and rotation error (deg) of associated, aligned trajectories."""
+    e_t = np.linalg.norm(est.p_w - ref.p_w, axis=1)
+    e_r = rotation_angle_deg(np.swapaxes(ref.R_w_b, 1, 2) @ est.R_w_b)
+    return e_t, e_r
+
+
+@numba.njit(cache=True)
+def _path_ids(p: FloatArray, delta: float) -> IntArray:  # pragma: no cover - compiled
+    ids = np.empty(p.shape[0], dtype=np.int64)
+    ids[0] = 0
+    k = 1
+    acc = 0.0
+    for i in range(1, p.shape[0]):
+        acc += np.sqrt(np.sum((p[i] - p[i - 1]) ** 2))
+        if acc >= delta:
+            ids[k] = i
+            k += 1
+            acc = 0.0
+    return ids[:k]
+
+
+def rpe_pairs(est: Trajectory, delta: float, unit: str) -> tuple[IntArray, IntArray]:
+    """Index pairs (i, j) for the RPE: consecutive pairs ``delta`` frames or metres apart (evo's rule)."""
+    if unit == "frames":
+        ids = np.arange(0, len(est), int(delta), dtype=np.int64)
+    elif unit == "m":
+        ids = _path_ids(np.ascontiguousarray(est.p_w), float(delta))
+    else:
+        raise InputError(f"RPE unit '{unit}'; expected frames or m")
+    if len(ids) < 2:
+        raise InputError(
+            f"RPE with delta {delta} {unit} gives no pair in {len(est)} poses; use a smaller delta"
+        )
+    return ids[:-1], ids[1:]
+
+
+def _relative(
+    p: FloatArray, R: FloatArray, i: IntArray, j: IntArray
+) -> tuple[FloatArray, FloatArray]:
+    Ri_t = np.swapaxes(R[i], 1, 2)
+    return Ri_t @ R[j], (Ri_t @ (p[j] - p[i])[:, :, None])[:, :, 0]
+
+
+def rpe(
+    ref: Trajectory, est: Trajectory, i: IntArray, j: IntArray
+) -> tuple[FloatArray, FloatArray]:
+    """Translation (m) and rotation (deg) of ``(Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` for each pair."""
+    Rq, tq = _relative(ref.p_w, ref.R_w_b, i, j)
+    Rp, tp = _relative(est.p_w, est.R_w_b, i, j)
+    Rq_t = np.swapaxes(Rq, 1, 2)
+    R_e = Rq_t @ Rp
+    t_e = (Rq_t @ (tp - tq)[:, :, None])[:, :, 0]
+    return np.linalg.norm(t_e, axis=1), rotation_angle_deg(R_e)
+
+
+def kitti_drift(
+    ref: Trajectory, est: Trajectory, lengths: tuple[float, ...] = KITTI_LENGTHS, step: int = 10
+) -> dict[float, tuple[float, float, int]]:
+    """KITTI segment errors: length -> (translation drift %, rotation drift deg/m, segments)."""
+    dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref.p_w, axis=0), axis=1))])
+    starts = np.arange(0, len(ref), step)
+    out: dict[float, tuple[float, float, int]] = {}
+    for L in lengths:
+        j = np.searchsorted(dist, dist[starts] + L)
+        ok = j < len(ref)
+        if not ok.any():
+            continue
+        i_, j_ = starts[ok].astype(np.int64), j[ok].astype(np.int64)
+        et, er = rpe(ref, est, i_, j_)
+        out[L] = (float(np.mean(et / L) * 100), float(np.mean(np.deg2rad(er) / L)), int(ok.sum()))
+    return out
+
+
+@dataclass
+class EvalResult:
+    """Metrics of an estimate against a reference."""
+
+    align: str
+    scale: float
+    n_pairs: int
+    path_length_m: float
+    ape_trans: Stats
+    ape_rot_deg: Stats
+    rpe_delta: float
+    rpe_unit: str
+    rpe_trans: Stats
+    rpe_rot_deg: Stats
+    kitti: dict[float, tuple[float, float, int]] = field(default_factory=dict)
+    ape_trans_series: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
+    t_s: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d.pop("ape_trans_series")
+        d.pop("t_s")
+        d["kitti"] = {
+            f"{k:g}": {"trans_pct": v[0], "rot_deg_per_m": v[1], "segments": v[2]}
+            for k, v in self.kitti.items()
+        }
+        if self.kitti:
+            d["kitti_mean_trans_pct"] = float(np.mean([v[0] for v in self.kitti.values()]))
+        return d
+
+
+def evaluate(
+    ref: Trajectory,
+    est: Trajectory,
+    align_method: AlignMethod = "se3",
+    rpe_delta: float = 1.0,
+    rpe_unit: str = "frames",
+    max_diff_s: float = 0.01,
+    kitti_lengths: tuple[float, ...] | None = None,
+    by_index: bool = False,
+) -> tuple[EvalResult, Trajectory, Trajectory]:
+    """Associate (or pair by index), align, and compute APE, RPE and, optionally, KITTI drift.
+
+    Returns the result and the associated reference and aligned estimate.
+    """
+    if by_index:
+        if len(ref) != len(est):
+            raise InputError(
+                f"{est.source}: {len(est)} poses against {len(ref)} in {ref.source}; no time stamps to associate"
+            )
+        r, e = ref, est
+    else:
+        r, e = associate(ref, est, max_diff_s)
+    if len(r) < 3:
+        raise InputError(f"{est.source}: {len(r)} associated poses; at least 3 are needed")
+    s, R, t = align(r, e, align_method)
+    ea = apply(e, s, R, t)
+    et, er = ape(r, ea)
+    i, j = rpe_pairs(ea, rpe_delta, rpe_unit)
+    rt, rr = rpe(r, ea, i, j)
+    kd = kitti_drift(r, ea, kitti_lengths) if kitti_lengths else {}
+    res = EvalResult(
+        align_method, s, len(r), r.path_length, Stats.of(et), Stats.of(er), rpe_delta, rpe_unit,
+        Stats.of(rt), Stats.of(rr), kd, et, r.t_s - r.t_s[0],
+    )  # fmt: skip
+    return res, r, ea

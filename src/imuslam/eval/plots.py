@@ -1,0 +1,47 @@
+"""Trajectory plots: top view and error over time (PNG, written atomically)."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from imuslam.eval.metrics import EvalResult  # noqa: E402
+from imuslam.io.atomic import write_atomic  # noqa: E402
+from imuslam.io.trajectory import Trajectory  # noqa: E402
+
+
+def _save(fig: plt.Figure, path: Path) -> None:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    write_atomic(path, buf.getvalue())
+
+
+def plot_evaluation(
+    res: EvalResult, ref: Trajectory, est: Trajectory, out_dir: str | Path
+) -> list[Path]:
+    """``trajectories.png`` (x-y top view) and ``ape.png`` (translation error over time)."""
+    out = Path(out_dir)
+    fig, ax = plt.subplots(figsize=(7, 7))
+    ax.plot(ref.p_w[:, 0], ref.p_w[:, 1], "k-", lw=1, label="reference")
+    ax.plot(est.p_w[:, 0], est.p_w[:, 1], "C1-", lw=1, label=f"estimate ({res.align} aligned)")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend()
+    _save(fig, out / "trajectories.png")
+    fig, ax = plt.subplots(figsize=(10, 4))
+    ax.plot(res.t_s, res.ape_trans_series, "C0-", lw=0.8)
+    ax.axhline(
+        res.ape_trans.rmse, color="k", ls="--", lw=0.8, label=f"RMSE {res.ape_trans.rmse:.4g} m"
+    )
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("APE translation [m]")
+    ax.legend()
+    _save(fig, out / "ape.png")
+    return [out / "trajectories.png", out / "ape.png"]

@@ -1,0 +1,181 @@
+"""Trajectories: TUM, KITTI and EuRoC ground-truth files, and PoseStamped topics of bags.
+
+A :class:`Trajectory` holds integer ``t_ns``, positions ``p_w`` (N, 3) and rotations ``R_w_b``
+(N, 3, 3) mapping body vectors into the world. Quaternion orders are converted here and only here:
+TUM is ``qx qy qz qw``, EuRoC ``qw qx qy qz``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imuslam.geometry import quat_from_matrix, quat_to_matrix
+from imuslam.io.atomic import write_atomic
+from imuslam.io.imulog import InputError
+from imuslam.io.text import read_table
+
+FloatArray = NDArray[np.float64]
+TrajFormat = Literal["tum", "kitti", "euroc", "bag"]
+TRAJ_FORMATS = ("tum", "kitti", "euroc", "bag")
+
+
+@dataclass
+class Trajectory:
+    """Poses over time. t_ns: (N,) int64; p_w: (N, 3) m; R_w_b: (N, 3, 3)."""
+
+    t_ns: NDArray[np.int64]
+    p_w: FloatArray
+    R_w_b: FloatArray
+    source: str = "<memory>"
+
+    def __post_init__(self) -> None:
+        self.t_ns = np.asarray(self.t_ns, dtype=np.int64)
+        self.p_w = np.asarray(self.p_w, dtype=float)
+        self.R_w_b = np.asarray(self.R_w_b, dtype=float)
+        n = len(self.t_ns)
+        if self.p_w.shape != (n, 3) or self.R_w_b.shape != (n, 3, 3):
+            raise InputError(
+                f"{self.source}: expected N times, (N, 3) positions and (N, 3, 3) rotations"
+            )
+        bad = ~(np.isfinite(self.p_w).all(axis=1) & np.isfinite(self.R_w_b).all(axis=(1, 2)))
+        if bad.any():
+            raise InputError(f"{self.source}: pose {int(np.argmax(bad))} is NaN or infinite")
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+    @property
+    def t_s(self) -> FloatArray:
+        """(N,) times in seconds (absolute); whole and fractional seconds are added last, which gives
+        the same double as parsing the decimal stamp of a text file."""
+        whole = self.t_ns // 1_000_000_000
+        return (
+            whole.astype(np.float64) + (self.t_ns - whole * 1_000_000_000).astype(np.float64) * 1e-9
+        )
+
+    @property
+    def quat_wxyz(self) -> FloatArray:
+        return quat_from_matrix(self.R_w_b)
+
+    def subset(self, idx: NDArray[np.int64]) -> Trajectory:
+        return Trajectory(self.t_ns[idx], self.p_w[idx], self.R_w_b[idx], self.source)
+
+    @property
+    def path_length(self) -> float:
+        """Length of the path through the positions, m."""
+        return float(np.sum(np.linalg.norm(np.diff(self.p_w, axis=0), axis=1)))
+
+
+def _t_ns_from_seconds(t: FloatArray) -> NDArray[np.int64]:
+    t0 = np.floor(t[0]) if len(t) else 0.0
+    return (np.int64(t0) * 1_000_000_000 + np.round((t - t0) * 1e9).astype(np.int64)).astype(
+        np.int64
+    )
+
+
+def read_tum(path: str | Path) -> Trajectory:
+    """TUM: ``t x y z qx qy qz qw`` per line (s, m), spaces or commas, '#' comments."""
+    d, _ = read_table(path, 8)
+    q = d[:, [7, 4, 5, 6]]
+    return Trajectory(_t_ns_from_seconds(d[:, 0]), d[:, 1:4], quat_to_matrix(q), str(path))
+
+
+def read_kitti(path: str | Path, times: str | Path | None = None) -> Trajectory:
+    """KITTI: a 3x4 pose matrix per line (row-major); times (s) from ``times`` or the line index."""
+    d, _ = read_table(path, 12)
+    M = d.reshape(-1, 3, 4)
+    if times is not None:
+        t, _ = read_table(times, 1)
+        if len(t) != len(d):
+            raise InputError(f"{times}: {len(t)} times for {len(d)} poses in {path}")
+        t_ns = _t_ns_from_seconds(t[:, 0])
+    else:
+        t_ns = np.arange(len(d), dtype=np.int64) * 100_000_000  # one pose per frame, 10 Hz nominal
+    return Trajectory(t_ns, M[:, :, 3].copy(), M[:, :, :3].copy(), str(path))
+
+
+def read_euroc_gt(path: str | Path) -> Trajectory:
+    """EuRoC ground truth csv: ``#timestamp [ns], p x y z, q w x y z, ...`` (more columns ignored)."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "mav0" / "state_groundtruth_estimate0" / "data.csv" if (p / "mav0").is_dir() else p
+    d, _ = read_table(p, (8, 11, 14, 17))
+    ints = []
+    with open(p) as fh:
+        for line in fh:
+            s = line.strip()
+            if s and not s.startswith("#"):
+                ints.append(int(s.split(",")[0]))
+    t_ns = np.asarray(ints, dtype=np.int64) if len(ints) == len(d) else d[:, 0].astype(np.int64)
+    return Trajectory(t_ns, d[:, 1:4], quat_to_matrix(d[:, 4:8]), str(p))
+
+
+def read_bag_poses(path: str | Path, topic: str | None = None) -> Trajectory:
+    """``geometry_msgs/PoseStamped`` (or ``nav_msgs/Odometry``) messages of a ROS 1/2 bag, by header stamp."""
+    from imuslam.io.rosbag import _open
+
+    p = Path(path)
+    reader = _open(p)
+    types = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry")
+    try:
+        conns = [
+            c
+            for c in reader.connections
+            if c.msgtype in types and (topic is None or c.topic == topic)
+        ]
+        listing = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections)
+        if not conns or len({c.topic for c in conns}) > 1:
+            raise InputError(
+                f"{p}: name one pose topic (PoseStamped or Odometry); the bag has: {listing}"
+            )
+        t, pos, q = [], [], []
+        for c, _, raw in reader.messages(connections=conns):
+            m: Any = reader.deserialize(raw, c.msgtype)
+            pose = m.pose.pose if c.msgtype.endswith("Odometry") else m.pose
+            t.append(m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec)
+            pos.append((pose.position.x, pose.position.y, pose.position.z))
+            o = pose.orientation
+            q.append((o.w, o.x, o.y, o.z))
+    finally:
+        reader.close()
+    return Trajectory(
+        np.asarray(t), np.asarray(pos), quat_to_matrix(np.asarray(q)), f"{p}:{conns[0].topic}"
+    )
+
+
+def read_trajectory(
+    path: str | Path, fmt: str, topic: str | None = None, times: str | Path | None = None
+) -> Trajectory:
+    """Read a trajectory in ``fmt`` (tum, kitti, euroc, bag); an unknown format is an InputError."""
+    if fmt not in TRAJ_FORMATS:
+        raise InputError(
+            f"{path}: unknown trajectory format '{fmt}'; expected {', '.join(TRAJ_FORMATS)}"
+        )
+    if not Path(path).exists():
+        raise InputError(f"{path}: no such file")
+    if fmt == "tum":
+        return read_tum(path)
+    if fmt == "kitti":
+        return read_kitti(path, times)
+    if fmt == "euroc":
+        return read_euroc_gt(path)
+    return read_bag_poses(path, topic)
+
+
+def write_tum(traj: Trajectory, path: str | Path) -> None:
+    """Write ``t x y z qx qy qz qw`` (s, m), atomically."""
+    q = traj.quat_wxyz
+    rows = np.column_stack([traj.t_s, traj.p_w, q[:, 1:], q[:, :1]])
+    body = "\n".join(f"{r[0]:.9f} " + " ".join(f"{v:.9g}" for v in r[1:]) for r in rows)
+    write_atomic(path, "# t x y z qx qy qz qw\n" + body + "\n")
+
+
+def write_kitti(traj: Trajectory, path: str | Path) -> None:
+    """Write 3x4 row-major pose matrices, one per line, atomically."""
+    M = np.concatenate([traj.R_w_b, traj.p_w[:, :, None]], axis=2).reshape(-1, 12)
+    write_atomic(path, "\n".join(" ".join(f"{v:.9e}" for v in r) for r in M) + "\n")
