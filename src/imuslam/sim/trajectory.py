@@ -1,0 +1,257 @@
+"""C2-smooth trajectories with exact derivatives: position, velocity and acceleration in the world (ENU,
+z up, REP-103), attitude ``R_w_b`` and body rate ``omega_b`` (body x forward, y left, z up).
+
+Attitude is built from Z-Y-X Euler angles ``R_w_b = Rz(yaw) Ry(pitch) Rx(roll)``; body rates from their
+derivatives: ``omega_b = [droll - dyaw s(p), dpitch c(r) + dyaw s(r) c(p), -dpitch s(r) + dyaw c(r) c(p)]``
+(e.g. Titterton & Weston, "Strapdown Inertial Navigation Technology", eq. 3.46, inverted).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Literal, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from pydantic import BaseModel, Field
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class TrajectoryState:
+    """States at times t_s (N,): p_w, vel_w, acc_w (N, 3) in m, m/s, m/s^2; R_w_b (N, 3, 3);
+    omega_b (N, 3) body angular rate, rad/s."""
+
+    t_s: FloatArray
+    p_w: FloatArray
+    vel_w: FloatArray
+    acc_w: FloatArray
+    R_w_b: FloatArray
+    omega_b: FloatArray
+
+
+class Trajectory(Protocol):
+    """Anything that gives the exact state at any times."""
+
+    def state(self, t_s: ArrayLike) -> TrajectoryState: ...
+
+
+def euler_to_matrix(angles: FloatArray) -> FloatArray:
+    """(N, 3) [roll, pitch, yaw] rad -> R_w_b (N, 3, 3) = Rz(yaw) Ry(pitch) Rx(roll)."""
+    r, p, y = angles[:, 0], angles[:, 1], angles[:, 2]
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    R = np.empty((len(r), 3, 3))
+    R[:, 0, 0] = cy * cp
+    R[:, 0, 1] = cy * sp * sr - sy * cr
+    R[:, 0, 2] = cy * sp * cr + sy * sr
+    R[:, 1, 0] = sy * cp
+    R[:, 1, 1] = sy * sp * sr + cy * cr
+    R[:, 1, 2] = sy * sp * cr - cy * sr
+    R[:, 2, 0] = -sp
+    R[:, 2, 1] = cp * sr
+    R[:, 2, 2] = cp * cr
+    return R
+
+
+def euler_rates_to_body(angles: FloatArray, rates: FloatArray) -> FloatArray:
+    """Body angular rate (N, 3) from Z-Y-X Euler angles and their time derivatives."""
+    r, p = angles[:, 0], angles[:, 1]
+    dr, dp, dy = rates[:, 0], rates[:, 1], rates[:, 2]
+    return np.stack(
+        [
+            dr - dy * np.sin(p),
+            dp * np.cos(r) + dy * np.sin(r) * np.cos(p),
+            -dp * np.sin(r) + dy * np.cos(r) * np.cos(p),
+        ],
+        axis=1,
+    )
+
+
+class EulerTrajectory(ABC):
+    """A trajectory given by analytic position and Euler-angle functions and their derivatives."""
+
+    @abstractmethod
+    def position(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """p, v, a (N, 3)."""
+
+    @abstractmethod
+    def euler(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """[roll, pitch, yaw] (N, 3) and their rates (N, 3)."""
+
+    def state(self, t_s: ArrayLike) -> TrajectoryState:
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        p, v, a = self.position(t)
+        ang, rate = self.euler(t)
+        return TrajectoryState(t, p, v, a, euler_to_matrix(ang), euler_rates_to_body(ang, rate))
+
+
+def _sines(
+    t: FloatArray, amp: FloatArray, freq: FloatArray, phase: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Sum-of-sines columns and their first two derivatives: amp, freq, phase (3, K)."""
+    arg = freq[None] * t[:, None, None] + phase[None]  # (N, 3, K)
+    x = np.sum(amp * np.sin(arg), axis=2)
+    dx = np.sum(amp * freq * np.cos(arg), axis=2)
+    ddx = -np.sum(amp * freq**2 * np.sin(arg), axis=2)
+    return x, dx, ddx
+
+
+class _HeadingFromVelocity(EulerTrajectory):
+    """Planar vehicles: yaw along the horizontal velocity (non-holonomic), small roll/pitch from the ground."""
+
+    def __init__(self, tilt_amp: float, tilt_freq: tuple[float, float]) -> None:
+        self.tilt_amp = tilt_amp
+        self.tilt_freq = tilt_freq
+
+    def euler(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        _, v, a = self.position(t)
+        yaw = np.arctan2(v[:, 1], v[:, 0])
+        dyaw = (v[:, 0] * a[:, 1] - v[:, 1] * a[:, 0]) / (v[:, 0] ** 2 + v[:, 1] ** 2)
+        f1, f2 = self.tilt_freq
+        roll = self.tilt_amp * np.sin(f1 * t)
+        pitch = self.tilt_amp * np.sin(f2 * t + 1.0)
+        droll = self.tilt_amp * f1 * np.cos(f1 * t)
+        dpitch = self.tilt_amp * f2 * np.cos(f2 * t + 1.0)
+        return np.stack([roll, pitch, yaw], axis=1), np.stack([droll, dpitch, dyaw], axis=1)
+
+
+class DiffDriveFigureEight(_HeadingFromVelocity):
+    """A differential-drive robot driving a figure eight in the 8 m x 8 m room (seed 000): both turning
+    directions, as the seed's counter-clockwise then clockwise runs. Speed about 0.3-0.5 m/s."""
+
+    def __init__(
+        self, half_x: float = 2.6, half_y: float = 1.8, period_s: float = 60.0, height: float = 0.15
+    ) -> None:
+        super().__init__(tilt_amp=0.005, tilt_freq=(3.1, 2.3))
+        self.ax, self.ay, self.w, self.h = half_x, half_y, 2 * np.pi / period_s, height
+
+    def position(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        w = self.w
+        s1, c1, s2, c2 = np.sin(w * t), np.cos(w * t), np.sin(2 * w * t), np.cos(2 * w * t)
+        z = np.zeros_like(t)
+        p = np.stack([self.ax * s1, self.ay * s2, z + self.h], axis=1)
+        v = np.stack([self.ax * w * c1, 2 * self.ay * w * c2, z], axis=1)
+        a = np.stack([-self.ax * w**2 * s1, -4 * self.ay * w**2 * s2, z], axis=1)
+        return p, v, a
+
+
+class CarLoop(_HeadingFromVelocity):
+    """A car on a rounded-rectangle street loop around a block (seed 001's drive), about 8 m/s."""
+
+    def __init__(
+        self,
+        half_x: float = 45.0,
+        half_y: float = 31.0,
+        squareness: float = 0.1,
+        speed: float = 8.0,
+        height: float = 1.8,
+    ) -> None:
+        super().__init__(tilt_amp=0.01, tilt_freq=(1.3, 0.7))
+        self.ax, self.ay, self.c, self.h = half_x, half_y, squareness, height
+        self.w = speed / (0.5 * (half_x + half_y) * (1 + 3 * squareness * 0.5))
+
+    def position(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        w, c = self.w, self.c
+        u = w * t
+        z = np.zeros_like(t)
+        p = np.stack(
+            [
+                self.ax * (np.cos(u) - c * np.cos(3 * u)),
+                self.ay * (np.sin(u) + c * np.sin(3 * u)),
+                z + self.h,
+            ],
+            axis=1,
+        )
+        v = w * np.stack(
+            [
+                self.ax * (-np.sin(u) + 3 * c * np.sin(3 * u)),
+                self.ay * (np.cos(u) + 3 * c * np.cos(3 * u)),
+                z,
+            ],
+            axis=1,
+        )
+        a = w**2 * np.stack(
+            [
+                self.ax * (-np.cos(u) + 9 * c * np.cos(3 * u)),
+                self.ay * (-np.sin(u) - 9 * c * np.sin(3 * u)),
+                z,
+            ],
+            axis=1,
+        )
+        return p, v, a
+
+
+class Handheld(EulerTrajectory):
+    """A device carried by hand: 6-DoF sums of sines around a centre (tens of degrees, tens of cm)."""
+
+    def __init__(self, centre: tuple[float, float, float] = (0.0, 0.0, 1.4)) -> None:
+        self.centre = np.asarray(centre)
+        self.pa = np.array([[0.6, 0.1], [0.5, 0.08], [0.15, 0.05]])
+        self.pf = np.array([[0.45, 2.1], [0.65, 1.7], [1.05, 2.9]])
+        self.pp = np.array([[0.0, 1.0], [0.5, 0.2], [1.0, 0.0]])
+        self.aa = np.array([[0.25, 0.05], [0.2, 0.05], [0.9, 0.1]])
+        self.af = np.array([[0.55, 2.3], [0.35, 1.9], [0.25, 1.3]])
+        self.ap = np.array([[0.0, 0.3], [1.0, 0.7], [0.0, 2.0]])
+
+    def position(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        p, v, a = _sines(t, self.pa, self.pf, self.pp)
+        return p + self.centre, v, a
+
+    def euler(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        ang, rate, _ = _sines(t, self.aa, self.af, self.ap)
+        return ang, rate
+
+
+class Static(EulerTrajectory):
+    """A body at rest."""
+
+    def __init__(
+        self,
+        p_w: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        rpy: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None:
+        self.p = np.asarray(p_w, float)
+        self.rpy = np.asarray(rpy, float)
+
+    def position(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        z = np.zeros((len(t), 3))
+        return z + self.p, z.copy(), z.copy()
+
+    def euler(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        return np.zeros((len(t), 3)) + self.rpy, np.zeros((len(t), 3))
+
+
+class TrajectoryConfig(BaseModel):
+    """A trajectory from YAML: ``kind`` and its main sizes."""
+
+    kind: Literal["diff_drive", "car_loop", "handheld", "static"] = "diff_drive"
+    period_s: float = Field(60.0, gt=0, description="diff_drive: time of one figure eight, s")
+    speed: float = Field(8.0, gt=0, description="car_loop: mean speed, m/s")
+
+
+def make_trajectory(cfg: TrajectoryConfig) -> EulerTrajectory:
+    if cfg.kind == "diff_drive":
+        return DiffDriveFigureEight(period_s=cfg.period_s)
+    if cfg.kind == "car_loop":
+        return CarLoop(speed=cfg.speed)
+    if cfg.kind == "handheld":
+        return Handheld()
+    return Static()
+
+
+class CorridorDrive(_HeadingFromVelocity):
+    """A robot weaving gently down the corridor world along +x at ``speed`` m/s."""
+
+    def __init__(self, speed: float = 0.5, weave: float = 0.3, x0: float = 1.0) -> None:
+        super().__init__(tilt_amp=0.005, tilt_freq=(2.9, 2.1))
+        self.v, self.a, self.x0 = speed, weave, x0
+
+    def position(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        w = 0.4
+        z = np.zeros_like(t)
+        p = np.stack([self.x0 + self.v * t, self.a * np.sin(w * t), z + 0.15], axis=1)
+        v = np.stack([z + self.v, self.a * w * np.cos(w * t), z], axis=1)
+        a = np.stack([z, -self.a * w**2 * np.sin(w * t), z], axis=1)
+        return p, v, a
