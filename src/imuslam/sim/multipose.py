@@ -11,6 +11,7 @@ Joints move with a minimum-jerk profile (Flash & Hogan 1985), so rates are smoot
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,6 +74,115 @@ def sphere_plan_deg(n_poses: int, rng: np.random.Generator | None = None) -> Flo
         )
         up = up @ R.T
     return up_to_gimbal_deg(up)
+
+
+def gimbal_kinematics(
+    angles_deg: FloatArray, rates_dps: FloatArray, g: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """R_w_i (N, 3, 3), specific force f_i (N, 3) and body rate omega_i (N, 3) of the gimbal's IMU from
+    joint angles and rates (N, 2) [roll, pitch] in deg and deg/s; the IMU sits on the rotation centre."""
+    n = angles_deg.shape[0]
+    r, p = np.deg2rad(angles_deg[:, 0]), np.deg2rad(angles_deg[:, 1])
+    dr, dp = np.deg2rad(rates_dps[:, 0]), np.deg2rad(rates_dps[:, 1])
+    cr, sr, cp, sp = np.cos(r), np.sin(r), np.cos(p), np.sin(p)
+    Rx = np.zeros((n, 3, 3))
+    Rx[:, 0, 0] = 1.0
+    Rx[:, 1, 1], Rx[:, 1, 2], Rx[:, 2, 1], Rx[:, 2, 2] = cr, -sr, sr, cr
+    Ry = np.zeros((n, 3, 3))
+    Ry[:, 1, 1] = 1.0
+    Ry[:, 0, 0], Ry[:, 0, 2], Ry[:, 2, 0], Ry[:, 2, 2] = cp, sp, -sp, cp
+    accel_i = g * np.stack([-sp * cr, sr, cp * cr], axis=-1)
+    omega_i = np.stack([cp * dr, dp, sp * dr], axis=-1)  # Ry^T [dr, 0, 0] + [0, dp, 0]
+    return Rx @ Ry, accel_i, omega_i
+
+
+def min_jerk(tau: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Minimum-jerk position s(tau) and ds/dtau on tau in [0, 1] (Flash & Hogan 1985)."""
+    t = np.clip(tau, 0.0, 1.0)
+    return 10 * t**3 - 15 * t**4 + 6 * t**5, 30 * t**2 - 60 * t**3 + 30 * t**4
+
+
+def move_duration_s(delta_deg: FloatArray, joint_speed_dps: float, min_move_s: float) -> float:
+    """Duration of a min-jerk move whose peak joint rate (1.875x the mean) stays within the speed."""
+    return max(float(np.max(np.abs(delta_deg))) / joint_speed_dps * 1.875, min_move_s)
+
+
+class GimbalImuStream:
+    """A closed-loop simulated IMU on the gimbal: ``command`` a pose, ``read`` the next samples.
+
+    errors_at: function of time (s) giving the (accel, gyro) error parameters then, so that errors can
+    drift with working time (seed 000); BWT901CL-class white noise.
+    """
+
+    def __init__(
+        self,
+        rng: np.random.Generator,
+        errors_at: Callable[[float], tuple[TriadErrors, TriadErrors]] | None = None,
+        rate_hz: float = 100.0,
+        g: float = 9.80665,
+        joint_speed_dps: float = 90.0,
+        min_move_s: float = 1.0,
+        resolution_deg: float = GIMBAL_RESOLUTION_DEG,
+        t0_ns: int = 0,
+    ) -> None:
+        self.rng, self.rate, self.g = rng, rate_hz, g
+        self.errors_at = errors_at or (lambda t: (SEED000_ACCEL, SEED000_GYRO))
+        self.speed, self.min_move, self.res = joint_speed_dps, min_move_s, resolution_deg
+        self.k = 0  # next sample index
+        self.t0_ns = t0_ns
+        self.angles = np.zeros(2)
+        self._move: tuple[FloatArray, FloatArray, float, float] | None = (
+            None  # start, target, t_start, T
+        )
+
+    @property
+    def t_s(self) -> float:
+        return self.k / self.rate
+
+    def quantise(self, angles_deg: FloatArray) -> FloatArray:
+        a = np.asarray(angles_deg, dtype=float)
+        a = np.array([np.clip(a[0], *ROLL_LIMITS_DEG), np.clip(a[1], *PITCH_LIMITS_DEG)])
+        return np.round(a / self.res) * self.res
+
+    def command(self, target_deg: FloatArray) -> float:
+        """Start moving to ``target_deg``; returns the move's duration, s."""
+        start = self._angles_at(np.array([self.t_s]))[0][0]
+        tgt = self.quantise(target_deg)
+        T = move_duration_s(tgt - start, self.speed, self.min_move)
+        self._move = (start, tgt, self.t_s, T)
+        return T
+
+    def skip(self, seconds: float) -> None:
+        """Let time pass without reading samples (the robot does something else)."""
+        a, _ = self._angles_at(np.array([self.t_s + seconds]))
+        self.angles = a[0]
+        self._move = None
+        self.k += int(round(seconds * self.rate))
+
+    def _angles_at(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        if self._move is None:
+            return np.tile(self.angles, (len(t), 1)), np.zeros((len(t), 2))
+        a, b, t0, T = self._move
+        s, ds = min_jerk((t - t0) / T)
+        return a + s[:, None] * (b - a), (ds / T)[:, None] * (b - a)
+
+    def read(self, n: int) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
+        """The next ``n`` raw samples: t_ns (n,), accel (n, 3) m/s^2, gyro (n, 3) rad/s."""
+        t = (self.k + np.arange(n)) / self.rate
+        ang, rate = self._angles_at(t)
+        _, f, w = gimbal_kinematics(ang, rate, self.g)
+        ea, eg = self.errors_at(float(t[0]))
+        acc = add_sensor_noise(
+            raw_from_errors(f, ea), self.rng, BWT901CL_ACCEL_DENSITY * np.sqrt(self.rate)
+        )
+        gyr = add_sensor_noise(
+            raw_from_errors(w, eg), self.rng, BWT901CL_GYRO_DENSITY * np.sqrt(self.rate)
+        )
+        self.k += n
+        if self._move is not None and t[-1] >= self._move[2] + self._move[3]:
+            self.angles = self._move[1]
+            self._move = None
+        return self.t0_ns + np.round(t * 1e9).astype(np.int64), acc, gyr
 
 
 @dataclass
@@ -166,18 +276,7 @@ def simulate_multipose(
     else:
         static = np.ones(n, dtype=bool)
 
-    r, p = np.deg2rad(angles[:, 0]), np.deg2rad(angles[:, 1])
-    dr, dp = np.deg2rad(rates[:, 0]), np.deg2rad(rates[:, 1])
-    cr, sr, cp, sp = np.cos(r), np.sin(r), np.cos(p), np.sin(p)
-    Rx = np.zeros((n, 3, 3))
-    Rx[:, 0, 0] = 1.0
-    Rx[:, 1, 1], Rx[:, 1, 2], Rx[:, 2, 1], Rx[:, 2, 2] = cr, -sr, sr, cr
-    Ry = np.zeros((n, 3, 3))
-    Ry[:, 1, 1] = 1.0
-    Ry[:, 0, 0], Ry[:, 0, 2], Ry[:, 2, 0], Ry[:, 2, 2] = cp, sp, -sp, cp
-    R_w_i = Rx @ Ry
-    accel_i = g * np.stack([-sp * cr, sr, cp * cr], axis=-1)
-    omega_i = np.stack([cp * dr, dp, sp * dr], axis=-1)  # Ry^T [dr, 0, 0] + [0, dp, 0]
+    R_w_i, accel_i, omega_i = gimbal_kinematics(angles, rates, g)
 
     a_std = (
         BWT901CL_ACCEL_DENSITY * np.sqrt(rate_hz) if accel_noise_std is None else accel_noise_std
