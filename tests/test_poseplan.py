@@ -1,0 +1,34 @@
+"""The optimised pose order gives lower covariance than the standard 40-pose plan with the same poses."""
+
+import numpy as np
+
+from imuslam.imu.calibrate import CalibrationConfig, calibrate
+from imuslam.imu.poseplan import PlanModel, optimise_order
+from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
+
+
+def test_optimised_order_lowers_every_gyro_std_measured() -> None:
+    """Predicted: the accelerometer's stds are unchanged (same poses) and every gyro std is lower.
+    Measured: 10 paired simulated calibrations (same noise seeds) of both plans; the mean ratio of the
+    reported gyro stds is below 1 for every parameter (the reported std of one run scatters by about
+    sqrt(2 / 69) = 17 %, so the mean of 10 paired ratios is known to ~5 %; the predicted gains are 2-30 %,
+    the test asks only for < 1.02)."""
+    model = PlanModel.seed000()
+    standard = sphere_plan_deg(40)
+    sa0, sg0 = model.predicted_std(standard)
+    opt = optimise_order(model, standard, target_gyro_std=sg0)
+    assert sorted(map(tuple, opt)) == sorted(map(tuple, standard)) and np.all(opt[0] == standard[0])
+    sa1, sg1 = model.predicted_std(opt)
+    np.testing.assert_allclose(sa1, sa0, rtol=1e-9)
+    assert np.all(sg1 < sg0)
+    ratios = []
+    for seed in range(10):
+        stds = []
+        for plan in (standard, opt):
+            rng = np.random.default_rng(seed)
+            stds.append(calibrate(simulate_multipose(plan, rng).log, CalibrationConfig()).std_gyro)
+        ratios.append(stds[1] / stds[0])
+    mean_ratio = np.mean(ratios, axis=0)
+    assert np.all(mean_ratio < 1.02) and np.mean(mean_ratio) < 0.95
+    # the model predicts what the calibrator reports (within the 17 % scatter of one run, on average)
+    assert np.all(np.abs(stds[0] / sg0 - 1) < 0.3)
