@@ -132,3 +132,15 @@ def test_eval_command(shared_data: Path, tmp_path: Path) -> None:
         ],
     )
     assert r.exit_code == 2 and "--align" in r.output
+
+
+def test_online_sim_command(tmp_path: Path) -> None:
+    r = runner.invoke(
+        app,
+        ["online", "--sim", "--duration-h", "0.5", "--drift-accel", "0.2", "--out", str(tmp_path)],
+    )
+    assert r.exit_code == 0, r.output
+    # 0.2 m/s^2 per hour crosses the 0.03 m/s^2 threshold after ~10 min: at least one recalibration
+    assert "drift" in r.output and len(list((tmp_path / "history").glob("v*.yaml"))) >= 2
+    r = runner.invoke(app, ["online"])
+    assert r.exit_code == 2 and "--imu-port" in r.output

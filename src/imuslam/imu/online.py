@@ -10,6 +10,7 @@ sums over a ring buffer, the same statistic as ``imu/static.py``).
 
 from __future__ import annotations
 
+import datetime as dt
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -38,6 +39,7 @@ class OnlineConfig(BaseModel):
     """Online calibration settings (seed 000: T_init 50 s, t_wait 3 s, 1 s window)."""
 
     calibration: CalibrationConfig = Field(default_factory=CalibrationConfig)
+    t_wait_s: float = Field(3.0, gt=0, description="still time held at each pose, s")
     hold_margin_s: float = Field(
         1.0, ge=0, description="extra still time per pose beyond t_wait, s"
     )
@@ -139,6 +141,7 @@ class OnlineCalibrator:
     plan_deg: (P, 2) gimbal poses, the first one held for the initial still period.
     command: sends the gimbal to a pose and returns the time it needs to get there, s.
     on_calibration: called with each accepted calibration; history: where accepted ones are stored.
+    on_corrected: called with (t_ns, accel m/s^2, gyro rad/s) of every sample once a calibration is in force.
     """
 
     def __init__(
@@ -149,6 +152,7 @@ class OnlineCalibrator:
         current: ImuCalibration | None = None,
         history: CalibrationHistory | None = None,
         on_calibration: Callable[[ImuCalibration, CalibrationResult], None] | None = None,
+        on_corrected: Callable[[int, FloatArray, FloatArray], None] | None = None,
         rate_hz: float = 100.0,
         accel_unit: str = "m/s^2",
         gyro_unit: str = "rad/s",
@@ -163,6 +167,7 @@ class OnlineCalibrator:
         self.current = current
         self.history = history
         self.on_calibration = on_calibration
+        self.on_corrected = on_corrected
         self.rate = rate_hz
         self.units = (accel_unit, gyro_unit)
         self.detector = StillDetector(int(round(self.cfg.calibration.window_s * rate_hz)))
@@ -216,6 +221,7 @@ class OnlineCalibrator:
             log.warning("online calibration rejected: %s", exc)
             return
         new = res.calibration
+        new.date = dt.datetime.fromtimestamp(t_ns * 1e-9, dt.UTC).isoformat(timespec="seconds")
         # Validation: on this session's static intervals the new model must fit gravity at least as well
         # as the calibration in force.
         acc = self._buf.a[: self._buf.n]
@@ -258,7 +264,9 @@ class OnlineCalibrator:
         self._last_t = t_ns
         s = self.detector.push(accel)
         if self.phase in ("move", "hold") or (self.phase == "init" and t_ns >= self._t_phase):
-            self._buf.append(t_ns, accel, gyro)  # the session log starts once the first pose is reached
+            self._buf.append(
+                t_ns, accel, gyro
+            )  # the session log starts once the first pose is reached
         if self.phase == "init":
             if t_ns - self._t_phase >= self.cfg.calibration.t_init_s * 1e9:
                 n0 = int(self.cfg.calibration.t_init_s * self.rate)
@@ -274,19 +282,15 @@ class OnlineCalibrator:
                 self._still_since = None
             elif self._still_since is None:
                 self._still_since = t_ns
-            elif (
-                t_ns - self._still_since
-                >= (
-                    self.cfg.calibration.t_wait_s
-                    if hasattr(self.cfg.calibration, "t_wait_s")
-                    else 3.0
-                )
-                * 1e9
-                + self.cfg.hold_margin_s * 1e9
-            ):
+            elif t_ns - self._still_since >= (self.cfg.t_wait_s + self.cfg.hold_margin_s) * 1e9:
                 self._next_pose(t_ns)
         elif self.phase == "monitor":
             self._monitor(t_ns, accel, gyro, s)
+        if self.on_corrected is not None and self.current is not None:
+            c = self.current
+            self.on_corrected(
+                t_ns, c.accel.M @ (accel + c.accel.offset), c.gyro.M @ (gyro + c.gyro.offset)
+            )
 
     # -------------------------------------------------------------------------------------- monitor
     def _monitor(self, t_ns: int, accel: FloatArray, gyro: FloatArray, s: float) -> None:

@@ -15,6 +15,7 @@ from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO, TriadErrors
 from imuslam.sim.multipose import GimbalImuStream
 
 FloatArray = NDArray[np.float64]
+T0_NS = 1_700_000_000_000_000_000  # simulated clock starts at a plausible epoch
 
 
 @dataclass
@@ -64,13 +65,13 @@ def run_simulated_robot(
 ) -> OnlineRun:
     """Calibrate at start-up, then every ``still_every_s`` the robot stands still for ``still_s`` (the time
     between is skipped); a drift event starts a new gimbal session at once."""
-    stream = GimbalImuStream(rng, drift.errors_at, rate_hz)
+    stream = GimbalImuStream(rng, drift.errors_at, rate_hz, t0_ns=T0_NS)
     cal = OnlineCalibrator(plan_deg, stream.command, config, history=history, rate_hz=rate_hz)
     sessions: list[tuple[float, float]] = []
 
     def run_session() -> None:
         t_start = stream.t_s
-        cal.start_session(int(stream.t_s * 1e9))
+        cal.start_session(T0_NS + int(stream.t_s * 1e9))
         while cal.phase != "monitor" and stream.t_s < duration_s + 3600:
             t, a, w = stream.read(10)
             for i in range(10):
