@@ -9,7 +9,7 @@ import pytest
 from imuslam.imu.calibrate import CalibrationConfig
 from imuslam.imu.history import CalibrationHistory
 from imuslam.imu.online import OnlineConfig, StillDetector
-from imuslam.imu.online_sim import Drift, run_simulated_robot
+from imuslam.imu.online_sim import T0_NS, Drift, run_simulated_robot
 from imuslam.imu.static import windowed_variance_norm
 from imuslam.sim.multipose import sphere_plan_deg
 
@@ -44,7 +44,7 @@ def test_trigger_above_threshold_and_track_truth(tmp_path: Path) -> None:
     cal = run.calibrator
     ev = [e for e in cal.events if e.kind == "drift"]
     assert len(ev) >= 1
-    first = ev[0].t_ns * 1e-9
+    first = (ev[0].t_ns - T0_NS) * 1e-9
     truth = drift.truth_at(first)
     session_cal = CalibrationHistory(tmp_path).load(1)
     # true gravity-norm error of the first calibration at home pose (z up) when it fired
@@ -53,8 +53,10 @@ def test_trigger_above_threshold_and_track_truth(tmp_path: Path) -> None:
     assert true_err > CFG.max_norm_error
     # no drift event while the true error was below the threshold
     for s in cal.drift_stats:
-        if s["t_s"] < first:
-            r = drift.truth_at(s["t_s"]).accel.invert(np.array([[0.0, 0.0, 9.80665]]))
+        if s["t_s"] - T0_NS * 1e-9 < first:
+            r = drift.truth_at(s["t_s"] - T0_NS * 1e-9).accel.invert(
+                np.array([[0.0, 0.0, 9.80665]])
+            )
             assert (
                 abs(np.linalg.norm(session_cal.correct_accel(r)) - 9.80665)
                 < CFG.max_norm_error + 0.01
@@ -106,3 +108,31 @@ def test_history_lookup_and_crash_safety(tmp_path: Path, monkeypatch: pytest.Mon
         "v0001.yaml",
         "v0002.yaml",
     ]  # no leftovers
+
+
+def test_without_gimbal_gyro_bias_refreshed_from_still_moments() -> None:
+    """No gimbal: the gyro bias drifts by 0.01 rad/s; a still moment flags it and the bias alone is
+    re-estimated, to the accuracy its still moment allows (noise 1.75e-3 rad/s / sqrt(600): 7e-5 rad/s)."""
+    from imuslam.imu.model import ImuCalibration, TriadModel
+    from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO
+    from imuslam.sim.multipose import GimbalImuStream
+
+    drift = Drift(gyro_bias_per_h=np.array([0.01, -0.01, 0.005]))
+    rng = np.random.default_rng(4)
+    stream = GimbalImuStream(rng, drift.errors_at)
+    start = ImuCalibration(TriadModel(SEED000_ACCEL.T, SEED000_ACCEL.K, SEED000_ACCEL.b),
+                           TriadModel(SEED000_GYRO.T, SEED000_GYRO.K, SEED000_GYRO.b))  # fmt: skip
+    from imuslam.imu.online import OnlineCalibrator
+
+    cal = OnlineCalibrator(sphere_plan_deg(24), None, CFG, current=start)
+    stream.skip(3600.0)
+    t, a, w = stream.read(600)
+    for i in range(len(t)):
+        cal.step(int(t[i]), a[i], w[i])
+    cal._end_still(int(t[-1]))
+    kinds = [e.kind for e in cal.events]
+    assert "drift" in kinds and "calibrated" in kinds
+    true_b = drift.errors_at(3600.0)[1].b
+    assert cal.current is not None
+    np.testing.assert_allclose(cal.current.gyro.b, true_b, atol=5 * 7e-5 * 1.04)
+    np.testing.assert_array_equal(cal.current.accel.K, start.accel.K)

@@ -27,7 +27,7 @@ from imuslam.imu.calibrate import (
     calibrate,
 )
 from imuslam.imu.history import CalibrationHistory
-from imuslam.imu.model import ImuCalibration
+from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.io.imulog import AccelUnit, GyroUnit, ImuLog, InputError
 
 log = logging.getLogger(__name__)
@@ -341,7 +341,31 @@ class OnlineCalibrator:
                 "gyro_sigma": float(np.max(sig_w))}  # fmt: skip
         self.drift_stats.append(stat)
         k = self.cfg.confidence_sigma
-        if abs(e) - k * sig_e > self.cfg.max_norm_error or np.any(
-            np.abs(w_c) - k * sig_w > self.cfg.max_gyro_bias
-        ):
+        gyro_drift = bool(np.any(np.abs(w_c) - k * sig_w > self.cfg.max_gyro_bias))
+        if abs(e) - k * sig_e > self.cfg.max_norm_error or gyro_drift:
             self.events.append(Event("drift", t_ns, dict(stat)))
+            if self.command is None and gyro_drift:
+                self._refresh_gyro_bias(t_ns, mean[3:], n, std[3:])
+
+    def _refresh_gyro_bias(
+        self, t_ns: int, gyro_mean_raw: FloatArray, n: int, gyro_std_raw: FloatArray
+    ) -> None:
+        """Without a gimbal, a still moment still tells the gyro bias: the raw mean rate is -b (plus
+        convention) or +b (minus); a new version with only that bias changed is published. The
+        accelerometer's scale and misalignment need the gimbal's poses and stay as they are."""
+        assert self.current is not None
+        old = self.current
+        b = -gyro_mean_raw if old.gyro.bias_sign == "plus" else gyro_mean_raw
+        new = ImuCalibration(
+            old.accel, TriadModel(old.gyro.T, old.gyro.K, b, old.gyro.bias_sign), old.cov_accel, old.cov_gyro,
+            np.diag(gyro_std_raw**2 / n), old.accel_unit, old.gyro_unit, old.g, old.sensor_id,
+            dt.datetime.fromtimestamp(t_ns * 1e-9, dt.UTC).isoformat(timespec="seconds"),
+            f"gyro bias from a still moment of {n} samples", {**old.notes, "refresh": "gyro bias"},
+        )  # fmt: skip
+        self.current = new
+        version = self.history.add(new) if self.history is not None else None
+        self.events.append(
+            Event("calibrated", t_ns, {"version": version, "kind": "gyro bias from a still moment"})
+        )
+        if self.on_calibration is not None and self.last_result is not None:
+            self.on_calibration(new, self.last_result)
