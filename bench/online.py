@@ -45,7 +45,9 @@ def main() -> None:
     for i in range(len(t)):
         cal.step(int(t[i]), a[i], w[i])
     t_mon = (time.perf_counter() - t0) / len(t)
-    table = Table(title="Online calibrator, per-sample cost measured on this machine (target < 50 us)")
+    table = Table(
+        title="Online calibrator, per-sample cost measured on this machine (target < 50 us)"
+    )
     for c in ("phase", "samples", "per sample [us]", "note"):
         table.add_column(c, justify="right")
     table.add_row(
