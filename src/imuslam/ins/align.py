@@ -1,0 +1,123 @@
+"""One interface for alignment: feed a (calibrated) IMU log and aiding, get attitude, bias estimates with
+their covariance over time, and the corrected IMU.
+
+Methods: ``none`` (free strapdown from the given initial state), ``coarse`` (static levelling, see
+``ins/coarse.py``), ``kf`` (error-state KF, ``ins/kf.py``), ``stkf`` (the same with strong tracking).
+Aiding: position (m, in n), velocity (m/s, in n) or zero velocity, each with a time stamp and a 1-sigma.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imuslam.ins.kf import Eskf, KfNoise
+from imuslam.ins.strapdown import NavState, integrate
+from imuslam.io.imulog import ImuLog, InputError
+
+FloatArray = NDArray[np.float64]
+Method = Literal["none", "kf", "stkf"]
+METHODS = ("none", "coarse", "kf", "stkf")
+
+
+@dataclass
+class Aiding:
+    """Aiding measurements: t_s (M,) s, kind 'position' | 'velocity' | 'zupt', values (M, 3), std (m or m/s)."""
+
+    t_s: FloatArray
+    kind: str
+    values: FloatArray
+    std: float
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("position", "velocity", "zupt"):
+            raise InputError(f"aiding kind '{self.kind}'; expected position, velocity or zupt")
+
+
+@dataclass
+class AlignmentResult:
+    """Estimates at the aiding times: t_s (M,), accel_bias / gyro_bias (M, 3) and their 1-sigma (M, 3),
+    R_n_b (M, 3, 3), p_n, v_n (M, 3); fading factors (STKF, else ones); the final state."""
+
+    method: str
+    t_s: FloatArray
+    accel_bias: FloatArray
+    accel_bias_std: FloatArray
+    gyro_bias: FloatArray
+    gyro_bias_std: FloatArray
+    R_n_b: FloatArray
+    p_n: FloatArray
+    v_n: FloatArray
+    fading: FloatArray
+    final: NavState
+
+    def corrected(self, log: ImuLog) -> ImuLog:
+        """The log with the final bias estimates removed (measured = true + bias)."""
+        return ImuLog(log.t_ns, log.accel - self.accel_bias[-1], log.gyro - self.gyro_bias[-1], log.accel_unit,
+                      log.gyro_unit, log.source, list(log.warnings))  # fmt: skip
+
+
+def run_alignment(
+    log: ImuLog,
+    aiding: Aiding,
+    init: NavState,
+    method: Method = "kf",
+    noise: KfNoise | None = None,
+    P0_diag: FloatArray | None = None,
+    g: float = 9.80665,
+    estimate_gravity: bool = False,
+    stkf_beta: float = 3.0,
+    stkf_rho: float = 0.95,
+    stkf_max_fading: float = 5.0,
+) -> AlignmentResult:
+    """Run ``method`` over ``log`` (SI, body frame) with ``aiding`` from ``init`` at the first sample."""
+    if log.accel_unit != "m/s^2" or log.gyro_unit != "rad/s":
+        raise InputError(
+            f"{log.source}: alignment needs m/s^2 and rad/s (calibrate or convert the log first)"
+        )
+    t = log.t_s
+    if method == "none":
+        P, V, R = integrate(t, log.accel, log.gyro, init, g)
+        idx = np.clip(np.searchsorted(t, aiding.t_s), 0, len(t) - 1)
+        z = np.zeros((len(idx), 3))
+        return AlignmentResult("none", t[idx], z, z + np.inf, z, z + np.inf, R[idx], P[idx], V[idx], np.ones(len(idx)),
+                               NavState(P[-1], V[-1], R[-1]))  # fmt: skip
+    if method not in ("kf", "stkf"):
+        raise InputError(f"alignment method '{method}'; expected one of {', '.join(METHODS)}")
+    p0 = (
+        np.array([0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.05, 0.05, 0.05, 0.2, 0.2, 0.2, 0.02, 0.02, 0.02])
+        ** 2
+        if P0_diag is None
+        else P0_diag
+    )
+    if estimate_gravity and len(p0) == 15:
+        p0 = np.concatenate([p0, np.full(3, 0.05**2)])
+    kf = Eskf(init.p_n.copy(), init.v_n.copy(), init.R_n_b.copy(), np.diag(p0), noise=noise or KfNoise(), g=g,
+              strong_tracking=method == "stkf", rho=stkf_rho, beta=stkf_beta, max_fading=stkf_max_fading)  # fmt: skip
+    out = {k: [] for k in ("t", "ba", "sa", "bg", "sg", "R", "p", "v", "f")}  # type: dict[str, list]
+    k = 0
+    for j, ta in enumerate(aiding.t_s):
+        kn = int(np.searchsorted(t, ta))
+        if kn >= len(t):
+            break
+        if kn > k:
+            kf.predict(log.accel[k : kn + 1], log.gyro[k : kn + 1], t[k : kn + 1])
+            k = kn
+        if aiding.kind == "position":
+            kf.update_position(aiding.values[j], aiding.std, float(ta))
+        elif aiding.kind == "velocity":
+            kf.update_velocity(aiding.values[j], aiding.std, float(ta))
+        else:
+            kf.update_zupt(aiding.std, float(ta))
+        sa, sg = kf.bias_std
+        for key, val in (("t", float(ta)), ("ba", kf.ba.copy()), ("sa", sa), ("bg", kf.bg.copy()), ("sg", sg),
+                         ("R", kf.R.copy()), ("p", kf.p.copy()), ("v", kf.v.copy()), ("f", kf.fading)):  # fmt: skip
+            out[key].append(val)
+    if not out["t"]:
+        raise InputError(f"{log.source}: no aiding measurement falls inside the log's time span")
+    a = {k: np.asarray(v) for k, v in out.items()}
+    return AlignmentResult(method, a["t"], a["ba"], a["sa"], a["bg"], a["sg"], a["R"], a["p"], a["v"], a["f"],
+                           NavState(kf.p, kf.v, kf.R))  # fmt: skip

@@ -1,0 +1,222 @@
+"""Fine alignment by an error-state Kalman filter, and its strong tracking variant.
+
+Nominal state: position p, velocity v (ENU), attitude R_n_b, accelerometer bias b_a and gyro bias b_g
+(measured = true + bias + noise). Error state (15): ``[dp, dv, dtheta, db_a, db_g]`` with the attitude
+error on the right, ``R_true = R exp(dtheta)`` (Sola 2017, eqs. 262-270):
+
+    dp' = dv,   dv' = -R [f x] dtheta - R db_a,   dtheta' = -[w x] dtheta - db_g,   db' = random walk
+
+discretised per sample as Phi = I + F dt. Aiding: zero velocity (ZUPT), velocity, or position in n.
+Strong tracking (Zhou & Frank, "Strong tracking filtering of nonlinear time-varying stochastic systems
+with coloured noise", Int. J. Control 1996): at each update the predicted covariance is inflated by a
+fading factor lambda = max(1, tr N / tr M), N = V - H Q H^T - beta R, M = H (P - Q) H^T, with V the
+innovation covariance estimated with forgetting factor rho, and Q the process noise added since the last
+update (the multi-rate form of the STF); lambda is capped. Defaults beta = 3, cap 5, rho = 0.95: with
+beta = 1 the factor fires on measurement noise alone and the bias states wander off (simulated hand-held
+case, 1 cm position fixes: 9-12 sigma errors, against 1.4 sigma with beta = 3).
+A covariance that loses symmetry or positive definiteness, or a NaN, raises :class:`FilterDivergence`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from imuslam.ins.strapdown import _exp3
+from imuslam.io.imulog import InputError
+
+FloatArray = NDArray[np.float64]
+
+
+class FilterDivergence(InputError):
+    """The filter's state or covariance became invalid; the message names the sample and time."""
+
+
+@dataclass
+class KfNoise:
+    """Continuous noise densities: accel (m/s^2/sqrt(Hz)), gyro (rad/s/sqrt(Hz)), bias random walks."""
+
+    accel: float = 3e-3
+    gyro: float = 2e-4
+    accel_bias_rw: float = 1e-4
+    gyro_bias_rw: float = 2e-5
+
+
+@numba.njit(cache=True)
+def _propagate(
+    accel: FloatArray,
+    gyro: FloatArray,
+    dt: FloatArray,
+    p: FloatArray,
+    v: FloatArray,
+    R: FloatArray,
+    ba: FloatArray,
+    bg: FloatArray,
+    P: FloatArray,
+    g_n: FloatArray,
+    q: FloatArray,
+) -> tuple[
+    FloatArray, FloatArray, FloatArray, FloatArray, FloatArray
+]:  # pragma: no cover - compiled
+    """Propagate nominal state and covariance over samples 0..N-1 (N - 1 steps). Returns p, v, R, P, Qsum.
+
+    P is 15 x 15, or 18 x 18 with a gravity-vector error in n as the last three states (dv' += dg).
+    """
+    m = P.shape[0]
+    Qsum = np.zeros((m, m))
+    for k in range(dt.shape[0]):
+        h = dt[k]
+        f0 = accel[k] - ba
+        f1 = accel[k + 1] - ba
+        w0 = gyro[k] - bg
+        w1 = gyro[k + 1] - bg
+        wm = 0.5 * (w0 + w1)
+        Rn = R @ _exp3(wm[0] * h, wm[1] * h, wm[2] * h)
+        vn = v + h * (0.5 * (R @ f0 + Rn @ f1) + g_n)
+        p = p + 0.5 * h * (v + vn)
+        fm = 0.5 * (f0 + f1)
+        F = np.zeros((m, m))
+        if m == 18:
+            F[3:6, 15:18] = np.eye(3)
+        F[0:3, 3:6] = np.eye(3)
+        Rf = R @ np.array([[0.0, -fm[2], fm[1]], [fm[2], 0.0, -fm[0]], [-fm[1], fm[0], 0.0]])
+        F[3:6, 6:9] = -Rf
+        F[3:6, 9:12] = -R
+        F[6:9, 6:9] = -np.array([[0.0, -wm[2], wm[1]], [wm[2], 0.0, -wm[0]], [-wm[1], wm[0], 0.0]])
+        F[6:9, 12:15] = -np.eye(3)
+        Phi = np.eye(m) + F * h
+        Qd = np.zeros((m, m))
+        for i in range(3):
+            Qd[3 + i, 3 + i] = q[0] * h
+            Qd[6 + i, 6 + i] = q[1] * h
+            Qd[9 + i, 9 + i] = q[2] * h
+            Qd[12 + i, 12 + i] = q[3] * h
+        P = Phi @ P @ Phi.T + Qd
+        Qsum = Phi @ Qsum @ Phi.T + Qd
+        v, R = vn, Rn
+    return p, v, R, P, Qsum
+
+
+@dataclass
+class Eskf:
+    """15-state error-state KF (18 with the gravity vector, for a world frame whose z is not exactly
+    vertical, e.g. a motion-capture frame). ``strong_tracking`` turns on the fading factor (STKF)."""
+
+    p: FloatArray
+    v: FloatArray
+    R: FloatArray
+    P: FloatArray
+    ba: FloatArray = field(default_factory=lambda: np.zeros(3))
+    bg: FloatArray = field(default_factory=lambda: np.zeros(3))
+    noise: KfNoise = field(default_factory=KfNoise)
+    g: float = 9.80665
+    strong_tracking: bool = False
+    rho: float = 0.95
+    beta: float = 3.0
+    max_fading: float = 5.0
+    fading: float = 1.0
+    _V: FloatArray | None = None
+    _Qsum: FloatArray | None = None
+    n_samples: int = 0
+    dg: FloatArray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        self.n = self.P.shape[0]
+        if self.n not in (15, 18):
+            raise InputError(
+                f"covariance must be 15 x 15 (or 18 x 18 with gravity), got {self.P.shape}"
+            )
+        self._Qsum = np.zeros((self.n, self.n))
+
+    def predict(self, accel: FloatArray, gyro: FloatArray, t_s: FloatArray) -> None:
+        """Propagate over a block of samples (N, 3) at times t_s (N,) (the first sample ends the last block)."""
+        q = np.array(
+            [
+                self.noise.accel**2,
+                self.noise.gyro**2,
+                self.noise.accel_bias_rw**2,
+                self.noise.gyro_bias_rw**2,
+            ]
+        )
+        self.p, self.v, self.R, self.P, Qs = _propagate(
+            np.ascontiguousarray(accel, float), np.ascontiguousarray(gyro, float), np.diff(t_s), self.p, self.v,
+            self.R, self.ba, self.bg, self.P, np.array([0.0, 0.0, -self.g]) + self.dg, q,
+        )  # fmt: skip
+        assert self._Qsum is not None
+        self._Qsum = self._Qsum + Qs
+        self.n_samples += len(t_s) - 1
+        self._check(float(t_s[-1]))
+
+    def update(
+        self, z: FloatArray, zhat: FloatArray, H: FloatArray, Rm: FloatArray, t_s: float
+    ) -> FloatArray:
+        """Kalman update with measurement z (m,), prediction zhat, Jacobian H (m, 15), noise Rm (m, m).
+
+        Returns the innovation.
+        """
+        r = z - zhat
+        assert self._Qsum is not None
+        if self.strong_tracking:
+            V = (
+                np.outer(r, r)
+                if self._V is None
+                else (self.rho * self._V + np.outer(r, r)) / (1 + self.rho)
+            )
+            self._V = V
+            N = V - H @ self._Qsum @ H.T - self.beta * Rm
+            M = H @ (self.P - self._Qsum) @ H.T
+            lam = float(np.trace(N) / max(np.trace(M), 1e-300))
+            self.fading = float(np.clip(lam, 1.0, self.max_fading))
+            self.P = self.fading * (self.P - self._Qsum) + self._Qsum
+        S = H @ self.P @ H.T + Rm
+        K = np.linalg.solve(S, H @ self.P).T
+        dx = K @ r
+        I_KH = np.eye(self.n) - K @ H
+        self.P = I_KH @ self.P @ I_KH.T + K @ Rm @ K.T  # Joseph form
+        self.p = self.p + dx[0:3]
+        self.v = self.v + dx[3:6]
+        self.R = self.R @ _exp3(dx[6], dx[7], dx[8])
+        self.ba = self.ba + dx[9:12]
+        self.bg = self.bg + dx[12:15]
+        if self.n == 18:
+            self.dg = self.dg + dx[15:18]
+        self._Qsum = np.zeros((self.n, self.n))
+        self._check(t_s)
+        return r
+
+    def update_velocity(self, v_meas: FloatArray, std: float, t_s: float) -> FloatArray:
+        H = np.zeros((3, self.n))
+        H[:, 3:6] = np.eye(3)
+        return self.update(np.asarray(v_meas, float), self.v, H, np.eye(3) * std**2, t_s)
+
+    def update_zupt(self, std: float, t_s: float) -> FloatArray:
+        return self.update_velocity(np.zeros(3), std, t_s)
+
+    def update_position(self, p_meas: FloatArray, std: float, t_s: float) -> FloatArray:
+        H = np.zeros((3, self.n))
+        H[:, 0:3] = np.eye(3)
+        return self.update(np.asarray(p_meas, float), self.p, H, np.eye(3) * std**2, t_s)
+
+    def _check(self, t_s: float) -> None:
+        ok = bool(
+            np.isfinite(self.P).all() and np.isfinite(self.p).all() and np.isfinite(self.R).all()
+        )
+        if ok:
+            self.P = 0.5 * (self.P + self.P.T)
+            try:
+                np.linalg.cholesky(self.P + np.eye(self.n) * 1e-18)
+            except np.linalg.LinAlgError:
+                ok = False
+        if not ok:
+            raise FilterDivergence(
+                f"filter diverged at sample {self.n_samples} (t = {t_s:.3f} s): covariance not positive definite "
+                "or state not finite; check the noise settings and the aiding"
+            )
+
+    @property
+    def bias_std(self) -> tuple[FloatArray, FloatArray]:
+        d = np.sqrt(np.diag(self.P))
+        return d[9:12], d[12:15]

@@ -1,0 +1,155 @@
+"""Strapdown mechanisation in a local-level ENU frame (REP-103), with optional earth rate.
+
+The navigation frame n is a local tangent plane (east, north, up) at latitude L; over the areas a robot
+covers its curvature and the transport rate are negligible, so positions are metres in that plane.
+Continuous equations (Titterton & Weston, "Strapdown Inertial Navigation Technology", 2nd ed., eqs.
+3.29-3.33 with the transport rate dropped):
+
+    dR_n_b/dt = R_n_b [omega_b x] - [omega_ie_n x] R_n_b
+    dv_n/dt   = R_n_b f_b + g_n - 2 omega_ie_n x v_n
+    dp_n/dt   = v_n
+
+Discretisation per sample interval: the attitude by the rotation vector of the mean rate of the two
+samples (second order), the velocity by the trapezoid of the rotated specific force, the position by the
+trapezoid of the velocity. ``g_n = [0, 0, -g(L, h)]`` with the WGS-84 normal gravity (Somigliana) or a
+given constant.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+EARTH_RATE = 7.292115e-5  # rad/s, WGS-84
+
+
+def normal_gravity(lat_rad: float, height_m: float = 0.0) -> float:
+    """WGS-84 normal gravity (Somigliana's formula) with the free-air correction, m/s^2."""
+    s2 = np.sin(lat_rad) ** 2
+    g0 = 9.7803253359 * (1 + 0.00193185265241 * s2) / np.sqrt(1 - 0.00669437999013 * s2)
+    return float(g0 - 3.086e-6 * height_m)
+
+
+def earth_rate_enu(lat_rad: float) -> FloatArray:
+    """Earth's rotation in the ENU frame at latitude L: Omega [0, cos L, sin L], rad/s."""
+    return EARTH_RATE * np.array([0.0, np.cos(lat_rad), np.sin(lat_rad)])
+
+
+@numba.njit(cache=True, inline="always")
+def _exp3(wx: float, wy: float, wz: float) -> NDArray[np.float64]:  # pragma: no cover - compiled
+    th2 = wx * wx + wy * wy + wz * wz
+    th = np.sqrt(th2)
+    if th < 1e-8:
+        a = 1.0 - th2 / 6.0
+        b = 0.5 - th2 / 24.0
+    else:
+        a = np.sin(th) / th
+        b = (1.0 - np.cos(th)) / th2
+    R = np.empty((3, 3))
+    R[0, 0] = 1.0 - b * (wy * wy + wz * wz)
+    R[0, 1] = -a * wz + b * wx * wy
+    R[0, 2] = a * wy + b * wx * wz
+    R[1, 0] = a * wz + b * wx * wy
+    R[1, 1] = 1.0 - b * (wx * wx + wz * wz)
+    R[1, 2] = -a * wx + b * wy * wz
+    R[2, 0] = -a * wy + b * wx * wz
+    R[2, 1] = a * wx + b * wy * wz
+    R[2, 2] = 1.0 - b * (wx * wx + wy * wy)
+    return R
+
+
+@numba.njit(cache=True)
+def mechanise(
+    accel_b: FloatArray,
+    gyro_b: FloatArray,
+    dt: FloatArray,
+    p0: FloatArray,
+    v0: FloatArray,
+    R0: FloatArray,
+    g_n: FloatArray,
+    w_ie_n: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """Integrate N samples (accel (N, 3) m/s^2, gyro (N, 3) rad/s, dt (N - 1,) s) from (p0, v0, R0).
+
+    Returns positions (N, 3), velocities (N, 3), R_n_b (N, 3, 3).
+    """
+    n = accel_b.shape[0]
+    P = np.empty((n, 3))
+    V = np.empty((n, 3))
+    Rs = np.empty((n, 3, 3))
+    P[0], V[0], Rs[0] = p0, v0, R0
+    E = _exp3(0.0, 0.0, 0.0)
+    for k in range(n - 1):
+        h = dt[k]
+        R = Rs[k]
+        wm = 0.5 * (gyro_b[k] + gyro_b[k + 1]) * h
+        Rn = R @ _exp3(wm[0], wm[1], wm[2])
+        if w_ie_n[0] != 0.0 or w_ie_n[1] != 0.0 or w_ie_n[2] != 0.0:
+            E = _exp3(-w_ie_n[0] * h, -w_ie_n[1] * h, -w_ie_n[2] * h)
+            Rn = E @ Rn
+        f0 = R @ accel_b[k]
+        f1 = Rn @ accel_b[k + 1]
+        v = V[k]
+        cor = 2.0 * np.array(
+            [
+                w_ie_n[1] * v[2] - w_ie_n[2] * v[1],
+                w_ie_n[2] * v[0] - w_ie_n[0] * v[2],
+                w_ie_n[0] * v[1] - w_ie_n[1] * v[0],
+            ]
+        )
+        vn = v + h * (0.5 * (f0 + f1) + g_n - cor)
+        P[k + 1] = P[k] + 0.5 * h * (v + vn)
+        V[k + 1] = vn
+        Rs[k + 1] = Rn
+    return P, V, Rs
+
+
+@dataclass
+class NavState:
+    """Position (3,) m, velocity (3,) m/s in n (ENU), attitude R_n_b (3, 3)."""
+
+    p_n: FloatArray
+    v_n: FloatArray
+    R_n_b: FloatArray
+
+
+class Strapdown:
+    """Step-by-step mechanisation (same equations as :func:`mechanise`)."""
+
+    def __init__(self, state: NavState, g: float = 9.80665, lat_rad: float | None = None) -> None:
+        self.state = NavState(state.p_n.copy(), state.v_n.copy(), state.R_n_b.copy())
+        self.g_n = np.array([0.0, 0.0, -g])
+        self.w_ie = earth_rate_enu(lat_rad) if lat_rad is not None else np.zeros(3)
+        self._last: tuple[FloatArray, FloatArray] | None = None
+
+    def step(self, accel_b: FloatArray, gyro_b: FloatArray, dt: float) -> NavState:
+        """Advance by one sample (the first call only stores it)."""
+        if self._last is not None:
+            a = np.vstack([self._last[0], accel_b])
+            w = np.vstack([self._last[1], gyro_b])
+            s = self.state
+            P, V, R = mechanise(a, w, np.array([dt]), s.p_n, s.v_n, s.R_n_b, self.g_n, self.w_ie)
+            self.state = NavState(P[1], V[1], R[1])
+        self._last = (np.asarray(accel_b, float), np.asarray(gyro_b, float))
+        return self.state
+
+
+def integrate(
+    t_s: FloatArray,
+    accel_b: FloatArray,
+    gyro_b: FloatArray,
+    init: NavState,
+    g: float = 9.80665,
+    lat_rad: float | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Batch mechanisation over a log: positions (N, 3), velocities (N, 3), R_n_b (N, 3, 3)."""
+    w_ie = earth_rate_enu(lat_rad) if lat_rad is not None else np.zeros(3)
+    return mechanise(
+        np.ascontiguousarray(accel_b, dtype=float), np.ascontiguousarray(gyro_b, dtype=float),
+        np.diff(np.asarray(t_s, dtype=float)), init.p_n.astype(float), init.v_n.astype(float),
+        np.ascontiguousarray(init.R_n_b, dtype=float), np.array([0.0, 0.0, -g]), w_ie,
+    )  # fmt: skip
