@@ -32,3 +32,16 @@ def test_optimised_order_lowers_every_gyro_std_measured() -> None:
     assert np.all(mean_ratio < 1.02) and np.mean(mean_ratio) < 0.95
     # the model predicts what the calibrator reports (within the 17 % scatter of one run, on average)
     assert np.all(np.abs(stds[0] / sg0 - 1) < 0.3)
+
+
+def test_fewer_poses_when_a_looser_target_is_met() -> None:
+    """A user target 30 % looser than what the 40-pose plan gives is met with fewer poses, and the
+    plan returned does meet it (predicted)."""
+    from imuslam.imu.poseplan import plan_for_target
+
+    model = PlanModel.seed000()
+    sa0, sg0 = model.predicted_std(sphere_plan_deg(40))
+    plan = plan_for_target(model, 1.3 * sa0, 1.3 * sg0, min_poses=16, max_poses=40, iterations=500)
+    sa, sg = model.predicted_std(plan)
+    assert len(plan) < 40
+    assert np.all(sa <= 1.3 * sa0) and np.all(sg <= 1.3 * sg0)

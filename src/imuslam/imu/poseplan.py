@@ -176,3 +176,35 @@ def optimise_order(
         if c < best:
             best, order = c, trial
     return p[order]
+
+
+def plan_for_target(
+    model: PlanModel,
+    target_accel_std: FloatArray,
+    target_gyro_std: FloatArray,
+    min_poses: int = 12,
+    max_poses: int = 50,
+    iterations: int = 1500,
+) -> FloatArray:
+    """The shortest plan (a Fibonacci sphere of N poses, ordered by :func:`optimise_order`) whose predicted
+    standard deviations all meet the targets (accelerometer (9,), gyroscope (9,)).
+
+    Raises ValueError when even ``max_poses`` poses cannot meet them.
+    """
+    from imuslam.sim.multipose import sphere_plan_deg
+
+    lo, hi = min_poses, max_poses
+    best: FloatArray | None = None
+    while lo <= hi:  # the accelerometer's stds fall monotonically with N: bisect on N
+        n = (lo + hi) // 2
+        plan = optimise_order(model, sphere_plan_deg(n), target_gyro_std, iterations)
+        sa, sg = model.predicted_std(plan)
+        if np.all(sa <= target_accel_std) and np.all(sg <= target_gyro_std):
+            best, hi = plan, n - 1
+        else:
+            lo = n + 1
+    if best is None:
+        raise ValueError(
+            f"no plan of at most {max_poses} poses meets the target standard deviations"
+        )
+    return best
