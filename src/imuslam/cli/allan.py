@@ -14,8 +14,8 @@ import yaml  # noqa: E402
 
 from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log, table, write_json  # noqa: E402
 from imuslam.imu.allan import AllanResult, allan  # noqa: E402
-from imuslam.imu.report import save_figure  # noqa: E402
 from imuslam.io.atomic import write_atomic  # noqa: E402
+from imuslam.io.figures import save_figure  # noqa: E402
 
 
 def plot_allan(res: AllanResult) -> plt.Figure:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import matplotlib
@@ -11,15 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from imuslam.eval.metrics import EvalResult  # noqa: E402
-from imuslam.io.atomic import write_atomic  # noqa: E402
+from imuslam.io.figures import save_figure  # noqa: E402
 from imuslam.io.trajectory import Trajectory  # noqa: E402
-
-
-def _save(fig: plt.Figure, path: Path) -> None:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    write_atomic(path, buf.getvalue())
 
 
 def plot_evaluation(
@@ -34,7 +26,7 @@ def plot_evaluation(
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.legend()
-    _save(fig, out / "trajectories.png")
+    save_figure(fig, out / "trajectories.png")
     fig, ax = plt.subplots(figsize=(10, 4))
     ax.plot(res.t_s, res.ape_trans_series, "C0-", lw=0.8)
     ax.axhline(
@@ -43,5 +35,5 @@ def plot_evaluation(
     ax.set_xlabel("time [s]")
     ax.set_ylabel("APE translation [m]")
     ax.legend()
-    _save(fig, out / "ape.png")
+    save_figure(fig, out / "ape.png")
     return [out / "trajectories.png", out / "ape.png"]

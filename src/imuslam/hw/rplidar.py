@@ -1,4 +1,5 @@
-"""RPLIDAR A2 scans through an existing Python driver (``rplidar-roboticia``), as LaserScan records.
+"""RPLIDAR A2 scans through an existing Python driver (``rplidar-roboticia``), as LaserScan records
+(:class:`imuslam.sim.lidar.Scan2d`, the same record the simulator produces).
 
 The driver yields each revolution as ``(quality, angle_deg, distance_mm)`` tuples, angles clockwise from
 the sensor's front; a LaserScan is counter-clockwise (REP-103), so angles are negated and binned at
@@ -9,21 +10,10 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
-
-@dataclass
-class LaserScan:
-    t_ns: int
-    angle_min: float
-    angle_increment: float
-    range_min: float
-    range_max: float
-    ranges: NDArray[np.float32]
-    intensities: NDArray[np.float32]
+from imuslam.sim.lidar import Scan2d
 
 
 def scan_from_measurements(
@@ -32,7 +22,7 @@ def scan_from_measurements(
     increment_deg: float = 0.45,
     range_min: float = 0.2,
     range_max: float = 12.0,
-) -> LaserScan:
+) -> Scan2d:
     """Bin one revolution of (quality, angle_deg clockwise, distance_mm) into a LaserScan (m, rad, CCW)."""
     m = np.asarray(list(meas), dtype=float).reshape(-1, 3)
     nb = int(round(360.0 / increment_deg))
@@ -46,10 +36,11 @@ def scan_from_measurements(
         order = np.argsort(-r[ok])  # the nearest return wins a bin
         ranges[b[order]] = r[ok][order]
         inten[b[order]] = m[ok, 0][order]
-    return LaserScan(t_ns, -np.pi, np.deg2rad(increment_deg), range_min, range_max, ranges, inten)
+    inc = np.deg2rad(increment_deg)
+    return Scan2d(t_ns, -np.pi, float(inc), 0.0, 0.0, range_min, range_max, ranges, inten)
 
 
-def rplidar_scans(port: str = "/dev/ttyUSB0", baud: int = 115200) -> Iterator[LaserScan]:
+def rplidar_scans(port: str = "/dev/ttyUSB0", baud: int = 115200) -> Iterator[Scan2d]:
     """Scans from an RPLIDAR A2 (requires the ``hw`` extra: pip install imuslam[hw])."""
     from rplidar import RPLidar  # optional dependency
 

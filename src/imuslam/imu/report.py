@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import html
-import io
 from pathlib import Path
 
 import matplotlib
@@ -16,15 +15,8 @@ from matplotlib.figure import Figure  # noqa: E402
 from imuslam.imu.calibrate import CalibrationResult  # noqa: E402
 from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES  # noqa: E402
 from imuslam.io.atomic import write_atomic  # noqa: E402
+from imuslam.io.figures import save_figure  # noqa: E402
 from imuslam.io.imulog import ImuLog  # noqa: E402
-
-
-def save_figure(fig: Figure, path: str | Path) -> None:
-    """Render ``fig`` to PNG in memory and write it atomically."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    write_atomic(path, buf.getvalue())
 
 
 def plot_static_detection(res: CalibrationResult, log: ImuLog) -> Figure:
