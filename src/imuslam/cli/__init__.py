@@ -28,6 +28,7 @@ def _root(
 
 
 # Command registrations (one line per command module).
+from imuslam.cli import align as _align  # noqa: E402
 from imuslam.cli import allan as _allan  # noqa: E402
 from imuslam.cli import calibrate as _calibrate  # noqa: E402
 from imuslam.cli import correct as _correct  # noqa: E402
@@ -36,7 +37,7 @@ from imuslam.cli import evaluate as _evaluate  # noqa: E402
 from imuslam.cli import online as _online  # noqa: E402
 from imuslam.cli import simulate as _simulate  # noqa: E402
 
-for _m in (_calibrate, _correct, _allan, _evaluate, _simulate, _online, _demo):
+for _m in (_calibrate, _correct, _allan, _align, _evaluate, _simulate, _online, _demo):
     _m.register(app)
 
 

@@ -67,25 +67,43 @@ def _propagate(
     """
     m = P.shape[0]
     Qsum = np.zeros((m, m))
-    for k in range(dt.shape[0]):
+    ns = dt.shape[0]
+    Rs = np.empty((ns + 1, 3, 3))
+    Rs[0] = R
+    fn_mean = np.zeros(3)
+    for k in range(ns):  # nominal state
         h = dt[k]
         f0 = accel[k] - ba
         f1 = accel[k + 1] - ba
-        w0 = gyro[k] - bg
-        w1 = gyro[k + 1] - bg
-        wm = 0.5 * (w0 + w1)
+        wm = 0.5 * (gyro[k] + gyro[k + 1]) - bg
         Rn = R @ _exp3(wm[0] * h, wm[1] * h, wm[2] * h)
-        vn = v + h * (0.5 * (R @ f0 + Rn @ f1) + g_n)
+        a0 = R @ f0
+        vn = v + h * (0.5 * (a0 + Rn @ f1) + g_n)
         p = p + 0.5 * h * (v + vn)
-        fm = 0.5 * (f0 + f1)
+        fn_mean += a0
+        v, R = vn, Rn
+        Rs[k + 1] = R
+    # The coupling of attitude error into velocity, -[(R f) x] R dtheta, uses the navigation-frame specific
+    # force averaged over the block: with each noisy sample instead, white noise in f would make the
+    # filter believe it observes the heading (and the gyro bias along gravity) on a still base.
+    fn_mean /= max(ns, 1)
+    Fx = np.array(
+        [
+            [0.0, -fn_mean[2], fn_mean[1]],
+            [fn_mean[2], 0.0, -fn_mean[0]],
+            [-fn_mean[1], fn_mean[0], 0.0],
+        ]
+    )
+    for k in range(ns):  # covariance
+        h = dt[k]
+        Rk = Rs[k]
+        wm = 0.5 * (gyro[k] + gyro[k + 1]) - bg
         F = np.zeros((m, m))
         if m == 18:
             F[3:6, 15:18] = np.eye(3)
         F[0:3, 3:6] = np.eye(3)
-        Rf = R @ np.array([[0.0, -fm[2], fm[1]], [fm[2], 0.0, -fm[0]], [-fm[1], fm[0], 0.0]])
-        F[3:6, 6:9] = -Rf
-        F[3:6, 9:12] = -R
-        F[6:9, 6:9] = -np.array([[0.0, -wm[2], wm[1]], [wm[2], 0.0, -wm[0]], [-wm[1], wm[0], 0.0]])
+        F[3:6, 6:9] = -Fx @ Rk
+        F[3:6, 9:12] = -Rk
         F[6:9, 12:15] = -np.eye(3)
         Phi = np.eye(m) + F * h
         # the attitude-error block exactly, exp(-[w x] h): first order is unstable at fast rates
@@ -99,7 +117,6 @@ def _propagate(
             Qd[12 + i, 12 + i] = q[3] * h
         P = Phi @ P @ Phi.T + Qd
         Qsum = Phi @ Qsum @ Phi.T + Qd
-        v, R = vn, Rn
     return p, v, R, P, Qsum
 
 

@@ -61,6 +61,16 @@ class ImuLog:
             return float("nan")
         return float((len(self) - 1) / ((self.t_ns[-1] - self.t_ns[0]) * 1e-9))
 
+    def to_si(self) -> ImuLog:
+        """The log in m/s^2 and rad/s (from g and deg/s); raw counts need a calibration first."""
+        if "counts" in (self.accel_unit, self.gyro_unit):
+            raise InputError(
+                f"{self.source}: the log is in raw counts; calibrate it first (imuslam calibrate)"
+            )
+        a = self.accel * (9.80665 if self.accel_unit == "g" else 1.0)
+        w = self.gyro * (np.pi / 180.0 if self.gyro_unit == "deg/s" else 1.0)
+        return ImuLog(self.t_ns.copy(), a, w, "m/s^2", "rad/s", self.source, list(self.warnings))
+
     def slice(self, start: int, stop: int) -> ImuLog:
         """Samples ``start:stop`` as a new log sharing units and provenance."""
         return ImuLog(
