@@ -1,6 +1,6 @@
 """Alignment methods compared on simulated BWT901CL-class IMUs (after calibration: biases left).
 
-Scenarios (20 seeded runs each): fixed base (still, zero-velocity aiding 10 Hz), moving base (the
+Scenarios (20 seeded runs each): fixed base (still: zero velocity and zero rate at 10 Hz), moving base (the
 figure-eight robot with 2 cm position fixes at 10 Hz), rotating platform (still base, IMU turning at 10 Hz
 about z, zero-velocity aiding 50 Hz). Each run: 60 s of alignment, then 30 s of free inertial navigation
 from the aligned state with the estimated biases removed. Printed per method: accelerometer and gyro bias
@@ -52,7 +52,9 @@ def case(scenario: str, seed: int):  # type: ignore[no-untyped-def]
         aid = Aiding(
             ta, "position", traj.state(ta).p_w + rng.normal(size=(len(ta), 3)) * 0.02, 0.02
         )
-    else:
+    elif scenario == "fixed":
+        aid = Aiding(ta, "zupt", np.zeros((len(ta), 3)), 0.01)
+    else:  # the turning IMU is not still in rate: zero velocity only
         aid = Aiding(ta, "velocity", np.zeros((len(ta), 3)), 0.01)
     return log, tr, aid, ba, bg
 

@@ -60,7 +60,7 @@ def register(app: typer.Typer) -> None:
             return
         if aiding == "zupt":
             ta = np.arange(0.1, t[-1], 0.1)
-            aid = Aiding(ta, "velocity", np.zeros((len(ta), 3)), aiding_std)
+            aid = Aiding(ta, "zupt", np.zeros((len(ta), 3)), aiding_std)
             p0 = np.zeros(3)
         else:
             tr = read_tum(aiding)

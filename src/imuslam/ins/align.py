@@ -3,7 +3,8 @@ their covariance over time, and the corrected IMU.
 
 Methods: ``none`` (free strapdown from the given initial state), ``coarse`` (static levelling, see
 ``ins/coarse.py``), ``kf`` (error-state KF, ``ins/kf.py``), ``stkf`` (the same with strong tracking).
-Aiding: position (m, in n), velocity (m/s, in n) or zero velocity, each with a time stamp and a 1-sigma.
+Aiding: position (m, in n), velocity (m/s, in n) or ``zupt`` (the IMU is still: zero velocity and zero
+angular rate), each with a time stamp and a 1-sigma.
 """
 
 from __future__ import annotations
@@ -103,6 +104,7 @@ def run_alignment(
         kn = int(np.searchsorted(t, ta))
         if kn >= len(t):
             break
+        k0 = k
         if kn > k:
             kf.predict(log.accel[k : kn + 1], log.gyro[k : kn + 1], t[k : kn + 1])
             k = kn
@@ -110,8 +112,14 @@ def run_alignment(
             kf.update_position(aiding.values[j], aiding.std, float(ta))
         elif aiding.kind == "velocity":
             kf.update_velocity(aiding.values[j], aiding.std, float(ta))
-        else:
+        else:  # still: zero velocity, and the mean rate since the last update is the gyro bias
             kf.update_zupt(aiding.std, float(ta))
+            blk = log.gyro[k0 : kn + 1]
+            kf.update_zaru(
+                blk.mean(axis=0),
+                (noise or KfNoise()).gyro * np.sqrt(log.rate_hz / len(blk)),
+                float(ta),
+            )
         sa, sg = kf.bias_std
         for key, val in (("t", float(ta)), ("ba", kf.ba.copy()), ("sa", sa), ("bg", kf.bg.copy()), ("sg", sg),
                          ("R", kf.R.copy()), ("p", kf.p.copy()), ("v", kf.v.copy()), ("f", kf.fading)):  # fmt: skip

@@ -215,6 +215,14 @@ class Eskf:
     def update_zupt(self, std: float, t_s: float) -> FloatArray:
         return self.update_velocity(np.zeros(3), std, t_s)
 
+    def update_zaru(self, gyro_mean: FloatArray, std: float, t_s: float) -> FloatArray:
+        """Zero angular rate update: on a still base the mean raw rate (3,) over a block is the gyro bias
+        (the earth's rate, 15 deg/h at most, is neglected; give ``std`` above it for a navigation-grade gyro).
+        Without it the gyro bias along gravity is unobservable and an EKF can still grow overconfident in it."""
+        H = np.zeros((3, self.n))
+        H[:, 12:15] = np.eye(3)
+        return self.update(np.asarray(gyro_mean, float), self.bg, H, np.eye(3) * std**2, t_s)
+
     def update_position(self, p_meas: FloatArray, std: float, t_s: float) -> FloatArray:
         H = np.zeros((3, self.n))
         H[:, 0:3] = np.eye(3)
