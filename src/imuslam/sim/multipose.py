@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.geometry import quat_to_matrix
 from imuslam.io.imulog import ImuLog
 from imuslam.sim.imu_errors import (
     BWT901CL_ACCEL_DENSITY,
@@ -63,16 +64,7 @@ def sphere_plan_deg(n_poses: int, rng: np.random.Generator | None = None) -> Flo
     up = np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=-1)
     if rng is not None:
         q = rng.normal(size=4)
-        q /= np.linalg.norm(q)
-        w, x, y, zq = q
-        R = np.array(
-            [
-                [1 - 2 * (y * y + zq * zq), 2 * (x * y - w * zq), 2 * (x * zq + w * y)],
-                [2 * (x * y + w * zq), 1 - 2 * (x * x + zq * zq), 2 * (y * zq - w * x)],
-                [2 * (x * zq - w * y), 2 * (y * zq + w * x), 1 - 2 * (x * x + y * y)],
-            ]
-        )
-        up = up @ R.T
+        up = up @ quat_to_matrix(q / np.linalg.norm(q)).T
     return up_to_gimbal_deg(up)
 
 
