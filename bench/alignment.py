@@ -22,7 +22,6 @@ from rich.table import Table
 from imuslam.geometry import log as so3_log
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.kf import KfNoise
-from imuslam.ins.rwnn import run_rwnn
 from imuslam.ins.strapdown import NavState, integrate
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.imu_errors import BWT901CL_ACCEL_DENSITY, BWT901CL_GYRO_DENSITY, TriadErrors
@@ -65,40 +64,18 @@ def run(method: str, log, tr, aid, ba, bg):  # type: ignore[no-untyped-def]
     k_end = int(np.searchsorted(t, T_ALIGN))
     part = log.slice(0, k_end + 1)
     t0 = time.perf_counter()
-    if method == "rwnn":
-        r = run_rwnn(
-            t[: k_end + 1],
-            part.accel,
-            part.gyro,
-            aid.t_s,
-            aid.values,
-            aid.kind,
-            init.p_n,
-            init.v_n,
-            init.R_n_b,
-            G,
-        )
-        hist_a, t_hist = (
-            r.accel_error[:: max(1, k_end // 600)],
-            t[: k_end + 1 : max(1, k_end // 600)],
-        )
-        est_a, est_g = r.accel_error[-1], r.gyro_error[-1]
-        state = NavState(r.p_n[-1], r.v_n[-1], r.R_n_b[-1])
-    else:
-        res = run_alignment(
-            part,
-            aid,
-            init,
-            method,
-            KfNoise(BWT901CL_ACCEL_DENSITY, BWT901CL_GYRO_DENSITY, 1e-4, 1e-5),
-            g=G,
-        )  # type: ignore[arg-type]
-        hist_a, t_hist = res.accel_bias, res.t_s
-        est_a, est_g = res.accel_bias[-1], res.gyro_bias[-1]
-        state = res.final
-        k_end = int(
-            np.searchsorted(t, res.t_s[-1])
-        )  # the filter's state is at its last aiding time
+    res = run_alignment(
+        part,
+        aid,
+        init,
+        method,
+        KfNoise(BWT901CL_ACCEL_DENSITY, BWT901CL_GYRO_DENSITY, 1e-4, 1e-5),
+        g=G,
+    )  # type: ignore[arg-type]
+    hist_a, t_hist = res.accel_bias, res.t_s
+    est_a, est_g = res.accel_bias[-1], res.gyro_bias[-1]
+    state = res.final
+    k_end = int(np.searchsorted(t, res.t_s[-1]))  # the state is at the last aiding time
     dt = time.perf_counter() - t0
     err_hist = np.linalg.norm(hist_a - ba, axis=1)
     bad = np.flatnonzero(err_hist >= 0.02)

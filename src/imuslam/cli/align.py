@@ -14,7 +14,6 @@ import typer  # noqa: E402
 from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log, table, write_json  # noqa: E402
 from imuslam.ins.align import Aiding, run_alignment  # noqa: E402
 from imuslam.ins.coarse import coarse_align  # noqa: E402
-from imuslam.ins.rwnn import run_rwnn  # noqa: E402
 from imuslam.ins.strapdown import NavState  # noqa: E402
 from imuslam.io.figures import save_figure  # noqa: E402
 from imuslam.io.imulog import InputError  # noqa: E402
@@ -71,31 +70,16 @@ def register(app: typer.Typer) -> None:
             aid = Aiding(ta[keep], "position", tr.p_w[keep], aiding_std)
             p0 = tr.p_w[keep][0]
         init = NavState(p0, np.zeros(3), ca.R_n_b)
-        if method == "rwnn":
-            r = run_rwnn(
-                t,
-                log.accel,
-                log.gyro,
-                aid.t_s,
-                aid.values,
-                aid.kind,
-                init.p_n,
-                init.v_n,
-                init.R_n_b,
-            )
-            tt, ba, bg = t, r.accel_error, r.gyro_error
-            sa = sg = np.full_like(ba, np.nan)
-        elif method in ("kf", "stkf"):
-            res = run_alignment(log, aid, init, method)  # type: ignore[arg-type]
-            tt, ba, bg, sa, sg = (
-                res.t_s,
-                res.accel_bias,
-                res.gyro_bias,
-                res.accel_bias_std,
-                res.gyro_bias_std,
-            )
-        else:
+        if method not in ("kf", "stkf", "rwnn"):
             raise InputError(f"--method: '{method}'; expected coarse, kf, stkf or rwnn")
+        res = run_alignment(log, aid, init, method)  # type: ignore[arg-type]
+        tt, ba, bg, sa, sg = (
+            res.t_s,
+            res.accel_bias,
+            res.gyro_bias,
+            res.accel_bias_std,
+            res.gyro_bias_std,
+        )
         rows = [
             [f"accel bias {'xyz'[j]}", f"{ba[-1, j]:+.5f}", f"{sa[-1, j]:.2g}", "m/s^2"]
             for j in range(3)

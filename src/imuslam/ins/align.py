@@ -1,8 +1,10 @@
 """One interface for alignment: feed a (calibrated) IMU log and aiding, get attitude, bias estimates with
 their covariance over time, and the corrected IMU.
 
-Methods: ``none`` (free strapdown from the given initial state), ``coarse`` (static levelling, see
-``ins/coarse.py``), ``kf`` (error-state KF, ``ins/kf.py``), ``stkf`` (the same with strong tracking).
+Methods: ``none`` (free strapdown from the given initial state), ``kf`` (error-state KF, ``ins/kf.py``),
+``stkf`` (the same with strong tracking), ``rwnn`` (the RWNN observer, ``ins/rwnn.py``; no covariance);
+static levelling and gyrocompassing (``coarse``) is :func:`imuslam.ins.coarse.coarse_align`, which gives
+the initial attitude the others start from.
 Aiding: position (m, in n), velocity (m/s, in n) or ``zupt`` (the IMU is still: zero velocity and zero
 angular rate), each with a time stamp and a 1-sigma.
 """
@@ -16,12 +18,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.ins.kf import Eskf, KfNoise
+from imuslam.ins.rwnn import run_rwnn
 from imuslam.ins.strapdown import NavState, integrate
 from imuslam.io.imulog import ImuLog, InputError
 
 FloatArray = NDArray[np.float64]
-Method = Literal["none", "kf", "stkf"]
-METHODS = ("none", "coarse", "kf", "stkf")
+Method = Literal["none", "kf", "stkf", "rwnn"]
+METHODS = ("none", "coarse", "kf", "stkf", "rwnn")
 
 
 @dataclass
@@ -86,6 +89,23 @@ def run_alignment(
         z = np.zeros((len(idx), 3))
         return AlignmentResult("none", t[idx], z, z + np.inf, z, z + np.inf, R[idx], P[idx], V[idx], np.ones(len(idx)),
                                NavState(P[-1], V[-1], R[-1]))  # fmt: skip
+    if method == "rwnn":
+        r = run_rwnn(
+            t,
+            log.accel,
+            log.gyro,
+            aiding.t_s,
+            aiding.values,
+            aiding.kind,
+            init.p_n,
+            init.v_n,
+            init.R_n_b,
+            g,
+        )
+        idx = np.clip(np.searchsorted(t, aiding.t_s), 0, len(t) - 1)
+        nan = np.full((len(idx), 3), np.nan)  # the observer gives no covariance
+        return AlignmentResult("rwnn", t[idx], r.accel_error[idx], nan, r.gyro_error[idx], nan.copy(), r.R_n_b[idx],
+                               r.p_n[idx], r.v_n[idx], np.ones(len(idx)), NavState(r.p_n[idx[-1]], r.v_n[idx[-1]], r.R_n_b[idx[-1]]))  # fmt: skip
     if method not in ("kf", "stkf"):
         raise InputError(f"alignment method '{method}'; expected one of {', '.join(METHODS)}")
     p0 = (

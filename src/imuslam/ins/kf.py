@@ -138,7 +138,7 @@ class Eskf:
     beta: float = 3.0
     max_fading: float = 5.0
     fading: float = 1.0
-    _V: FloatArray | None = None
+    _V: dict[str, FloatArray] = field(default_factory=dict)
     _Qsum: FloatArray | None = None
     n_samples: int = 0
     dg: FloatArray = field(default_factory=lambda: np.zeros(3))
@@ -171,21 +171,29 @@ class Eskf:
         self._check(float(t_s[-1]))
 
     def update(
-        self, z: FloatArray, zhat: FloatArray, H: FloatArray, Rm: FloatArray, t_s: float
+        self,
+        z: FloatArray,
+        zhat: FloatArray,
+        H: FloatArray,
+        Rm: FloatArray,
+        t_s: float,
+        kind: str = "generic",
     ) -> FloatArray:
         """Kalman update with measurement z (m,), prediction zhat, Jacobian H (m, 15), noise Rm (m, m).
 
-        Returns the innovation.
+        ``kind`` names the measurement model: the strong tracking filter keeps one innovation covariance
+        estimate per kind (innovations of different models must not be mixed). Returns the innovation.
         """
         r = z - zhat
         assert self._Qsum is not None
         if self.strong_tracking:
+            prev = self._V.get(kind)
             V = (
                 np.outer(r, r)
-                if self._V is None
-                else (self.rho * self._V + np.outer(r, r)) / (1 + self.rho)
+                if prev is None
+                else (self.rho * prev + np.outer(r, r)) / (1 + self.rho)
             )
-            self._V = V
+            self._V[kind] = V
             N = V - H @ self._Qsum @ H.T - self.beta * Rm
             M = H @ (self.P - self._Qsum) @ H.T
             lam = float(np.trace(N) / max(np.trace(M), 1e-300))
@@ -210,7 +218,9 @@ class Eskf:
     def update_velocity(self, v_meas: FloatArray, std: float, t_s: float) -> FloatArray:
         H = np.zeros((3, self.n))
         H[:, 3:6] = np.eye(3)
-        return self.update(np.asarray(v_meas, float), self.v, H, np.eye(3) * std**2, t_s)
+        return self.update(
+            np.asarray(v_meas, float), self.v, H, np.eye(3) * std**2, t_s, "velocity"
+        )
 
     def update_zupt(self, std: float, t_s: float) -> FloatArray:
         return self.update_velocity(np.zeros(3), std, t_s)
@@ -221,12 +231,16 @@ class Eskf:
         Without it the gyro bias along gravity is unobservable and an EKF can still grow overconfident in it."""
         H = np.zeros((3, self.n))
         H[:, 12:15] = np.eye(3)
-        return self.update(np.asarray(gyro_mean, float), self.bg, H, np.eye(3) * std**2, t_s)
+        return self.update(
+            np.asarray(gyro_mean, float), self.bg, H, np.eye(3) * std**2, t_s, "zaru"
+        )
 
     def update_position(self, p_meas: FloatArray, std: float, t_s: float) -> FloatArray:
         H = np.zeros((3, self.n))
         H[:, 0:3] = np.eye(3)
-        return self.update(np.asarray(p_meas, float), self.p, H, np.eye(3) * std**2, t_s)
+        return self.update(
+            np.asarray(p_meas, float), self.p, H, np.eye(3) * std**2, t_s, "position"
+        )
 
     def _check(self, t_s: float) -> None:
         ok = bool(
