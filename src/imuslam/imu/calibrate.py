@@ -196,11 +196,21 @@ def _interval_samples(x: FloatArray, intervals: IntArray, n: int, use_means: boo
 def _solve_accel(
     samples: FloatArray, theta0: FloatArray, g: float, sign: float
 ) -> tuple[FloatArray, FloatArray, FloatArray, bool, str]:
+    cache: dict[bytes, tuple[FloatArray, FloatArray]] = {}
+
+    def both(th: FloatArray) -> tuple[FloatArray, FloatArray]:
+        # LM asks for the residual and then the Jacobian at the same point: compute them once
+        key = th.tobytes()
+        if key not in cache:
+            cache.clear()
+            cache[key] = accel_residual_jacobian(th, samples, g, sign)
+        return cache[key]
+
     def fun(th: FloatArray) -> FloatArray:
-        return accel_residual_jacobian(th, samples, g, sign)[0]
+        return both(th)[0]
 
     def jac(th: FloatArray) -> FloatArray:
-        return accel_residual_jacobian(th, samples, g, sign)[1]
+        return both(th)[1]
 
     x_scale = np.concatenate(
         [np.full(3, 1e-3), np.abs(theta0[3:6]), np.abs(theta0[3:6]) ** -1 * 1e-2]
@@ -227,7 +237,7 @@ def _qdot(
     )
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _rk4_segments(
     w: FloatArray, t_s: FloatArray, segs: IntArray, Ms: FloatArray
 ) -> FloatArray:  # pragma: no cover - compiled
@@ -239,59 +249,58 @@ def _rk4_segments(
     P = Ms.shape[0]
     S = segs.shape[0]
     out = np.empty((P, S, 3, 3))
-    for p in range(P):
+    for ps in numba.prange(P * S):  # every (parameter set, segment) pair is independent
+        p = ps // S
+        s = ps % S
         M = Ms[p]
-        for s in range(S):
-            a, b = segs[s, 0], segs[s, 1]
-            qw, qx, qy, qz = 1.0, 0.0, 0.0, 0.0
-            x0 = M[0, 0] * w[a, 0] + M[0, 1] * w[a, 1] + M[0, 2] * w[a, 2]
-            y0 = M[1, 0] * w[a, 0] + M[1, 1] * w[a, 1] + M[1, 2] * w[a, 2]
-            z0 = M[2, 0] * w[a, 0] + M[2, 1] * w[a, 1] + M[2, 2] * w[a, 2]
-            for k in range(a, b):
-                x1 = M[0, 0] * w[k + 1, 0] + M[0, 1] * w[k + 1, 1] + M[0, 2] * w[k + 1, 2]
-                y1 = M[1, 0] * w[k + 1, 0] + M[1, 1] * w[k + 1, 1] + M[1, 2] * w[k + 1, 2]
-                z1 = M[2, 0] * w[k + 1, 0] + M[2, 1] * w[k + 1, 1] + M[2, 2] * w[k + 1, 2]
-                h = t_s[k + 1] - t_s[k]
-                xm, ym, zm = 0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.5 * (z0 + z1)
-                a1 = _qdot(qw, qx, qy, qz, x0, y0, z0)
-                a2 = _qdot(
-                    qw + 0.5 * h * a1[0],
-                    qx + 0.5 * h * a1[1],
-                    qy + 0.5 * h * a1[2],
-                    qz + 0.5 * h * a1[3],
-                    xm,
-                    ym,
-                    zm,
-                )
-                a3 = _qdot(
-                    qw + 0.5 * h * a2[0],
-                    qx + 0.5 * h * a2[1],
-                    qy + 0.5 * h * a2[2],
-                    qz + 0.5 * h * a2[3],
-                    xm,
-                    ym,
-                    zm,
-                )
-                a4 = _qdot(
-                    qw + h * a3[0], qx + h * a3[1], qy + h * a3[2], qz + h * a3[3], x1, y1, z1
-                )
-                c = h / 6.0
-                qw = qw + c * (a1[0] + 2.0 * a2[0] + 2.0 * a3[0] + a4[0])
-                qx = qx + c * (a1[1] + 2.0 * a2[1] + 2.0 * a3[1] + a4[1])
-                qy = qy + c * (a1[2] + 2.0 * a2[2] + 2.0 * a3[2] + a4[2])
-                qz = qz + c * (a1[3] + 2.0 * a2[3] + 2.0 * a3[3] + a4[3])
-                nrm = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-                qw, qx, qy, qz = qw / nrm, qx / nrm, qy / nrm, qz / nrm
-                x0, y0, z0 = x1, y1, z1
-            out[p, s, 0, 0] = 1 - 2 * (qy * qy + qz * qz)
-            out[p, s, 0, 1] = 2 * (qx * qy - qw * qz)
-            out[p, s, 0, 2] = 2 * (qx * qz + qw * qy)
-            out[p, s, 1, 0] = 2 * (qx * qy + qw * qz)
-            out[p, s, 1, 1] = 1 - 2 * (qx * qx + qz * qz)
-            out[p, s, 1, 2] = 2 * (qy * qz - qw * qx)
-            out[p, s, 2, 0] = 2 * (qx * qz - qw * qy)
-            out[p, s, 2, 1] = 2 * (qy * qz + qw * qx)
-            out[p, s, 2, 2] = 1 - 2 * (qx * qx + qy * qy)
+        a, b = segs[s, 0], segs[s, 1]
+        qw, qx, qy, qz = 1.0, 0.0, 0.0, 0.0
+        x0 = M[0, 0] * w[a, 0] + M[0, 1] * w[a, 1] + M[0, 2] * w[a, 2]
+        y0 = M[1, 0] * w[a, 0] + M[1, 1] * w[a, 1] + M[1, 2] * w[a, 2]
+        z0 = M[2, 0] * w[a, 0] + M[2, 1] * w[a, 1] + M[2, 2] * w[a, 2]
+        for k in range(a, b):
+            x1 = M[0, 0] * w[k + 1, 0] + M[0, 1] * w[k + 1, 1] + M[0, 2] * w[k + 1, 2]
+            y1 = M[1, 0] * w[k + 1, 0] + M[1, 1] * w[k + 1, 1] + M[1, 2] * w[k + 1, 2]
+            z1 = M[2, 0] * w[k + 1, 0] + M[2, 1] * w[k + 1, 1] + M[2, 2] * w[k + 1, 2]
+            h = t_s[k + 1] - t_s[k]
+            xm, ym, zm = 0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.5 * (z0 + z1)
+            a1 = _qdot(qw, qx, qy, qz, x0, y0, z0)
+            a2 = _qdot(
+                qw + 0.5 * h * a1[0],
+                qx + 0.5 * h * a1[1],
+                qy + 0.5 * h * a1[2],
+                qz + 0.5 * h * a1[3],
+                xm,
+                ym,
+                zm,
+            )
+            a3 = _qdot(
+                qw + 0.5 * h * a2[0],
+                qx + 0.5 * h * a2[1],
+                qy + 0.5 * h * a2[2],
+                qz + 0.5 * h * a2[3],
+                xm,
+                ym,
+                zm,
+            )
+            a4 = _qdot(qw + h * a3[0], qx + h * a3[1], qy + h * a3[2], qz + h * a3[3], x1, y1, z1)
+            c = h / 6.0
+            qw = qw + c * (a1[0] + 2.0 * a2[0] + 2.0 * a3[0] + a4[0])
+            qx = qx + c * (a1[1] + 2.0 * a2[1] + 2.0 * a3[1] + a4[1])
+            qy = qy + c * (a1[2] + 2.0 * a2[2] + 2.0 * a3[2] + a4[2])
+            qz = qz + c * (a1[3] + 2.0 * a2[3] + 2.0 * a3[3] + a4[3])
+            nrm = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+            qw, qx, qy, qz = qw / nrm, qx / nrm, qy / nrm, qz / nrm
+            x0, y0, z0 = x1, y1, z1
+        out[p, s, 0, 0] = 1 - 2 * (qy * qy + qz * qz)
+        out[p, s, 0, 1] = 2 * (qx * qy - qw * qz)
+        out[p, s, 0, 2] = 2 * (qx * qz + qw * qy)
+        out[p, s, 1, 0] = 2 * (qx * qy + qw * qz)
+        out[p, s, 1, 1] = 1 - 2 * (qx * qx + qz * qz)
+        out[p, s, 1, 2] = 2 * (qy * qz - qw * qx)
+        out[p, s, 2, 0] = 2 * (qx * qz - qw * qy)
+        out[p, s, 2, 1] = 2 * (qy * qz + qw * qx)
+        out[p, s, 2, 2] = 1 - 2 * (qx * qx + qy * qy)
     return out
 
 
