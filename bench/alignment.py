@@ -19,6 +19,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from imuslam.geometry import exp as exp_so3
 from imuslam.geometry import log as so3_log
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.kf import KfNoise
@@ -55,11 +56,14 @@ def case(scenario: str, seed: int):  # type: ignore[no-untyped-def]
         aid = Aiding(ta, "zupt", np.zeros((len(ta), 3)), 0.01)
     else:  # the turning IMU is not still in rate: zero velocity only
         aid = Aiding(ta, "velocity", np.zeros((len(ta), 3)), 0.01)
-    return log, tr, aid, ba, bg
+    # the same initial state for every method: the truth with an attitude error of 0.5 deg (level) and
+    # 2 deg (heading) 1-sigma, what a coarse alignment and a rough heading give
+    err = np.deg2rad(np.array([0.5, 0.5, 2.0])) * rng.normal(size=3)
+    init = NavState(tr.p_w[0], tr.vel_w[0], exp_so3(err) @ tr.R_w_i[0])
+    return log, tr, aid, ba, bg, init
 
 
-def run(method: str, log, tr, aid, ba, bg):  # type: ignore[no-untyped-def]
-    init = NavState(tr.p_w[0], tr.vel_w[0], tr.R_w_i[0])
+def run(method: str, log, tr, aid, ba, bg, init):  # type: ignore[no-untyped-def]
     t = log.t_s
     k_end = int(np.searchsorted(t, T_ALIGN))
     part = log.slice(0, k_end + 1)
@@ -110,8 +114,7 @@ def main() -> None:
         for method in ("none", "kf", "stkf", "rwnn"):
             if method == "none":
                 rows = []
-                for log, tr, _aid, ba, bg in cases:
-                    init = NavState(tr.p_w[0], tr.vel_w[0], tr.R_w_i[0])
+                for log, tr, _aid, ba, bg, init in cases:
                     t = log.t_s
                     k_end = int(np.searchsorted(t, T_ALIGN))
                     P, _, R = integrate(t, log.accel, log.gyro, init, G)

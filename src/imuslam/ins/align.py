@@ -2,7 +2,7 @@
 their covariance over time, and the corrected IMU.
 
 Methods: ``none`` (free strapdown from the given initial state), ``kf`` (error-state KF, ``ins/kf.py``),
-``stkf`` (the same with strong tracking), ``rwnn`` (the RWNN observer, ``ins/rwnn.py``; no covariance);
+``stkf`` (the same with strong tracking), ``rwnn`` (the RWNN observer, ``ins/rwnn.py``; 1-sigma from its least-squares learning);
 static levelling and gyrocompassing (``coarse``) is :func:`imuslam.ins.coarse.coarse_align`, which gives
 the initial attitude the others start from.
 Aiding: position (m, in n), velocity (m/s, in n) or ``zupt`` (the IMU is still: zero velocity and zero
@@ -101,10 +101,11 @@ def run_alignment(
             init.v_n,
             init.R_n_b,
             g,
+            aid_std=aiding.std,
         )
         idx = np.clip(np.searchsorted(t, aiding.t_s), 0, len(t) - 1)
-        nan = np.full((len(idx), 3), np.nan)  # the observer gives no covariance
-        return AlignmentResult("rwnn", t[idx], r.accel_error[idx], nan, r.gyro_error[idx], nan.copy(), r.R_n_b[idx],
+        # the 1-sigma is that of the least-squares learning of the constant (bias) weights
+        return AlignmentResult("rwnn", t[idx], r.accel_error[idx], r.accel_error_std[idx], r.gyro_error[idx], r.gyro_error_std[idx], r.R_n_b[idx],
                                r.p_n[idx], r.v_n[idx], np.ones(len(idx)), NavState(r.p_n[idx[-1]], r.v_n[idx[-1]], r.R_n_b[idx[-1]]))  # fmt: skip
     if method not in ("kf", "stkf"):
         raise InputError(f"alignment method '{method}'; expected one of {', '.join(METHODS)}")
