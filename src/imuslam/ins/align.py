@@ -102,6 +102,7 @@ def run_alignment(
             init.R_n_b,
             g,
             aid_std=aiding.std,
+            accel_noise=(noise or KfNoise()).accel,
         )
         idx = np.clip(np.searchsorted(t, aiding.t_s), 0, len(t) - 1)
         # the 1-sigma is that of the least-squares learning of the constant (bias) weights

@@ -97,6 +97,23 @@ def observer_matrix(omega: float, position: bool) -> FloatArray:
     return np.array([[-l1, -1.0], [k * l1, 0.0]])
 
 
+def innovation_variance(
+    omega: float, position: bool, aid_std: float, accel_noise: float, h_a: float
+) -> float:
+    """Variance the least-squares learning gives each innovation: the aiding's own, plus the observer
+    loop's response to accelerometer white noise of density q, P = q^2 c / omega^3 (position) or
+    q^2 c / omega (velocity) from the Lyapunov equation of :func:`observer_matrix`, inflated by the number of
+    aiding samples over which that response stays correlated, 2 / (omega h_a) (the variance of a mean of
+    exponentially correlated samples)."""
+    from scipy.linalg import solve_continuous_lyapunov
+
+    A = observer_matrix(omega, position)
+    B = np.zeros((A.shape[0], 1))
+    B[1 if position else 0] = accel_noise
+    P = solve_continuous_lyapunov(A, -B @ B.T)
+    return float(aid_std**2 + P[0, 0] * max(1.0, 2.0 / (omega * h_a)))
+
+
 @numba.njit(cache=True, inline="always")
 def _mexican_hat(mu: float) -> float:  # pragma: no cover - compiled
     return (1.0 - mu * mu) * np.exp(-0.5 * mu * mu)
@@ -110,7 +127,7 @@ def _rwnn_observer(
     aid_idx: NDArray[np.int64],
     aid_t: FloatArray,
     aid_val: FloatArray,
-    aid_std: float,
+    meas_var: float,
     kind: int,
     p0: FloatArray,
     v0: FloatArray,
@@ -203,7 +220,7 @@ def _rwnn_observer(
             Pb = Pb / lam
             S = Hb @ Pb @ Hb.T
             for i in range(3):
-                S[i, i] += aid_std * aid_std
+                S[i, i] += meas_var
             Kb = Pb @ Hb.T @ np.linalg.inv(S)
             dtheta = np.zeros(n_par)
             db = Kb @ innov
@@ -351,14 +368,18 @@ def run_rwnn(
     g: float = 9.80665,
     config: RwnnConfig | None = None,
     aid_std: float = 0.01,
+    accel_noise: float = 0.0,
 ) -> RwnnResult:
     """Run the RWNN observer over a log (SI, body frame) with position, velocity or zupt aiding of
-    1-sigma ``aid_std`` (m or m/s)."""
+    1-sigma ``aid_std`` (m or m/s); ``accel_noise`` is the accelerometer's white noise density
+    (m/s^2/sqrt(Hz)) for the learning's measurement variance (:func:`innovation_variance`)."""
     kinds = {"position": 0, "velocity": 1, "zupt": 2}
     if aid_kind not in kinds:
         raise InputError(f"aiding kind '{aid_kind}'; expected position, velocity or zupt")
     if not (np.isfinite(aid_std) and aid_std > 0):
         raise InputError(f"aiding 1-sigma must be positive, got {aid_std}")
+    if not (np.isfinite(accel_noise) and accel_noise >= 0):
+        raise InputError(f"accelerometer noise density must be >= 0, got {accel_noise}")
     c = config or RwnnConfig()
     gains = np.array([c.omega, c.f_h_reg, c.accel_error_std, c.gyro_error_std, c.forgetting_s, c.eta_wavelet,
                       c.leakage, c.max_rate, c.max_weight, c.recurrence, c.attitude_std, c.velocity_std])  # fmt: skip
@@ -369,9 +390,11 @@ def run_rwnn(
     vals = np.ascontiguousarray(aid_values, float)[ok]
     if aid_kind == "zupt":
         vals = np.zeros_like(vals)
+    h_a = float(np.median(np.diff(at))) if len(at) > 1 else 0.1
+    var = innovation_variance(c.omega, aid_kind == "position", aid_std, accel_noise, h_a)
     ea, eg, P, V, R, sd = _rwnn_observer(
         t, np.ascontiguousarray(accel, float), np.ascontiguousarray(gyro, float), idx[ok], at[ok], vals,
-        float(aid_std), kinds[aid_kind], np.asarray(p0, float), np.asarray(v0, float),
+        var, kinds[aid_kind], np.asarray(p0, float), np.asarray(v0, float),
         np.ascontiguousarray(R0, float), g, gains,
     )  # fmt: skip
     return RwnnResult(ea, eg, sd[:, 0:3], sd[:, 3:6], P, V, R)
