@@ -26,7 +26,7 @@ from imuslam.io.imulog import ImuLog, InputError
 FloatArray = NDArray[np.float64]
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, parallel=True, fastmath={"reassoc", "contract"})
 def _oavar_kernel(
     x: FloatArray, ms: NDArray[np.int64]
 ) -> FloatArray:  # pragma: no cover - compiled
