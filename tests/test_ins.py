@@ -9,7 +9,7 @@ from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.coarse import coarse_align
 from imuslam.ins.kf import Eskf, FilterDivergence, KfNoise
 from imuslam.ins.strapdown import NavState, integrate
-from imuslam.io.imulog import ImuLog
+from imuslam.io.imulog import ImuLog, InputError
 from imuslam.io.readers import read_euroc
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.imu_errors import TriadErrors
@@ -194,3 +194,23 @@ def test_rotation_modulation_makes_level_accel_biases_observable() -> None:
             assert np.all(np.abs(r.accel_bias[-1] - BA) < 3.5 * r.accel_bias_std[-1])
     assert np.all(stds[0.0][:2] > 0.03)
     assert np.all(stds[10.0] < 0.02) and stds[10.0][2] < 0.005
+
+
+def test_alignment_divergence_and_bad_aiding_are_reported() -> None:
+    """A NaN inside the log stops the batch filter with the sample named; aiding that goes back in time or
+    holds a NaN is refused before any filtering."""
+    log, aid, init = _moving_case(1)
+    acc = log.accel.copy()
+    acc[1234, 1] = np.nan
+    bad = ImuLog(log.t_ns, acc, log.gyro)
+    for method in ("kf", "stkf"):
+        with pytest.raises(FilterDivergence, match="sample 12[0-9][0-9]"):
+            run_alignment(bad, aid, init, method)  # type: ignore[arg-type]
+    t = aid.t_s.copy()
+    t[5] = t[3]
+    with pytest.raises(InputError, match="measurement 5 goes back in time"):
+        Aiding(t, "position", aid.values, 0.01)
+    vals = aid.values.copy()
+    vals[7, 2] = np.nan
+    with pytest.raises(InputError, match="measurement 7 is NaN"):
+        Aiding(aid.t_s, "position", vals, 0.01)

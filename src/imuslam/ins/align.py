@@ -17,7 +17,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.ins.kf import Eskf, KfNoise
+from imuslam.ins.kf import FilterDivergence, KfNoise, _eskf_batch
 from imuslam.ins.rwnn import run_rwnn
 from imuslam.ins.strapdown import NavState, integrate
 from imuslam.io.imulog import ImuLog, InputError
@@ -39,6 +39,22 @@ class Aiding:
     def __post_init__(self) -> None:
         if self.kind not in ("position", "velocity", "zupt"):
             raise InputError(f"aiding kind '{self.kind}'; expected position, velocity or zupt")
+        self.t_s = np.asarray(self.t_s, dtype=float)
+        self.values = np.asarray(self.values, dtype=float)
+        if self.t_s.ndim != 1 or self.values.shape != (len(self.t_s), 3):
+            raise InputError(
+                f"aiding: expected times (M,) and values (M, 3), got {self.t_s.shape} and {self.values.shape}"
+            )
+        bad = ~(np.isfinite(self.t_s) & np.isfinite(self.values).all(axis=1))
+        if bad.any():
+            raise InputError(f"aiding measurement {int(np.argmax(bad))} is NaN or infinite")
+        if np.any(np.diff(self.t_s) < 0):
+            k = int(np.argmax(np.diff(self.t_s) < 0)) + 1
+            raise InputError(
+                f"aiding measurement {k} goes back in time ({self.t_s[k]:.6f} s after {self.t_s[k - 1]:.6f} s)"
+            )
+        if not (np.isfinite(self.std) and self.std > 0):
+            raise InputError(f"aiding 1-sigma must be positive, got {self.std}")
 
 
 @dataclass
@@ -118,36 +134,29 @@ def run_alignment(
     )
     if estimate_gravity and len(p0) == 15:
         p0 = np.concatenate([p0, np.full(3, 0.05**2)])
-    kf = Eskf(init.p_n.copy(), init.v_n.copy(), init.R_n_b.copy(), np.diag(p0), noise=noise or KfNoise(), g=g,
-              strong_tracking=method == "stkf", rho=stkf_rho, beta=stkf_beta, max_fading=stkf_max_fading)  # fmt: skip
-    out = {k: [] for k in ("t", "ba", "sa", "bg", "sg", "R", "p", "v", "f")}  # type: dict[str, list]
-    k = 0
-    for j, ta in enumerate(aiding.t_s):
-        kn = int(np.searchsorted(t, ta))
-        if kn >= len(t):
-            break
-        k0 = k
-        if kn > k:
-            kf.predict(log.accel[k : kn + 1], log.gyro[k : kn + 1], t[k : kn + 1])
-            k = kn
-        if aiding.kind == "position":
-            kf.update_position(aiding.values[j], aiding.std, float(ta))
-        elif aiding.kind == "velocity":
-            kf.update_velocity(aiding.values[j], aiding.std, float(ta))
-        else:  # still: zero velocity, and the mean rate since the last update is the gyro bias
-            kf.update_zupt(aiding.std, float(ta))
-            blk = log.gyro[k0 : kn + 1]
-            kf.update_zaru(
-                blk.mean(axis=0),
-                (noise or KfNoise()).gyro * np.sqrt(log.rate_hz / len(blk)),
-                float(ta),
-            )
-        sa, sg = kf.bias_std
-        for key, val in (("t", float(ta)), ("ba", kf.ba.copy()), ("sa", sa), ("bg", kf.bg.copy()), ("sg", sg),
-                         ("R", kf.R.copy()), ("p", kf.p.copy()), ("v", kf.v.copy()), ("f", kf.fading)):  # fmt: skip
-            out[key].append(val)
-    if not out["t"]:
+    if len(p0) not in (15, 18):
+        raise InputError(f"P0_diag has {len(p0)} entries; expected 15 (or 18 with gravity)")
+    nz = noise or KfNoise()
+    q = np.array([nz.accel**2, nz.gyro**2, nz.accel_bias_rw**2, nz.gyro_bias_rw**2])
+    aid_k = np.searchsorted(t, aiding.t_s)
+    n_ok = int(np.argmax(aid_k >= len(t))) if np.any(aid_k >= len(t)) else len(aid_k)
+    if n_ok == 0:
         raise InputError(f"{log.source}: no aiding measurement falls inside the log's time span")
-    a = {k: np.asarray(v) for k, v in out.items()}
-    return AlignmentResult(method, a["t"], a["ba"], a["sa"], a["bg"], a["sg"], a["R"], a["p"], a["v"], a["f"],
-                           NavState(kf.p, kf.v, kf.R))  # fmt: skip
+    aid_k = aid_k[:n_ok].astype(np.int64)
+    blk = aid_k - np.concatenate([[0], aid_k[:-1]]) + 1  # samples in each block, both ends
+    zaru_std = nz.gyro * np.sqrt(log.rate_hz / blk)
+    hba, hbg, hsa, hsg, hR, hp, hv, hf, p, v, R, _, _, bad = _eskf_batch(
+        np.ascontiguousarray(log.accel, float), np.ascontiguousarray(log.gyro, float), t, aid_k,
+        np.ascontiguousarray(aiding.values[:n_ok], float), {"position": 0, "velocity": 1, "zupt": 2}[aiding.kind],
+        float(aiding.std), zaru_std, init.p_n.astype(float).copy(), init.v_n.astype(float).copy(),
+        np.ascontiguousarray(init.R_n_b, float), np.zeros(3), np.zeros(3), np.zeros(3), np.diag(p0).astype(float),
+        np.array([0.0, 0.0, -g]), q, method == "stkf", stkf_rho, stkf_beta, stkf_max_fading,
+    )  # fmt: skip
+    if bad >= 0:
+        raise FilterDivergence(
+            f"filter diverged at sample {bad} (t = {t[min(bad, len(t) - 1)]:.3f} s): covariance not positive "
+            "definite or state not finite; check the noise settings and the aiding"
+        )
+    return AlignmentResult(
+        method, aiding.t_s[:n_ok], hba, hsa, hbg, hsg, hR, hp, hv, hf, NavState(p, v, R)
+    )

@@ -322,3 +322,170 @@ class Eskf:
     def bias_std(self) -> tuple[FloatArray, FloatArray]:
         d = np.sqrt(np.diag(self.P))
         return d[9:12], d[12:15]
+
+
+@numba.njit(cache=True)
+def _is_pd(P: FloatArray) -> bool:  # pragma: no cover - compiled
+    """Cholesky without raising: False when P is not positive definite or not finite."""
+    n = P.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = P[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not (s > 0.0):
+            return False
+        L[j, j] = np.sqrt(s)
+        for i in range(j + 1, n):
+            s = P[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+    return True
+
+
+@numba.njit(cache=True)
+def _kf_update(
+    P: FloatArray,
+    Qsum: FloatArray,
+    r: FloatArray,
+    H: FloatArray,
+    Rm: FloatArray,
+    stkf: bool,
+    V: FloatArray,
+    have_v: bool,
+    rho: float,
+    beta: float,
+    max_fading: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, float]:  # pragma: no cover - compiled
+    """One Kalman update (Joseph form), with the strong tracking fading factor when ``stkf``. Returns the
+    state correction dx, the new P, the new innovation covariance estimate V and the fading factor."""
+    fading = 1.0
+    if stkf:
+        rr = np.outer(r, r)
+        V = rr if not have_v else (rho * V + rr) / (1.0 + rho)
+        N = V - H @ Qsum @ H.T - beta * Rm
+        M = H @ (P - Qsum) @ H.T
+        lam = np.trace(N) / max(np.trace(M), 1e-300)
+        fading = min(max(lam, 1.0), max_fading)
+        P = fading * (P - Qsum) + Qsum
+    PHt = P @ H.T
+    S = H @ PHt + Rm
+    K = np.linalg.solve(S, PHt.T).T
+    dx = K @ r
+    I_KH = np.eye(P.shape[0]) - K @ H
+    P = I_KH @ P @ I_KH.T + K @ Rm @ K.T
+    P = 0.5 * (P + P.T)
+    return dx, P, V, fading
+
+
+@numba.njit(cache=True)
+def _eskf_batch(
+    accel: FloatArray,
+    gyro: FloatArray,
+    t: FloatArray,
+    aid_k: NDArray[np.int64],
+    aid_val: FloatArray,
+    kind: int,
+    std: float,
+    zaru_std: FloatArray,
+    p: FloatArray,
+    v: FloatArray,
+    R: FloatArray,
+    ba: FloatArray,
+    bg: FloatArray,
+    dg: FloatArray,
+    P: FloatArray,
+    g_n: FloatArray,
+    q: FloatArray,
+    stkf: bool,
+    rho: float,
+    beta: float,
+    max_fading: float,
+) -> tuple[
+    FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
+    FloatArray, FloatArray, FloatArray, FloatArray, int, int,
+]:  # fmt: skip  # pragma: no cover - compiled
+    """The filter over every aiding epoch j (sample ``aid_k[j]``): predict, then update by ``kind`` (0
+    position, 1 velocity, 2 zupt = zero velocity and the block's mean rate with 1-sigma ``zaru_std[j]``).
+    Returns the histories (M, ...) of b_a, b_g, their 1-sigma, R, p, v, fading; the final p, v, R, P; the
+    number of epochs done and, on divergence, the sample index (else -1)."""
+    m = P.shape[0]
+    M_ = aid_k.shape[0]
+    hb_a = np.zeros((M_, 3))
+    hb_g = np.zeros((M_, 3))
+    hs_a = np.zeros((M_, 3))
+    hs_g = np.zeros((M_, 3))
+    hR = np.zeros((M_, 3, 3))
+    hp = np.zeros((M_, 3))
+    hv = np.zeros((M_, 3))
+    hf = np.ones(M_)
+    Qsum = np.zeros((m, m))
+    V0 = np.zeros((3, 3))
+    V1 = np.zeros((3, 3))
+    have0 = False
+    have1 = False
+    Rm = np.eye(3) * std * std
+    k = 0
+    for j in range(M_):
+        kn = aid_k[j]
+        k0 = k
+        if kn > k:
+            p, v, R, P, Qs = _propagate(accel[k : kn + 1], gyro[k : kn + 1], t[k + 1 : kn + 1] - t[k:kn],
+                                        p, v, R, ba, bg, P, g_n + dg, q)  # fmt: skip
+            Qsum += Qs
+            k = kn
+            if not (np.all(np.isfinite(P)) and np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
+                return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, j, k
+            P = 0.5 * (P + P.T)
+            if not _is_pd(P + np.eye(m) * 1e-18):
+                return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, j, k
+        H = np.zeros((3, m))
+        if kind == 0:
+            H[:, 0:3] = np.eye(3)
+            r = aid_val[j] - p
+        else:
+            H[:, 3:6] = np.eye(3)
+            r = (aid_val[j] if kind == 1 else np.zeros(3)) - v
+        n_upd = 2 if kind == 2 else 1
+        for u in range(n_upd):
+            if u == 1:  # zero angular rate: the block's mean raw rate is the gyro bias
+                H = np.zeros((3, m))
+                H[:, 12:15] = np.eye(3)
+                mean = np.zeros(3)
+                for i in range(k0, kn + 1):
+                    mean += gyro[i]
+                mean /= kn + 1 - k0
+                r = mean - bg
+                Rz = np.eye(3) * zaru_std[j] * zaru_std[j]
+                dx, P, V1, fad = _kf_update(
+                    P, Qsum, r, H, Rz, stkf, V1, have1, rho, beta, max_fading
+                )
+                have1 = True
+            else:
+                dx, P, V0, fad = _kf_update(
+                    P, Qsum, r, H, Rm, stkf, V0, have0, rho, beta, max_fading
+                )
+                have0 = True
+            hf[j] = fad
+            p = p + dx[0:3]
+            v = v + dx[3:6]
+            R = R @ _exp3(dx[6], dx[7], dx[8])
+            ba = ba + dx[9:12]
+            bg = bg + dx[12:15]
+            if m == 18:
+                dg = dg + dx[15:18]
+            Qsum[:, :] = 0.0
+            if not (np.all(np.isfinite(P)) and np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
+                return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, j, kn
+            if not _is_pd(P + np.eye(m) * 1e-18):
+                return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, j, kn
+        hb_a[j] = ba
+        hb_g[j] = bg
+        for i in range(3):
+            hs_a[j, i] = np.sqrt(P[9 + i, 9 + i])
+            hs_g[j, i] = np.sqrt(P[12 + i, 12 + i])
+        hR[j] = R
+        hp[j] = p
+        hv[j] = v
+    return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, M_, -1
