@@ -10,15 +10,83 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import typer  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+from scipy.spatial.transform import Rotation, Slerp  # noqa: E402
 
 from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log, table, write_json  # noqa: E402
-from imuslam.ins.align import Aiding, run_alignment  # noqa: E402
+from imuslam.ins.align import Aiding, AlignmentResult, run_alignment  # noqa: E402
 from imuslam.ins.coarse import coarse_align  # noqa: E402
+from imuslam.ins.kf import KfNoise  # noqa: E402
 from imuslam.ins.strapdown import NavState  # noqa: E402
+from imuslam.io.atomic import write_atomic  # noqa: E402
 from imuslam.io.figures import save_figure  # noqa: E402
-from imuslam.io.imulog import InputError  # noqa: E402
+from imuslam.io.imulog import ImuLog, InputError  # noqa: E402
 from imuslam.io.load import write_imu  # noqa: E402
-from imuslam.io.trajectory import read_tum  # noqa: E402
+from imuslam.io.trajectory import StateTruth, Trajectory, read_euroc_state, read_trajectory  # noqa: E402
+
+FloatArray = NDArray[np.float64]
+
+
+def _trajectory_format(path: Path, fmt: str) -> str:
+    if fmt != "auto":
+        return fmt
+    if path.is_dir() or path.suffix in (".bag", ".mcap", ".db3"):
+        return "bag"
+    return "euroc" if path.suffix == ".csv" else "tum"
+
+
+def _noise(spec: str, log: ImuLog) -> tuple[KfNoise, str]:
+    if spec == "datasheet":
+        return KfNoise(), "defaults (a consumer MEMS at rest)"
+    if spec == "auto":
+        return KfNoise.from_log(log.accel, log.gyro, log.rate_hz, floor=KfNoise()), "from the log"
+    return KfNoise.from_kalibr_yaml(spec), spec
+
+
+def _pose_at(tr: Trajectory, t_ns: int) -> NavState:
+    """The trajectory's pose at ``t_ns`` (linear / slerp) and its velocity by central difference."""
+    t = (tr.t_ns - tr.t_ns[0]) * 1e-9
+    tq = (t_ns - tr.t_ns[0]) * 1e-9
+    p = np.array([np.interp(tq, t, tr.p_w[:, j]) for j in range(3)])
+    R = Slerp(t, Rotation.from_matrix(tr.R_w_b))([tq]).as_matrix()[0]
+    i = int(np.clip(np.searchsorted(t, tq), 1, len(t) - 2))
+    v = (tr.p_w[i + 1] - tr.p_w[i - 1]) / (t[i + 1] - t[i - 1])
+    return NavState(p, v, R)
+
+
+def _truth_at(
+    truth: StateTruth, t_ns: NDArray[np.int64]
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Truth accelerometer and gyro biases (M, 3) and attitude (M, 3, 3) at ``t_ns`` (inside its span)."""
+    tt = truth.traj.t_ns
+    if t_ns[0] < tt[0] or t_ns[-1] > tt[-1]:
+        raise InputError(
+            f"{truth.traj.source}: the truth covers {tt[0]}..{tt[-1]} ns, the estimates "
+            f"{t_ns[0]}..{t_ns[-1]} ns: it must cover the whole alignment"
+        )
+    t = (tt - tt[0]) * 1e-9
+    tq = (t_ns - tt[0]) * 1e-9
+    ba = np.stack([np.interp(tq, t, truth.accel_bias[:, j]) for j in range(3)], axis=1)
+    bg = np.stack([np.interp(tq, t, truth.gyro_bias[:, j]) for j in range(3)], axis=1)
+    R = Slerp(t, Rotation.from_matrix(truth.traj.R_w_b))(tq).as_matrix()
+    return ba, bg, R
+
+
+def _rpy_deg(R: FloatArray) -> FloatArray:
+    """Roll, pitch, yaw (deg) of R_n_b (N, 3, 3), ZYX convention."""
+    return np.rad2deg(Rotation.from_matrix(R).as_euler("ZYX")[:, ::-1])
+
+
+def _write_estimates(path: Path, res: AlignmentResult) -> None:
+    rpy = _rpy_deg(res.R_n_b)
+    head = (
+        "t_s,ba_x,ba_y,ba_z,sa_x,sa_y,sa_z,bg_x,bg_y,bg_z,sg_x,sg_y,sg_z,roll_deg,pitch_deg,yaw_deg"
+    )
+    rows = np.column_stack(
+        [res.t_s, res.accel_bias, res.accel_bias_std, res.gyro_bias, res.gyro_bias_std, rpy]
+    )
+    lines = [head] + [",".join(f"{x:.9g}" for x in r) for r in rows]
+    write_atomic(path, "\n".join(lines) + "\n")
 
 
 def register(app: typer.Typer) -> None:
@@ -30,23 +98,50 @@ def register(app: typer.Typer) -> None:
         ),
         method: str = typer.Option("kf", help="coarse, kf, stkf or rwnn"),
         aiding: str = typer.Option(
-            "zupt", help="'zupt' (the IMU stands still) or a TUM file of positions"
+            "zupt",
+            help="'zupt' (the IMU stands still) or a trajectory of the IMU frame (TUM, EuRoC csv, bag) "
+            "whose positions aid the filter",
         ),
+        aiding_format: str = typer.Option("auto", help="auto, tum, euroc, kitti or bag"),
+        aiding_topic: str | None = typer.Option(None, help="pose topic of an aiding bag"),
         aiding_std: float = typer.Option(
             0.01, help="aiding 1-sigma: m/s for zupt, m for positions"
         ),
+        init: str = typer.Option(
+            "auto",
+            help="initial state: 'coarse' (levelling on a still start), 'aiding' (the trajectory's first "
+            "pose) or 'auto' (coarse for zupt, aiding for a trajectory)",
+        ),
+        noise: str = typer.Option(
+            "auto",
+            help="IMU white noise: 'auto' (as the log shows it, vibration included), 'datasheet' "
+            "(defaults) or a Kalibr imu.yaml (as `imuslam allan` writes)",
+        ),
+        g: float = typer.Option(9.80665, "--g", help="gravity magnitude, m/s^2"),
         t_still: float = typer.Option(5.0, help="seconds of still start used for levelling"),
         lat_deg: float | None = typer.Option(None, help="latitude, for gyrocompassing (coarse)"),
+        truth: Path | None = typer.Option(
+            None,
+            help="ground-truth state (EuRoC state csv with biases): plotted and compared",
+        ),
         fmt: str = typer.Option("auto", "--format", help=FORMAT_HELP),
         topic: str | None = typer.Option(None, help="IMU topic of a bag"),
         out: Path = typer.Option(Path("align_out"), "--out", help="results folder"),
     ) -> None:
         """Estimate attitude and the IMU's remaining biases; write them, plots and the corrected IMU."""
+        if method not in ("coarse", "kf", "stkf", "rwnn"):
+            raise InputError(f"--method: '{method}'; expected coarse, kf, stkf or rwnn")
+        if init not in ("auto", "coarse", "aiding"):
+            raise InputError(f"--init: '{init}'; expected auto, coarse or aiding")
+        if init == "aiding" and aiding == "zupt":
+            raise InputError("--init aiding needs a trajectory as --aiding")
+        if not (np.isfinite(g) and 9.7 < g < 9.9):
+            raise InputError(f"--g: {g} m/s^2 is not a gravity magnitude on earth (9.78-9.84)")
         log = load_log(log_path, None, fmt, topic, None, None, None).to_si()
-        t = log.t_s
-        k_still = max(int(np.searchsorted(t, t_still)), 10)
-        ca = coarse_align(log.accel[:k_still], log.gyro[:k_still], log.rate_hz,
-                          None if lat_deg is None else np.deg2rad(lat_deg))  # fmt: skip
+        if method == "coarse" or aiding == "zupt":
+            k_still = max(int(np.searchsorted(log.t_s, t_still)), 10)
+            ca = coarse_align(log.accel[:k_still], log.gyro[:k_still], log.rate_hz,
+                              None if lat_deg is None else np.deg2rad(lat_deg))  # fmt: skip
         if method == "coarse":
             rows = [["roll", f"{np.rad2deg(ca.roll):.3f}", f"{np.rad2deg(ca.roll_pitch_std):.2g}", "deg"],
                     ["pitch", f"{np.rad2deg(ca.pitch):.3f}", f"{np.rad2deg(ca.roll_pitch_std):.2g}", "deg"],
@@ -58,21 +153,40 @@ def register(app: typer.Typer) -> None:
                                                 "R_n_b": ca.R_n_b.tolist()})  # fmt: skip
             return
         if aiding == "zupt":
-            ta = np.arange(0.1, t[-1], 0.1)
+            ta = np.arange(0.1, log.t_s[-1], 0.1)
             aid = Aiding(ta, "zupt", np.zeros((len(ta), 3)), aiding_std)
-            p0 = np.zeros(3)
+            start = NavState(np.zeros(3), np.zeros(3), ca.R_n_b)
+            reason = ca.reason
         else:
-            tr = read_tum(aiding)
+            ap = Path(aiding)
+            tr = read_trajectory(ap, _trajectory_format(ap, aiding_format), aiding_topic)
+            if len(tr) < 3:
+                raise InputError(f"{ap}: fewer than 3 poses")
+            if tr.t_ns[0] > log.t_ns[-1] or tr.t_ns[-1] < log.t_ns[0]:
+                raise InputError(
+                    f"{ap}: its time span does not overlap the IMU log's ({log.source})"
+                )
+            k0 = int(np.searchsorted(log.t_ns, tr.t_ns[0]))  # start the log at the first pose
+            log = log.slice(k0, len(log))
             ta = (tr.t_ns - log.t_ns[0]) * 1e-9
-            keep = (ta > 0) & (ta < t[-1])
+            keep = (ta > 0) & (ta < log.t_s[-1])
             if keep.sum() < 3:
-                raise InputError(f"{aiding}: fewer than 3 positions inside the IMU log's time span")
+                raise InputError(f"{ap}: fewer than 3 positions inside the IMU log's time span")
             aid = Aiding(ta[keep], "position", tr.p_w[keep], aiding_std)
-            p0 = tr.p_w[keep][0]
-        init = NavState(p0, np.zeros(3), ca.R_n_b)
-        if method not in ("kf", "stkf", "rwnn"):
-            raise InputError(f"--method: '{method}'; expected coarse, kf, stkf or rwnn")
-        res = run_alignment(log, aid, init, method)  # type: ignore[arg-type]
+            if init == "coarse":
+                k_still = max(int(np.searchsorted(log.t_s, t_still)), 10)
+                ca = coarse_align(log.accel[:k_still], log.gyro[:k_still], log.rate_hz)
+                start = NavState(tr.p_w[keep][0], np.zeros(3), ca.R_n_b)
+                reason = ca.reason
+            else:
+                start = _pose_at(tr, int(log.t_ns[0]))
+                reason = f"initial attitude, position and velocity from {ap}"
+        kf_noise, noise_src = _noise(noise, log)
+        console.print(
+            f"IMU white noise {kf_noise.accel:.3g} m/s^2/sqrt(Hz), {kf_noise.gyro:.3g} rad/s/sqrt(Hz) "
+            f"({noise_src}); bias random walks {kf_noise.accel_bias_rw:.3g}, {kf_noise.gyro_bias_rw:.3g}"
+        )
+        res = run_alignment(log, aid, start, method, kf_noise, g=g)  # type: ignore[arg-type]
         tt, ba, bg, sa, sg = (
             res.t_s,
             res.accel_bias,
@@ -80,41 +194,67 @@ def register(app: typer.Typer) -> None:
             res.accel_bias_std,
             res.gyro_bias_std,
         )
-        rows = [
-            [f"accel bias {'xyz'[j]}", f"{ba[-1, j]:+.5f}", f"{sa[-1, j]:.2g}", "m/s^2"]
-            for j in range(3)
-        ]
-        rows += [
-            [f"gyro bias {'xyz'[j]}", f"{bg[-1, j]:+.6f}", f"{sg[-1, j]:.2g}", "rad/s"]
-            for j in range(3)
-        ]
-        console.print(
-            table(
-                f"Alignment ({method}, {aid.kind} aiding)",
-                ["quantity", "estimate", "1-sigma", "unit"],
-                rows,
+        summary: dict[str, object] = {
+            "method": method, "aiding": aid.kind, "accel_bias": ba[-1].tolist(), "accel_bias_std": sa[-1].tolist(),
+            "gyro_bias": bg[-1].tolist(), "gyro_bias_std": sg[-1].tolist(), "init": reason,
+            "noise": {"accel": kf_noise.accel, "gyro": kf_noise.gyro, "accel_bias_rw": kf_noise.accel_bias_rw,
+                      "gyro_bias_rw": kf_noise.gyro_bias_rw, "source": noise_src},
+        }  # fmt: skip
+        tb = tbg = Rt = None
+        if truth is not None:
+            st = read_euroc_state(truth)
+            t_abs = log.t_ns[0] + np.round(tt * 1e9).astype(np.int64)
+            tb, tbg, Rt = _truth_at(st, t_abs)
+            att_err = np.rad2deg(
+                Rotation.from_matrix(res.R_n_b @ np.transpose(Rt, (0, 2, 1))).as_rotvec()
             )
+            za = (ba[-1] - tb[-1]) / sa[-1]
+            zg = (bg[-1] - tbg[-1]) / sg[-1]
+            summary.update(truth_accel_bias=tb[-1].tolist(), truth_gyro_bias=tbg[-1].tolist(), accel_bias_z=za.tolist(),
+                           gyro_bias_z=zg.tolist(), attitude_error_deg=att_err[-1].tolist())  # fmt: skip
+        cols = (
+            ["quantity", "estimate", "1-sigma"]
+            + (["truth", "|err|/sigma"] if tb is not None else [])
+            + ["unit"]
         )
-        fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-        for ax, b, s_, name in (
-            (axes[0], ba, sa, "accel bias [m/s^2]"),
-            (axes[1], bg, sg, "gyro bias [rad/s]"),
-        ):
+        rows = []
+        for name, est, sd, tru, unit, f in (("accel bias", ba, sa, tb, "m/s^2", "{:+.5f}"),
+                                            ("gyro bias", bg, sg, tbg, "rad/s", "{:+.6f}")):  # fmt: skip
             for j in range(3):
-                ax.plot(tt, b[:, j], color=f"C{j}", label="xyz"[j])
+                row = [f"{name} {'xyz'[j]}", f.format(est[-1, j]), f"{sd[-1, j]:.2g}"]
+                if tru is not None:
+                    row += [f.format(tru[-1, j]), f"{abs(est[-1, j] - tru[-1, j]) / sd[-1, j]:.1f}"]
+                rows.append(row + [unit])
+        console.print(table(f"Alignment ({method}, {aid.kind} aiding)", cols, rows))
+        fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+        for ax, b, s_, tru, name in ((axes[0], ba, sa, tb, "accel bias [m/s^2]"),
+                                     (axes[1], bg, sg, tbg, "gyro bias [rad/s]")):  # fmt: skip
+            for j in range(3):
+                ax.plot(tt, b[:, j], color=f"C{j}", label=f"{'xyz'[j]} estimate")
                 if np.all(np.isfinite(s_[:, j])):
                     ax.fill_between(
                         tt, b[:, j] - s_[:, j], b[:, j] + s_[:, j], color=f"C{j}", alpha=0.2
                     )
+                if tru is not None:
+                    ax.plot(tt, tru[:, j], color=f"C{j}", ls="--", label=f"{'xyz'[j]} truth")
             ax.set_ylabel(name)
-            ax.legend()
+            ax.legend(ncol=2, fontsize="small")
         axes[1].set_xlabel("time [s]")
+        axes[0].set_title(
+            f"{method}: estimate +- 1 sigma" + (" against truth" if tb is not None else "")
+        )
         save_figure(fig, out / "biases.png")
-        write_json(out / "alignment.json", {"method": method, "aiding": aid.kind, "accel_bias": ba[-1].tolist(),
-                                            "accel_bias_std": sa[-1].tolist(), "gyro_bias": bg[-1].tolist(),
-                                            "gyro_bias_std": sg[-1].tolist(), "coarse_reason": ca.reason})  # fmt: skip
-        corrected = log.slice(0, len(log))
-        corrected.accel = corrected.accel - ba[-1]
-        corrected.gyro = corrected.gyro - bg[-1]
-        write_imu(corrected, out / "corrected_imu.csv", "euroc")
-        console.print(f"wrote {out}/alignment.json, biases.png, corrected_imu.csv (EuRoC format)")
+        files = ["alignment.json", "estimates.csv", "biases.png"]
+        if Rt is not None:
+            fig, ax = plt.subplots(figsize=(10, 4))
+            for j, lab in enumerate(("x (roll)", "y (pitch)", "z (heading)")):
+                ax.plot(tt, att_err[:, j], label=lab)
+            ax.set_xlabel("time [s]")
+            ax.set_ylabel("attitude error in n [deg]")
+            ax.legend()
+            save_figure(fig, out / "attitude_error.png")
+            files.append("attitude_error.png")
+        write_json(out / "alignment.json", summary)
+        _write_estimates(out / "estimates.csv", res)
+        write_imu(res.corrected(log), out / "corrected_imu.csv", "euroc")
+        console.print(f"wrote {out}/{', '.join(files)}, corrected_imu.csv (EuRoC format)")

@@ -115,6 +115,35 @@ def read_euroc_gt(path: str | Path) -> Trajectory:
     return Trajectory(t_ns, d[:, 1:4], quat_to_matrix(d[:, 4:8]), str(p))
 
 
+@dataclass
+class StateTruth:
+    """A ground-truth navigation state over time (EuRoC ``state_groundtruth_estimate0``): t_ns (N,), pose,
+    velocity v_w (N, 3) m/s, gyro and accelerometer biases (N, 3) (measured = true + bias)."""
+
+    traj: Trajectory
+    v_w: FloatArray
+    gyro_bias: FloatArray
+    accel_bias: FloatArray
+
+
+def read_euroc_state(path: str | Path) -> StateTruth:
+    """EuRoC ground-truth state csv, 17 columns: t [ns], p xyz, q wxyz, v xyz, gyro bias xyz, accel bias xyz."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "mav0" / "state_groundtruth_estimate0" / "data.csv" if (p / "mav0").is_dir() else p
+    if not p.is_file():
+        raise InputError(f"{p}: no such file")
+    try:
+        d, _ = read_table(p, 17)
+    except InputError as e:
+        raise InputError(
+            f"{e} (a ground-truth state needs 17 columns: t, p xyz, q wxyz, v xyz, gyro bias xyz, "
+            "accel bias xyz, as EuRoC's state_groundtruth_estimate0)"
+        ) from None
+    traj = read_euroc_gt(p)
+    return StateTruth(traj, d[:, 8:11], d[:, 11:14], d[:, 14:17])
+
+
 def read_bag_poses(path: str | Path, topic: str | None = None) -> Trajectory:
     """``geometry_msgs/PoseStamped`` (or ``nav_msgs/Odometry``) messages of a ROS 1/2 bag, by header stamp."""
     from imuslam.io.rosbag import _open
