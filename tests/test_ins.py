@@ -214,3 +214,24 @@ def test_alignment_divergence_and_bad_aiding_are_reported() -> None:
     vals[7, 2] = np.nan
     with pytest.raises(InputError, match="measurement 7 is NaN"):
         Aiding(aid.t_s, "position", vals, 0.01)
+
+
+def test_strapdown_attitude_under_coning_converges_at_second_order() -> None:
+    """Coning: the rotation vector circles a cone (half-angle 0.05 rad, 10 Hz), the worst case for the
+    non-commutativity of rotations; the body rate is J_r(phi) phi' exactly. Over 10 s (100 cycles) the
+    attitude error shrinks as h^2 (ratio 4 from 200 to 400 Hz, within 10 %) and is below 0.05 deg at 1 kHz."""
+    from imuslam.geometry import exp, log, right_jacobian
+    from imuslam.ins.strapdown import mechanise
+
+    alpha, om = 0.05, 2 * np.pi * 10.0
+    err = {}
+    for rate in (200.0, 400.0, 1000.0):
+        t = np.arange(0.0, 10.0, 1.0 / rate)
+        phi = alpha * np.stack([np.cos(om * t), np.sin(om * t), 0 * t], axis=1)
+        dphi = alpha * om * np.stack([-np.sin(om * t), np.cos(om * t), 0 * t], axis=1)
+        w = np.einsum("nij,nj->ni", right_jacobian(phi), dphi)
+        z = np.zeros(3)
+        _, _, R = mechanise(np.zeros_like(w), w, np.diff(t), z, z, exp(phi[0]), z, z)
+        err[rate] = float(np.linalg.norm(log(exp(phi[-1]).T @ R[-1])))
+    assert abs(err[200.0] / err[400.0] - 4.0) < 0.4
+    assert np.rad2deg(err[1000.0]) < 0.05

@@ -136,6 +136,9 @@ def _propagate(
         f0 = accel[k] - ba
         f1 = accel[k + 1] - ba
         wm = 0.5 * (gyro[k] + gyro[k + 1]) - bg
+        wm = wm + (h / 12.0) * np.cross(
+            gyro[k] - bg, gyro[k + 1] - bg
+        )  # coning, as ins/strapdown.py
         Rn = R @ _exp3(wm[0] * h, wm[1] * h, wm[2] * h)
         a0 = R @ f0
         vn = v + h * (0.5 * (a0 + Rn @ f1) + g_n)

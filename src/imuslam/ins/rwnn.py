@@ -309,6 +309,9 @@ def _rwnn_observer(
         # strapdown of the corrected sensor (trapezoidal, as ins/strapdown.py)
         h = t[k + 1] - t[k]
         wm_ = 0.5 * (gyro[k] + gyro[k + 1]) - e_g
+        wm_ = wm_ + (h / 12.0) * np.cross(
+            gyro[k] - e_g, gyro[k + 1] - e_g
+        )  # coning, as ins/strapdown.py
         Rn = R @ _exp3(wm_[0] * h, wm_[1] * h, wm_[2] * h)
         a0 = R @ (accel[k] - e_a)
         vn = v + h * (0.5 * (a0 + Rn @ (accel[k + 1] - e_a)) + g_n)
