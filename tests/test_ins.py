@@ -235,3 +235,49 @@ def test_strapdown_attitude_under_coning_converges_at_second_order() -> None:
         err[rate] = float(np.linalg.norm(log(exp(phi[-1]).T @ R[-1])))
     assert abs(err[200.0] / err[400.0] - 4.0) < 0.4
     assert np.rad2deg(err[1000.0]) < 0.05
+
+
+@pytest.mark.parametrize("kind", ["position", "zupt"])
+@pytest.mark.parametrize("strong", [False, True])
+def test_batch_filter_equals_step_filter(kind: str, strong: bool) -> None:
+    """The compiled batch filter behind run_alignment against the step-by-step Eskf (predict / update in
+    Python) driven through the same epochs: the same estimates and 1-sigma to 1e-9."""
+    log, aid, init = _moving_case(2)
+    if kind == "zupt":
+        log, tr = simulate_imu(
+            Static(rpy=(0.02, -0.01, 0.3)), 20.0, np.random.default_rng(2), _biased(), 200.0, g=G
+        )
+        ta = np.arange(0.1, 20.0, 0.1)
+        aid = Aiding(ta, "zupt", np.zeros((len(ta), 3)), 0.01)
+        init = NavState(tr.p_w[0], tr.vel_w[0], tr.R_w_i[0])
+    noise = KfNoise(3e-3, 2e-4, 1e-5, 1e-6)
+    res = run_alignment(log, aid, init, "stkf" if strong else "kf", noise, g=G)
+    p0 = np.array([0.1] * 6 + [0.05] * 3 + [0.2] * 3 + [0.02] * 3) ** 2
+    kf = Eskf(init.p_n.copy(), init.v_n.copy(), init.R_n_b.copy(), np.diag(p0), noise=noise, g=G,
+              strong_tracking=strong)  # fmt: skip
+    t = log.t_s
+    k = 0
+    for j, ta_j in enumerate(aid.t_s):
+        kn = int(np.searchsorted(t, ta_j))
+        k0 = k
+        if kn > k:
+            kf.predict(log.accel[k : kn + 1], log.gyro[k : kn + 1], t[k : kn + 1])
+            k = kn
+        if kind == "position":
+            kf.update_position(aid.values[j], aid.std, float(ta_j))
+        else:
+            kf.update_zupt(aid.std, float(ta_j))
+            blk = log.gyro[k0 : kn + 1]
+            kf.update_zaru(
+                blk.mean(axis=0), noise.gyro * np.sqrt(log.rate_hz / len(blk)), float(ta_j)
+            )
+        sa, sg = kf.bias_std
+        assert np.allclose(res.accel_bias[j], kf.ba, atol=1e-9) and np.allclose(
+            res.gyro_bias[j], kf.bg, atol=1e-9
+        )
+        assert np.allclose(res.accel_bias_std[j], sa, atol=1e-9) and np.allclose(
+            res.gyro_bias_std[j], sg, atol=1e-9
+        )
+    assert np.allclose(res.final.R_n_b, kf.R, atol=1e-9) and np.allclose(
+        res.final.p_n, kf.p, atol=1e-9
+    )

@@ -197,6 +197,8 @@ def register(app: typer.Typer) -> None:
         summary: dict[str, object] = {
             "method": method, "aiding": aid.kind, "accel_bias": ba[-1].tolist(), "accel_bias_std": sa[-1].tolist(),
             "gyro_bias": bg[-1].tolist(), "gyro_bias_std": sg[-1].tolist(), "init": reason,
+            "config": {"log": str(log_path), "method": method, "aiding": aiding, "aiding_std": aiding_std,
+                       "init": init, "noise": noise, "g": g, "truth": None if truth is None else str(truth)},
             "noise": {"accel": kf_noise.accel, "gyro": kf_noise.gyro, "accel_bias_rw": kf_noise.accel_bias_rw,
                       "gyro_bias_rw": kf_noise.gyro_bias_rw, "source": noise_src},
         }  # fmt: skip
