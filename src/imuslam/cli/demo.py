@@ -1,17 +1,25 @@
-"""``imuslam demo``: calibrate a simulated BWT901CL on a gimbal and compare with the truth."""
+"""``imuslam demo``: calibrate a simulated BWT901CL on a gimbal, compare with the truth, and show what the
+calibration buys an INS."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-import typer
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import typer  # noqa: E402
 
 from imuslam.cli.calibrate import print_result, write_outputs
-from imuslam.cli.common import console, friendly_errors
+from imuslam.cli.common import console, friendly_errors, table, write_json
+from imuslam.eval.ins_benefit import ins_benefit
 from imuslam.imu.calibrate import CalibrationConfig, calibrate
 from imuslam.imu.model import ImuCalibration, TriadModel
+from imuslam.io.figures import save_figure
 from imuslam.io.load import write_imu
+from imuslam.sim.imu import ImuErrorSpec
 from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
 
 
@@ -44,3 +52,22 @@ def register(app: typer.Typer) -> None:
         console.print(
             f"wrote {out}/report.html, calibration.yaml, acc.calib, gyro.calib, raw and corrected MCAP bags"
         )
+        runs = ins_benefit(res.calibration, ImuErrorSpec.bwt901cl(), rng, g=sim.truth.g)
+        console.print(
+            table(
+                "What the calibration buys an INS: a car with RTK fixes for 60 s, then 30 s without",
+                ["IMU, start of the free run", "attitude error [deg]", "position error [m]"],
+                [[r.name, f"{r.attitude_err_deg:.2f}", f"{r.position_err_m:.2f}"] for r in runs],
+            )
+        )
+        fig, ax = plt.subplots(figsize=(9, 5))
+        for r in runs:
+            ax.semilogy(r.t_s, np.maximum(r.err_m, 1e-3), label=r.name)
+        ax.set_xlabel("time without fixes [s]")
+        ax.set_ylabel("position error [m]")
+        ax.legend()
+        ax.grid(True, which="both", alpha=0.3)
+        save_figure(fig, out / "ins_benefit.png")
+        write_json(out / "ins_benefit.json", [{"variant": r.name, "attitude_err_deg": r.attitude_err_deg,
+                                               "position_err_m": r.position_err_m} for r in runs])  # fmt: skip
+        console.print(f"wrote {out}/ins_benefit.png, ins_benefit.json")
