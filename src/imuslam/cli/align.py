@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import matplotlib
@@ -21,7 +22,7 @@ from imuslam.ins.strapdown import NavState  # noqa: E402
 from imuslam.io.atomic import write_atomic  # noqa: E402
 from imuslam.io.figures import save_figure  # noqa: E402
 from imuslam.io.imulog import ImuLog, InputError  # noqa: E402
-from imuslam.io.load import write_imu  # noqa: E402
+from imuslam.io.load import detect_format, write_imu  # noqa: E402
 from imuslam.io.trajectory import StateTruth, Trajectory, read_euroc_state, read_trajectory  # noqa: E402
 
 FloatArray = NDArray[np.float64]
@@ -138,6 +139,7 @@ def register(app: typer.Typer) -> None:
         if not (np.isfinite(g) and 9.7 < g < 9.9):
             raise InputError(f"--g: {g} m/s^2 is not a gravity magnitude on earth (9.78-9.84)")
         log = load_log(log_path, None, fmt, topic, None, None, None).to_si()
+        full = log
         if method == "coarse" or aiding == "zupt":
             k_still = max(int(np.searchsorted(log.t_s, t_still)), 10)
             ca = coarse_align(log.accel[:k_still], log.gyro[:k_still], log.rate_hz,
@@ -258,5 +260,17 @@ def register(app: typer.Typer) -> None:
             files.append("attitude_error.png")
         write_json(out / "alignment.json", summary)
         _write_estimates(out / "estimates.csv", res)
-        write_imu(res.corrected(log), out / "corrected_imu.csv", "euroc")
-        console.print(f"wrote {out}/{', '.join(files)}, corrected_imu.csv (EuRoC format)")
+        if detect_format(log_path) == "bag" and fmt in ("auto", "bag"):
+            # a bag stays a bag: a copy with the IMU topic replaced, every other message untouched
+            dst = out / ("corrected_imu" + (log_path.suffix if log_path.is_file() else ""))
+            if dst.is_dir():
+                shutil.rmtree(dst)
+            elif dst.exists():
+                dst.unlink()
+            t_topic = topic or full.source.rsplit(":", 1)[-1]
+            write_imu(res.corrected(full), dst, "bag", template=log_path, topic=t_topic)
+            files.append(f"{dst.name} (the input bag, {t_topic} corrected)")
+        else:
+            write_imu(res.corrected(full), out / "corrected_imu.csv", "euroc")
+            files.append("corrected_imu.csv (EuRoC format)")
+        console.print(f"wrote {out}/{', '.join(files)}")
