@@ -200,3 +200,8 @@ def test_align_command(tmp_path: Path) -> None:
         ],
     )
     assert r.exit_code == 0 and "unobservable" in r.output
+    r = runner.invoke(app, ["align", str(tmp_path / "still.csv"), "--method", "coarse", "--heading-deg", "30",
+                            "--out", str(tmp_path / "h")])  # fmt: skip
+    assert r.exit_code == 0, r.output
+    coarse = json.loads((tmp_path / "h" / "alignment.json").read_text())
+    assert coarse["heading_observable"] and abs(np.rad2deg(coarse["yaw"]) - 30.0) < 1e-9

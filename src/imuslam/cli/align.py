@@ -121,6 +121,10 @@ def register(app: typer.Typer) -> None:
         g: float = typer.Option(9.80665, "--g", help="gravity magnitude, m/s^2"),
         t_still: float = typer.Option(5.0, help="seconds of still start used for levelling"),
         lat_deg: float | None = typer.Option(None, help="latitude, for gyrocompassing (coarse)"),
+        heading_deg: float | None = typer.Option(
+            None,
+            help="initial yaw from another source (compass, a known pose): deg, counter-clockwise from east (ENU)",
+        ),
         truth: Path | None = typer.Option(
             None,
             help="ground-truth state (EuRoC state csv with biases): plotted and compared",
@@ -143,7 +147,8 @@ def register(app: typer.Typer) -> None:
         if method == "coarse" or aiding == "zupt":
             k_still = max(int(np.searchsorted(log.t_s, t_still)), 10)
             ca = coarse_align(log.accel[:k_still], log.gyro[:k_still], log.rate_hz,
-                              None if lat_deg is None else np.deg2rad(lat_deg))  # fmt: skip
+                              None if lat_deg is None else np.deg2rad(lat_deg),
+                              heading_rad=None if heading_deg is None else np.deg2rad(heading_deg))  # fmt: skip
         if method == "coarse":
             rows = [["roll", f"{np.rad2deg(ca.roll):.3f}", f"{np.rad2deg(ca.roll_pitch_std):.2g}", "deg"],
                     ["pitch", f"{np.rad2deg(ca.pitch):.3f}", f"{np.rad2deg(ca.roll_pitch_std):.2g}", "deg"],
