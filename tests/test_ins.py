@@ -203,7 +203,7 @@ def test_alignment_divergence_and_bad_aiding_are_reported() -> None:
     acc = log.accel.copy()
     acc[1234, 1] = np.nan
     bad = ImuLog(log.t_ns, acc, log.gyro)
-    for method in ("kf", "stkf"):
+    for method in ("kf", "stkf", "rwnn"):
         with pytest.raises(FilterDivergence, match="sample 12[0-9][0-9]"):
             run_alignment(bad, aid, init, method)  # type: ignore[arg-type]
     t = aid.t_s.copy()

@@ -221,6 +221,10 @@ def _rwnn_observer(
             S = Hb @ Pb @ Hb.T
             for i in range(3):
                 S[i, i] += meas_var
+            if not (np.all(np.isfinite(S)) and np.all(np.isfinite(innov))):
+                ea_out[k:] = np.nan  # diverged: the caller reports the first non-finite sample
+                P[k:] = np.nan
+                return ea_out, eg_out, P, V, Rs, sd_out
             Kb = Pb @ Hb.T @ np.linalg.inv(S)
             dtheta = np.zeros(n_par)
             db = Kb @ innov
@@ -400,4 +404,14 @@ def run_rwnn(
         var, kinds[aid_kind], np.asarray(p0, float), np.asarray(v0, float),
         np.ascontiguousarray(R0, float), g, gains,
     )  # fmt: skip
+    bad = ~(np.isfinite(ea).all(axis=1) & np.isfinite(eg).all(axis=1) & np.isfinite(P).all(axis=1)
+            & np.isfinite(R).all(axis=(1, 2)))  # fmt: skip
+    if bad.any():
+        from imuslam.ins.kf import FilterDivergence
+
+        k = int(np.argmax(bad))
+        raise FilterDivergence(
+            f"RWNN observer diverged at sample {k} (t = {t[k]:.3f} s): state not finite; check the log "
+            "there (a NaN, a saturated sample) and the aiding"
+        )
     return RwnnResult(ea, eg, sd[:, 0:3], sd[:, 3:6], P, V, R)
