@@ -141,7 +141,9 @@ def register(app: typer.Typer) -> None:
         if init == "aiding" and aiding == "zupt":
             raise InputError("--init aiding needs a trajectory as --aiding")
         if not (np.isfinite(g) and 9.7 < g < 9.9):
-            raise InputError(f"--g: {g} m/s^2 is not a gravity magnitude on earth (expected 9.7-9.9)")
+            raise InputError(
+                f"--g: {g} m/s^2 is not a gravity magnitude on earth (expected 9.7-9.9)"
+            )
         log = load_log(log_path, None, fmt, topic, None, None, None).to_si()
         full = log
         if method == "coarse" or aiding == "zupt":
