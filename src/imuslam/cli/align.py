@@ -182,11 +182,24 @@ def register(app: typer.Typer) -> None:
             if keep.sum() < 3:
                 raise InputError(f"{ap}: fewer than 3 positions inside the IMU log's time span")
             aid = Aiding(ta[keep], "position", tr.p_w[keep], aiding_std)
-            if init == "coarse":
+            if (
+                init == "coarse"
+            ):  # level from a still start; heading as given, else from the trajectory
                 k_still = max(int(np.searchsorted(log.t_s, t_still)), 10)
-                ca = coarse_align(log.accel[:k_still], log.gyro[:k_still], log.rate_hz)
-                start = NavState(tr.p_w[keep][0], np.zeros(3), ca.R_n_b)
+                ca = coarse_align(log.accel[:k_still], log.gyro[:k_still], log.rate_hz,
+                                  None if lat_deg is None else np.deg2rad(lat_deg),
+                                  heading_rad=None if heading_deg is None else np.deg2rad(heading_deg))  # fmt: skip
+                R0 = ca.R_n_b
                 reason = ca.reason
+                if ca.yaw is None:
+                    yaw = float(
+                        Rotation.from_matrix(_pose_at(tr, int(log.t_ns[0])).R_n_b).as_euler("ZYX")[
+                            0
+                        ]
+                    )
+                    R0 = Rotation.from_euler("ZYX", [yaw, ca.pitch, ca.roll]).as_matrix()
+                    reason += f"; heading {np.rad2deg(yaw):.1f} deg from {ap}"
+                start = NavState(tr.p_w[keep][0], np.zeros(3), R0)
             else:
                 start = _pose_at(tr, int(log.t_ns[0]))
                 reason = f"initial attitude, position and velocity from {ap}"
