@@ -12,6 +12,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from imuslam.errors import ImuslamError
 from imuslam.io.atomic import write_atomic
 from imuslam.io.imulog import AccelUnit, GyroUnit, ImuLog, InputError
 from imuslam.io.load import FORMATS, ImuFormat, load_imu
@@ -22,15 +23,15 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 
 def friendly_errors(fn: F) -> F:
-    """Turn an InputError into a one-line message on stderr and exit code 2 (no traceback)."""
+    """Turn an imuslam error into a one-line message on stderr and its exit code (no traceback)."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
             return fn(*args, **kwargs)
-        except InputError as exc:
+        except ImuslamError as exc:
             err_console.print(f"[bold red]error:[/] {exc}")
-            raise typer.Exit(2) from None
+            raise typer.Exit(exc.exit_code) from None
 
     return wrapper  # type: ignore[return-value]
 

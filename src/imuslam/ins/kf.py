@@ -27,14 +27,10 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from imuslam.errors import FilterDivergence, InputError
 from imuslam.ins.strapdown import _exp3
-from imuslam.io.imulog import InputError
 
 FloatArray = NDArray[np.float64]
-
-
-class FilterDivergence(InputError):
-    """The filter's state or covariance became invalid; the message names the sample and time."""
 
 
 @dataclass

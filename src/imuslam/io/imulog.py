@@ -8,12 +8,12 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.errors import InputError
+
+__all__ = ["AccelUnit", "GyroUnit", "ImuLog", "InputError"]
+
 AccelUnit = Literal["m/s^2", "g", "counts"]
 GyroUnit = Literal["rad/s", "deg/s", "counts"]
-
-
-class InputError(ValueError):
-    """Bad input: the message names the file (and line or field) and what was expected."""
 
 
 @dataclass
