@@ -374,11 +374,14 @@ def bnb_match(
     lin_window: float,
     ang_window: float,
     min_score: float,
+    step_range: float = np.inf,
 ) -> tuple[FloatArray, float]:
     """Branch-and-bound search around ``pose0`` (in the submap's frame): the best pose on the search
-    lattice and its score (mean probability), or score -1 when nothing reaches ``min_score``."""
+    lattice and its score (mean probability), or score -1 when nothing reaches ``min_score``. The angular
+    step moves a point at ``min(step_range, farthest point)`` by one cell."""
     res = index.res
     d_max = float(np.max(np.hypot(pts_b[:, 0], pts_b[:, 1]))) if len(pts_b) else 1.0
+    d_max = min(d_max, step_range)
     step = angular_step(res, d_max)
     n_ang = int(np.ceil(ang_window / step))
     th = pose0[2] + np.arange(-n_ang, n_ang + 1) * step

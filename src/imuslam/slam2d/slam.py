@@ -50,6 +50,9 @@ class MatcherConfig(BaseModel):
     use_correlative: bool = True
     linear_window: float = Field(0.15, ge=0, description="correlative search half-window, m")
     angular_window_deg: float = Field(10.0, ge=0, description="correlative search half-window, deg")
+    step_range: float = Field(
+        10.0, gt=0, description="angular step: one cell at this range, m (Olson 2009)"
+    )
     translation_delta_cost_weight: float = Field(0.1, ge=0)
     rotation_delta_cost_weight: float = Field(0.1, ge=0)
     occupied_space_weight: float = Field(1.0, gt=0)
@@ -63,7 +66,11 @@ class LoopConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     enabled: bool = True
-    every_n_nodes: int = Field(3, ge=1, description="search constraints for one node in this many")
+    every_n_nodes: int = Field(5, ge=1, description="search constraints for one node in this many")
+    max_submaps_per_node: int = Field(
+        3, ge=1, description="the nearest finished submaps searched per node"
+    )
+    step_range: float = Field(15.0, gt=0, description="angular step: one cell at this range, m")
     max_distance: float = Field(10.0, gt=0, description="only submaps this close to the node, m")
     linear_window: float = Field(3.0, gt=0, description="branch-and-bound half-window, m")
     angular_window_deg: float = Field(20.0, gt=0)
@@ -73,10 +80,10 @@ class LoopConfig(BaseModel):
     )
     optimize_every_n_nodes: int = Field(60, ge=1)
     huber_k: float = Field(1.0, gt=0, description="Huber threshold on whitened residuals")
-    local_sigma_m: float = Field(0.01, gt=0)
-    local_sigma_rad: float = Field(0.003, gt=0)
-    loop_sigma_m: float = Field(0.03, gt=0)
-    loop_sigma_rad: float = Field(0.01, gt=0)
+    local_sigma_m: float = Field(0.004, gt=0)
+    local_sigma_rad: float = Field(0.0015, gt=0)
+    loop_sigma_m: float = Field(0.05, gt=0)
+    loop_sigma_rad: float = Field(0.02, gt=0)
     skip_recent_submaps: int = Field(
         2, ge=0, description="the newest finished submaps are local SLAM's"
     )
@@ -225,7 +232,7 @@ class Slam2d:
         p = self.params
         init = prior
         if m.use_correlative and (m.linear_window > 0 or m.angular_window_deg > 0):
-            d_max = float(np.max(np.hypot(pts[:, 0], pts[:, 1])))
+            d_max = min(float(np.max(np.hypot(pts[:, 0], pts[:, 1]))), m.step_range)
             step = angular_step(p.resolution, d_max)
             n_ang = int(np.ceil(np.deg2rad(m.angular_window_deg) / step))
             init, _ = correlative_search(
@@ -312,11 +319,14 @@ class Slam2d:
             finished = finished[: max(0, len(finished) - cfg.skip_recent_submaps)]
         g = self.node_global[j]
         pts = self.node_points[j]
+        cands: list[tuple[float, int, FloatArray]] = []
         for s in finished:
-            T_w_s = self.submap_global(s)
-            T_s_n = pose2.between(T_w_s, g)
-            if np.hypot(T_s_n[0], T_s_n[1]) > cfg.max_distance:
-                continue
+            T_s_n = pose2.between(self.submap_global(s), g)
+            d = float(np.hypot(T_s_n[0], T_s_n[1]))
+            if d <= cfg.max_distance:
+                cands.append((d, s, T_s_n))
+        cands.sort(key=lambda c: c[0])
+        for _, s, T_s_n in cands[: cfg.max_submaps_per_node]:
             idx = self.submaps[s].index
             assert idx is not None
             self.loops_searched += 1
@@ -327,6 +337,7 @@ class Slam2d:
                 cfg.linear_window,
                 np.deg2rad(cfg.angular_window_deg),
                 cfg.min_score,
+                cfg.step_range,
             )
             if score < 0:
                 continue
