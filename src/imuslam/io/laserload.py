@@ -66,7 +66,7 @@ def read_sim_room(path: str | Path, with_imu: bool = True) -> LaserLog:
         imu = ImuLog(d["imu_t_ns"], d["imu_accel"], d["imu_gyro"], source=f"{f}:imu")
     return LaserLog(
         t_ns, r, float(d["scan_angle_min"]), float(d["scan_angle_increment"]), 0.2, 12.0, odo,
-        np.zeros(3), imu, str(f), warnings,
+        np.zeros(3), imu, str(f), warnings, 0.1 / ranges.shape[1],  # the simulator's scanner turns at 10 Hz
     )  # fmt: skip
 
 

@@ -30,6 +30,7 @@ class LaserLog:
     T_b_l: (3,) the laser's pose in the body (odometry) frame [x, y, yaw].
     imu: an IMU log over the same time (body frame = IMU frame), or None.
     warnings: counted repairs, e.g. ``{"dropped readings (inf/NaN/out of range)": 1234}``.
+    time_increment: s between beams (beam b fired at ``t_ns + b * time_increment``; 0 = all at once).
     """
 
     t_ns: NDArray[np.int64]
@@ -43,6 +44,7 @@ class LaserLog:
     imu: ImuLog | None = None
     source: str = "<memory>"
     warnings: dict[str, int] = field(default_factory=dict)
+    time_increment: float = 0.0
 
     def __post_init__(self) -> None:
         self.t_ns = np.asarray(self.t_ns, dtype=np.int64)
@@ -91,6 +93,7 @@ class LaserLog:
         return LaserLog(
             self.t_ns[start:stop], self.ranges[start:stop], self.angle_min, self.angle_increment,
             self.range_min, self.range_max, odo, self.T_b_l, self.imu, self.source, dict(self.warnings),
+            self.time_increment,
         )  # fmt: skip
 
 

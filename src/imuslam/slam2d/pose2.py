@@ -52,3 +52,10 @@ def to_matrix3(T: FloatArray) -> FloatArray:
     R = np.zeros(T.shape[:-1] + (3, 3))
     R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
     return R
+
+
+def act_each(T_a_b: FloatArray, p_b: FloatArray) -> FloatArray:
+    """Each point (P, 2) by its own pose (P, 3)."""
+    c, s = np.cos(T_a_b[:, 2]), np.sin(T_a_b[:, 2])
+    x, y = p_b[:, 0], p_b[:, 1]
+    return np.column_stack([c * x - s * y + T_a_b[:, 0], s * x + c * y + T_a_b[:, 1]])

@@ -145,8 +145,9 @@ class Slam2dResult:
     extra: dict[str, float] = field(default_factory=dict)
 
 
-def scan_points(log_: LaserLog, cfg: Slam2dConfig) -> list[FloatArray]:
-    """Per scan, the valid hit points (P, 2) in the body frame, thinned by the voxel filter."""
+def scan_points(log_: LaserLog, cfg: Slam2dConfig, with_time: bool = False) -> list[FloatArray]:
+    """Per scan, the valid hit points (P, 2) in the body frame, thinned by the voxel filter; with
+    ``with_time`` (P, 3): the third column the beam's firing time after the scan's stamp, s."""
     ang = log_.angles
     ca, sa = np.cos(ang), np.sin(ang)
     r = log_.ranges.astype(float)
@@ -160,8 +161,10 @@ def scan_points(log_: LaserLog, cfg: Slam2dConfig) -> list[FloatArray]:
     for k in range(len(log_)):
         m = ok[k]
         p = np.column_stack([bx[k, m], by[k, m]])
+        if with_time:
+            p = np.column_stack([p, np.flatnonzero(m) * log_.time_increment])
         if v > 0 and len(p) > 1:
-            key = np.floor(p / v).astype(np.int64)
+            key = np.floor(p[:, :2] / v).astype(np.int64)
             _, first = np.unique(key[:, 0] * 1_000_003 + key[:, 1], return_index=True)
             p = p[np.sort(first)]
         out.append(p)
@@ -193,7 +196,8 @@ class _Submap:
     def __init__(self, params: GridParams, centre: FloatArray, half: float) -> None:
         self.grid = ProbabilityGrid(params, centre, half)
         self.anchor_node = -1
-        self.T_local_submap = np.array([centre[0], centre[1], 0.0])
+        # the grid's cells are addressed in the local-SLAM frame: that frame is the submap's frame
+        self.T_local_submap = np.zeros(3)
         self.n_nodes = 0
         self.index: SubmapIndex | None = None
         self.finished = False
@@ -406,7 +410,8 @@ def run_slam2d(
     """Run the 2D SLAM over every scan of ``log_``; ``progress(k)`` is called after each scan."""
     cfg = cfg or Slam2dConfig()
     n = len(log_)
-    pts_all = scan_points(log_, cfg)
+    pts_all = scan_points(log_, cfg, with_time=True)
+    deskew = log_.time_increment > 0
     odo = log_.odom_xy_yaw if (cfg.use_odometry and log_.odom_xy_yaw is not None) else None
     imu = imu_yaw_and_tilt(log_) if cfg.use_imu else None
     t_s = (log_.t_ns - log_.t_ns[0]).astype(float) * 1e-9
@@ -427,7 +432,14 @@ def run_slam2d(
             prior = pose2.compose(local[k - 1], step)
         else:
             prior = pose.copy()
-        pts = pts_all[k]
+        pts = pts_all[k][:, :2]
+        if deskew and k > 0:
+            # motion during the scan (Cartographer unwarps with its pose extrapolator): constant velocity
+            # of the predicted step, each point moved to the pose at its firing time
+            dt = max(float(log_.t_ns[k] - log_.t_ns[k - 1]) * 1e-9, 1e-3)
+            f = pts_all[k][:, 2] / dt
+            step_k = pose2.between(local[k - 1], prior)
+            pts = pose2.act_each(step_k[None] * f[:, None], pts)
         tilted = imu is not None and imu[1][k] > cfg.max_tilt_deg
         if len(pts) < 3:
             empty += 1
@@ -479,9 +491,18 @@ def run_slam2d(
 def render_map(
     log_: LaserLog, poses_xy_yaw: FloatArray, cfg: Slam2dConfig, stride: int = 1
 ) -> ProbabilityGrid:
-    """All scans (every ``stride``-th) inserted at the given poses into one probability grid."""
-    pts_all = scan_points(log_, cfg)
+    """All scans (every ``stride``-th) inserted at the given poses into one probability grid (scans
+    unwarped with the motion between consecutive poses when the log gives beam times)."""
     P = np.asarray(poses_xy_yaw)
+    pts_all = scan_points(log_, cfg, with_time=True)
+    for k in range(len(P)):
+        q = pts_all[k]
+        if log_.time_increment > 0 and k > 0:
+            dt = max(float(log_.t_ns[k] - log_.t_ns[k - 1]) * 1e-9, 1e-3)
+            step_k = pose2.between(P[k - 1], P[k])
+            pts_all[k] = pose2.act_each(step_k[None] * (q[:, 2] / dt)[:, None], q[:, :2])
+        else:
+            pts_all[k] = q[:, :2]
     grid = ProbabilityGrid(GridParams(resolution=cfg.map_resolution), P[0, :2], 10.0)
     allp = np.concatenate(
         [pose2.act(P[k], pts_all[k]) for k in range(0, len(P), stride)] or [P[:1, :2]]
