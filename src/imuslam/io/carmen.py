@@ -207,8 +207,9 @@ def read_breezyslam(path: str | Path) -> LaserLog:
     odo = np.stack([np.cumsum(ds * np.cos(mid)), np.cumsum(ds * np.sin(mid)), yaw], axis=1)
     warnings: dict[str, int] = {}
     check_time_order(t_ns, str(p), warnings)
-    # the URG-04LX scans clockwise: the first reading is at +120 degrees (left)
-    r = clean_ranges(a[:, 24:][:, ::-1] * 1e-3, 0.02, BREEZY_RANGE_MAX, warnings)
+    # first reading at -120 degrees (right), counter-clockwise: with this order the scan matcher's
+    # heading follows the wheel odometry's turns (the reverse order turns the other way)
+    r = clean_ranges(a[:, 24:] * 1e-3, 0.02, BREEZY_RANGE_MAX, warnings)
     odo = odometry_jumps(odo, t_ns, MAX_ODOM_SPEED, MAX_ODOM_YAW_RATE, warnings)
     inc = np.deg2rad(BREEZY_FOV_DEG) / (BREEZY_BEAMS - 1)
     return LaserLog(

@@ -79,7 +79,7 @@ class LoopConfig(BaseModel):
         5, ge=1, le=8, description="branch-and-bound levels (root step 2^depth cells)"
     )
     optimize_every_n_nodes: int = Field(60, ge=1)
-    huber_k: float = Field(1.0, gt=0, description="Huber threshold on whitened residuals")
+    huber_k: float = Field(5.0, gt=0, description="Huber threshold on whitened loop residuals")
     local_sigma_m: float = Field(0.004, gt=0)
     local_sigma_rad: float = Field(0.0015, gt=0)
     loop_sigma_m: float = Field(0.05, gt=0)
@@ -117,10 +117,15 @@ class Slam2dConfig(BaseModel):
 
 @dataclass
 class LoopConstraint:
-    node: int  # index into Result nodes
+    """A node matched against a finished submap, kept as the pose-graph edge it gives: the node's pose
+    relative to the submap's anchor node (the first node inserted into it)."""
+
+    node: int  # index into the nodes
     submap: int
     T_submap_node: FloatArray
     score: float
+    anchor: int
+    T_anchor_node: FloatArray
 
 
 @dataclass
@@ -350,7 +355,9 @@ class Slam2d:
                 grid.prob, grid.x0, grid.y0, self.params.resolution, pts, pose, pose, 1.0, 1.0, 1.0,
                 self.params.p_unknown, 20,
             )  # fmt: skip
-            self.loops.append(LoopConstraint(j, s, refined, float(sc2)))
+            sm = self.submaps[s]
+            T_a_n = pose2.compose(pose2.between(self.node_local[sm.anchor_node], sm.T_local_submap), refined)
+            self.loops.append(LoopConstraint(j, s, refined, float(sc2), sm.anchor_node, T_a_n))
             self._loops_since_opt += 1
         self.timing["loop_search"] += time.perf_counter() - t0
 
@@ -379,11 +386,7 @@ class Slam2d:
         for i in range(n - 1):
             graph.add(gtsam.BetweenFactorPose2(i, i + 1, gtsam.Pose2(*rel[i]), local_noise))
         for c in self.loops:
-            sm = self.submaps[c.submap]
-            a = sm.anchor_node
-            T_a_s = pose2.between(self.node_local[a], sm.T_local_submap)
-            T_a_n = pose2.compose(T_a_s, c.T_submap_node)
-            graph.add(gtsam.BetweenFactorPose2(a, c.node, gtsam.Pose2(*T_a_n), loop_noise))
+            graph.add(gtsam.BetweenFactorPose2(c.anchor, c.node, gtsam.Pose2(*c.T_anchor_node), loop_noise))
         for i, g in enumerate(self.node_global):
             init.insert(i, gtsam.Pose2(*g))
         params = gtsam.LevenbergMarquardtParams()
