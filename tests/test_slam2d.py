@@ -184,7 +184,9 @@ def test_pose_graph_closes_a_simulated_loop() -> None:
     assert drift > 0.5  # the drift the graph has to remove
     # the robot is back at the start: its last 10 nodes matched against the first submap (anchor node 0)
     slam.loops = [
-        LoopConstraint(k, 0, pose2.between(truth[0], truth[k]), 0.9, 0, pose2.between(truth[0], truth[k]))
+        LoopConstraint(
+            k, 0, pose2.between(truth[0], truth[k]), 0.9, 0, pose2.between(truth[0], truth[k])
+        )
         for k in range(n - 10, n)
     ]
     slam.optimise()
@@ -226,7 +228,9 @@ def test_intel_relations_beat_odometry_and_match_published(shared_data: Path) ->
     from imuslam.io.carmen import read_carmen
     from imuslam.slam2d.slam import Slam2dConfig, run_slam2d
 
-    raw = read_carmen(shared_data / "radish_freiburg_benchmark" / "intel.clf.bz2").laser.slice(0, 1000)
+    raw = read_carmen(shared_data / "radish_freiburg_benchmark" / "intel.clf.bz2").laser.slice(
+        0, 1000
+    )
     res = run_slam2d(raw, Slam2dConfig())
     assert raw.odom_xy_yaw is not None
     m = relations_against_corrected(

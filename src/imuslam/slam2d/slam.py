@@ -356,7 +356,9 @@ class Slam2d:
                 self.params.p_unknown, 20,
             )  # fmt: skip
             sm = self.submaps[s]
-            T_a_n = pose2.compose(pose2.between(self.node_local[sm.anchor_node], sm.T_local_submap), refined)
+            T_a_n = pose2.compose(
+                pose2.between(self.node_local[sm.anchor_node], sm.T_local_submap), refined
+            )
             self.loops.append(LoopConstraint(j, s, refined, float(sc2), sm.anchor_node, T_a_n))
             self._loops_since_opt += 1
         self.timing["loop_search"] += time.perf_counter() - t0
@@ -386,7 +388,11 @@ class Slam2d:
         for i in range(n - 1):
             graph.add(gtsam.BetweenFactorPose2(i, i + 1, gtsam.Pose2(*rel[i]), local_noise))
         for c in self.loops:
-            graph.add(gtsam.BetweenFactorPose2(c.anchor, c.node, gtsam.Pose2(*c.T_anchor_node), loop_noise))
+            graph.add(
+                gtsam.BetweenFactorPose2(
+                    c.anchor, c.node, gtsam.Pose2(*c.T_anchor_node), loop_noise
+                )
+            )
         for i, g in enumerate(self.node_global):
             init.insert(i, gtsam.Pose2(*g))
         params = gtsam.LevenbergMarquardtParams()
