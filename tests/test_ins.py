@@ -5,11 +5,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from imuslam.errors import InputError
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.coarse import coarse_align
 from imuslam.ins.kf import Eskf, FilterDivergence, KfNoise
-from imuslam.ins.strapdown import NavState, integrate
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.ins.strapdown import integrate
+from imuslam.interfaces.imu import ImuLog
+from imuslam.interfaces.nav import NavState
 from imuslam.io.readers import read_euroc
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.imu_errors import TriadErrors

@@ -15,15 +15,17 @@ from numpy.typing import NDArray  # noqa: E402
 from scipy.spatial.transform import Rotation, Slerp  # noqa: E402
 
 from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log, table, write_json  # noqa: E402
+from imuslam.errors import InputError  # noqa: E402
 from imuslam.ins.align import Aiding, AlignmentResult, run_alignment  # noqa: E402
 from imuslam.ins.coarse import coarse_align  # noqa: E402
 from imuslam.ins.kf import KfNoise  # noqa: E402
-from imuslam.ins.strapdown import NavState  # noqa: E402
+from imuslam.interfaces.imu import ImuLog  # noqa: E402
+from imuslam.interfaces.nav import NavState  # noqa: E402
+from imuslam.interfaces.trajectory import Trajectory  # noqa: E402
 from imuslam.io.atomic import write_atomic  # noqa: E402
 from imuslam.io.figures import save_figure  # noqa: E402
-from imuslam.io.imulog import ImuLog, InputError  # noqa: E402
 from imuslam.io.load import detect_format, write_imu  # noqa: E402
-from imuslam.io.trajectory import StateTruth, Trajectory, read_euroc_state, read_trajectory  # noqa: E402
+from imuslam.io.trajectory import StateTruth, read_euroc_state, read_trajectory  # noqa: E402
 
 FloatArray = NDArray[np.float64]
 

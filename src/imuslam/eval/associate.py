@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.errors import InputError
 from imuslam.geometry import exp, log
-from imuslam.io.imulog import InputError
-from imuslam.io.trajectory import Trajectory
+from imuslam.interfaces.trajectory import Trajectory
 
 IntArray = NDArray[np.int64]
 

@@ -17,10 +17,12 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.errors import InputError
 from imuslam.ins.kf import FilterDivergence, KfNoise, _eskf_batch
 from imuslam.ins.rwnn import run_rwnn
-from imuslam.ins.strapdown import NavState, integrate
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.ins.strapdown import integrate
+from imuslam.interfaces.imu import ImuLog
+from imuslam.interfaces.nav import NavState
 
 FloatArray = NDArray[np.float64]
 Method = Literal["none", "kf", "stkf", "rwnn"]

@@ -48,8 +48,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, Field
 
+from imuslam.errors import InputError
 from imuslam.ins.strapdown import _exp3
-from imuslam.io.imulog import InputError
 
 FloatArray = NDArray[np.float64]
 

@@ -20,11 +20,11 @@ given constant.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numba
 import numpy as np
 from numpy.typing import NDArray
+
+from imuslam.interfaces.nav import NavState
 
 FloatArray = NDArray[np.float64]
 EARTH_RATE = 7.292115e-5  # rad/s, WGS-84
@@ -111,15 +111,6 @@ def mechanise(
         V[k + 1] = vn
         Rs[k + 1] = Rn
     return P, V, Rs
-
-
-@dataclass
-class NavState:
-    """Position (3,) m, velocity (3,) m/s in n (ENU), attitude R_n_b (3, 3)."""
-
-    p_n: FloatArray
-    v_n: FloatArray
-    R_n_b: FloatArray
 
 
 class Strapdown:
