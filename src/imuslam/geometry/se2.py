@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from imuslam.geometry.rigid import act, between, compose, inverse
+
 FloatArray = NDArray[np.float64]
 
 __all__ = [
@@ -51,36 +53,6 @@ def to_xy_yaw(T: ArrayLike) -> FloatArray:
     """T (..., 3, 3) -> [x, y, yaw] (..., 3), yaw in (-pi, pi]."""
     M = np.asarray(T, dtype=float)
     return np.stack([M[..., 0, 2], M[..., 1, 2], np.arctan2(M[..., 1, 0], M[..., 0, 0])], -1)
-
-
-def compose(T_a_b: ArrayLike, T_b_c: ArrayLike) -> FloatArray:
-    """``T_a_c = T_a_b T_b_c``."""
-    return np.asarray(T_a_b, dtype=float) @ np.asarray(T_b_c, dtype=float)
-
-
-def inverse(T_a_b: ArrayLike) -> FloatArray:
-    """``T_b_a`` = [R^T, -R^T t]."""
-    T = np.asarray(T_a_b, dtype=float)
-    Rt = np.swapaxes(T[..., :2, :2], -1, -2)
-    out = np.zeros(T.shape)
-    out[..., :2, :2] = Rt
-    out[..., :2, 2] = -np.einsum("...ij,...j->...i", Rt, T[..., :2, 2])
-    out[..., 2, 2] = 1.0
-    return out
-
-
-def between(T_w_a: ArrayLike, T_w_b: ArrayLike) -> FloatArray:
-    """``T_a_b = T_w_a^-1 T_w_b``."""
-    return compose(inverse(T_w_a), T_w_b)
-
-
-def act(T_a_b: ArrayLike, p_b: ArrayLike) -> FloatArray:
-    """Points (..., 2) in b mapped into a. A single T with (N, 2) points works."""
-    T = np.asarray(T_a_b, dtype=float)
-    p = np.asarray(p_b, dtype=float)
-    if T.ndim == 2:
-        return p @ T[:2, :2].T + T[:2, 2]
-    return np.einsum("...ij,...j->...i", T[..., :2, :2], p) + T[..., :2, 2]
 
 
 def hat(xi: ArrayLike) -> FloatArray:

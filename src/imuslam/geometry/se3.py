@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from imuslam.geometry import so3
+from imuslam.geometry.rigid import act, between, compose, inverse
 
 FloatArray = NDArray[np.float64]
 
@@ -44,32 +45,6 @@ def from_Rt(R: ArrayLike, t: ArrayLike) -> FloatArray:
     T[..., :3, 3] = ta
     T[..., 3, 3] = 1.0
     return T
-
-
-def compose(T_a_b: ArrayLike, T_b_c: ArrayLike) -> FloatArray:
-    """``T_a_c = T_a_b T_b_c``."""
-    return np.asarray(T_a_b, dtype=float) @ np.asarray(T_b_c, dtype=float)
-
-
-def inverse(T_a_b: ArrayLike) -> FloatArray:
-    """``T_b_a`` = [R^T, -R^T t] (no general matrix inverse)."""
-    T = np.asarray(T_a_b, dtype=float)
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    return from_Rt(Rt, -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3]))
-
-
-def between(T_w_a: ArrayLike, T_w_b: ArrayLike) -> FloatArray:
-    """``T_a_b = T_w_a^-1 T_w_b``: the pose of b seen from a."""
-    return compose(inverse(T_w_a), T_w_b)
-
-
-def act(T_a_b: ArrayLike, p_b: ArrayLike) -> FloatArray:
-    """Points (..., 3) in b mapped into a: ``p_a = R p_b + t``. A single T with (N, 3) points works."""
-    T = np.asarray(T_a_b, dtype=float)
-    p = np.asarray(p_b, dtype=float)
-    if T.ndim == 2:
-        return p @ T[:3, :3].T + T[:3, 3]
-    return np.einsum("...ij,...j->...i", T[..., :3, :3], p) + T[..., :3, 3]
 
 
 def hat(xi: ArrayLike) -> FloatArray:

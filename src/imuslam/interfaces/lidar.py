@@ -10,8 +10,22 @@ from numpy.typing import NDArray
 __all__ = ["Scan2d", "Scan3d"]
 
 
+class _StampAlias:
+    """``t0_ns``: the old name of ``t_ns``, kept while other code moves over."""
+
+    t_ns: int
+
+    @property
+    def t0_ns(self) -> int:
+        return self.t_ns
+
+    @t0_ns.setter
+    def t0_ns(self, value: int) -> None:
+        self.t_ns = value
+
+
 @dataclass
-class Scan3d:
+class Scan3d(_StampAlias):
     """One sweep of a 3D LiDAR.
 
     t_ns: the scan's stamp, ns (the header stamp; per-point times are relative to it).
@@ -32,18 +46,9 @@ class Scan3d:
     def __len__(self) -> int:
         return int(self.points_l.shape[0])
 
-    @property
-    def t0_ns(self) -> int:
-        """Old name of :attr:`t_ns`."""
-        return self.t_ns
-
-    @t0_ns.setter
-    def t0_ns(self, value: int) -> None:
-        self.t_ns = value
-
 
 @dataclass
-class Scan2d:
+class Scan2d(_StampAlias):
     """A planar laser scan (``sensor_msgs/LaserScan``): ranges (B,) float32, m, with inf for no return;
     beam i at ``angle_min + i * angle_increment`` rad (counter-clockwise about the sensor's z), fired
     at ``t_ns + i * time_increment`` s."""
@@ -63,12 +68,3 @@ class Scan2d:
         """(B,) beam angles, rad."""
         n = self.ranges.shape[0]
         return np.asarray(self.angle_min + np.arange(n) * self.angle_increment, dtype=np.float64)
-
-    @property
-    def t0_ns(self) -> int:
-        """Old name of :attr:`t_ns`."""
-        return self.t_ns
-
-    @t0_ns.setter
-    def t0_ns(self, value: int) -> None:
-        self.t_ns = value
