@@ -9,9 +9,10 @@ frame, so the accelerometer's T is upper triangular (3 angles) and the gyro's T 
          [ a_xz,   1,    -a_zx],
          [-a_xy,   a_yx,  1   ]]
 
-Parameter vectors (the order of the seed's eqs. 10 and 13):
-accelerometer ``[a_yz, a_zy, a_zx, s_x, s_y, s_z, b_x, b_y, b_z]``;
-gyroscope ``[g_yz, g_zy, g_xz, g_zx, g_xy, g_yx, s_x, s_y, s_z]`` (its bias is estimated apart).
+Parameter vectors: accelerometer ``[a_yz, a_zy, a_zx, s_x, s_y, s_z, b_x, b_y, b_z]``;
+gyroscope ``[g_yz, g_zy, g_zx, g_xz, g_xy, g_yx, s_x, s_y, s_z]`` (its bias is estimated apart), the order
+of :func:`misalignment_angles` and of the estimator's parameter vector. Seed 000's eq. 13 lists the gyro
+angles as yz, zy, xz, zx, xy, yx; the names here follow the values, so ``g_xz`` is always ``T[1, 0]``.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ FloatArray = NDArray[np.float64]
 BiasSign = Literal["plus", "minus"]
 
 ACCEL_PARAM_NAMES = ("a_yz", "a_zy", "a_zx", "s_ax", "s_ay", "s_az", "b_ax", "b_ay", "b_az")
-GYRO_PARAM_NAMES = ("g_yz", "g_zy", "g_xz", "g_zx", "g_xy", "g_yx", "s_gx", "s_gy", "s_gz")
+GYRO_PARAM_NAMES = ("g_yz", "g_zy", "g_zx", "g_xz", "g_xy", "g_yx", "s_gx", "s_gy", "s_gz")
 GYRO_BIAS_NAMES = ("b_gx", "b_gy", "b_gz")
 
 

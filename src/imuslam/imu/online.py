@@ -185,11 +185,18 @@ class OnlineCalibrator:
         self._mon_sq = np.zeros(6)
         self._mon_n = 0
         self._t_calibrated: int | None = None
+        self._pending_start = False
         self.drift_stats: list[dict[str, float]] = []
 
     # --------------------------------------------------------------------------------------- session
-    def start_session(self, t_ns: int) -> None:
-        """Begin a gimbal session now: go to the first pose and hold still for T_init."""
+    def start_session(self, t_ns: int | None = None) -> None:
+        """Begin a gimbal session at ``t_ns`` (the sensor's clock): go to the first pose and hold still for
+        T_init once the gimbal has arrived. ``None`` starts it at the next sample's time stamp, for a caller
+        that has no sample yet (the arrival time is then on the samples' clock, whatever its epoch)."""
+        if t_ns is None:
+            self._pending_start = True
+            return
+        self._pending_start = False
         self.phase = "init"
         self._buf = _Buffer()
         self._pose = 0
@@ -257,8 +264,14 @@ class OnlineCalibrator:
             self.on_calibration(new, res)
 
     # ----------------------------------------------------------------------------------------- step
+    def session_log(self) -> ImuLog:
+        """The samples of the current (or last) session, from the gimbal's arrival at the first pose."""
+        return self._buf.log(*self.units)
+
     def step(self, t_ns: int, accel: FloatArray, gyro: FloatArray) -> None:
         """One raw sample (accel (3,), gyro (3,) in the calibration's input units)."""
+        if self._pending_start:
+            self.start_session(t_ns)
         if self._last_t is not None and t_ns - self._last_t > 5e8:  # a gap: the window restarts
             self.detector.reset()
             self._end_still(self._last_t)
