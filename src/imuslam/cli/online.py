@@ -132,6 +132,7 @@ def register(app: typer.Typer) -> None:
         from imuslam.hw.witmotion import WitMotionImu
         from imuslam.imu.online import Event
 
+        assert imu_port is not None  # checked before the plan is built
         imu = WitMotionImu(imu_port)
         imu.configure(rate)
 
