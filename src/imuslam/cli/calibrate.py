@@ -56,13 +56,14 @@ def print_result(
 
 
 def write_outputs(
-    res: CalibrationResult, log: ImuLog, out: Path, **truth: np.ndarray | None
+    res: CalibrationResult, log: ImuLog, out: Path, plots: bool = True, **truth: np.ndarray | None
 ) -> None:
     c = res.calibration
     c.save_yaml(out / "calibration.yaml")
     c.export_imutk(out / "acc.calib", out / "gyro.calib")
     dump_config(res.config, out / "config.yaml")
-    write_report(res, log, out, truth.get("truth_accel"), truth.get("truth_gyro"))
+    if plots:
+        write_report(res, log, out, truth.get("truth_accel"), truth.get("truth_gyro"))
 
 
 def register(app: typer.Typer) -> None:
@@ -93,6 +94,9 @@ def register(app: typer.Typer) -> None:
         ),
         config: Path | None = typer.Option(None, help="YAML with CalibrationConfig fields"),
         out: Path = typer.Option(Path("calib_out"), "--out", help="results folder"),
+        plots: bool = typer.Option(
+            True, "--plots/--no-plots", help="write the PNG plots and report.html (about 1 s)"
+        ),
     ) -> None:
         """Calibrate accelerometer and gyroscope from a log of static poses (Tedaldi 2014, imu_tk's method)."""
         cfg = load_config(config, CalibrationConfig) if config else CalibrationConfig()
@@ -105,5 +109,6 @@ def register(app: typer.Typer) -> None:
         log = load_log(acc, gyro, fmt, topic, accel_unit, gyro_unit, columns)
         res = calibrate(log, cfg)
         print_result(res)
-        write_outputs(res, log, out)
-        console.print(f"wrote {out}/calibration.yaml, acc.calib, gyro.calib, report.html")
+        write_outputs(res, log, out, plots)
+        extra = ", plots, report.html" if plots else ""
+        console.print(f"wrote {out}/calibration.yaml, acc.calib, gyro.calib, config.yaml{extra}")
