@@ -93,9 +93,9 @@ def pose_errors(log: ImuLog, cal: ImuCalibration, poses: IntArray, g: float) -> 
     norms = np.linalg.norm(means, axis=1)
     u = means / norms[:, None]
     segs = np.stack([poses[:-1, 1], poses[1:, 0]], axis=1)
-    # The calibrated rate is M (w + offset): fold the offset into the rates, integrate with M.
-    w = log.gyro + cal.gyro.offset
-    R = integrate_segments(w, log.t_s, segs, cal.gyro.M[None])[0]
+    # The calibrated rate of every sample (with its g-sensitivity term if the calibration has one).
+    w = cal.correct_gyro(log.gyro, log.accel)
+    R = integrate_segments(w, log.t_s, segs, np.eye(3)[None])[0]
     pred = np.einsum("sji,sj->si", R, u[:-1])
     cos = np.clip(np.sum(pred * u[1:], axis=1), -1.0, 1.0)
     return PoseErrors(norms - g, np.rad2deg(np.arccos(cos)))
