@@ -34,13 +34,13 @@ from imuslam.cli import calibrate as _calibrate  # noqa: E402
 from imuslam.cli import correct as _correct  # noqa: E402
 from imuslam.cli import demo as _demo  # noqa: E402
 from imuslam.cli import evaluate as _evaluate  # noqa: E402
-from imuslam.cli import map2d as _map2d  # noqa: E402
 from imuslam.cli import online as _online  # noqa: E402
 from imuslam.cli import simulate as _simulate  # noqa: E402
 
-for _m in (_calibrate, _correct, _allan, _align, _evaluate, _simulate, _online, _demo, _map2d):
+for _m in (_calibrate, _correct, _allan, _align, _evaluate, _simulate, _online, _demo):
     _m.register(app)
 __import__("imuslam.cli.score", fromlist=["register"]).register(app)
+__import__("imuslam.cli.map2d", fromlist=["register"]).register(app)
 
 
 def main() -> None:

@@ -15,7 +15,7 @@ def register(app: typer.Typer) -> None:
     def map2d_cmd(
         log_path: Path = typer.Argument(
             ...,
-            help="CARMEN log (.clf/.log[.gz|.bz2]), BreezySLAM .dat, or an imuslam simulate folder",
+            help="CARMEN log (.clf/.log[.gz|.bz2]), BreezySLAM .dat, a bag, or an imuslam simulate folder",
         ),
         out: Path = typer.Option(Path("map2d_out"), "--out", help="results folder"),
         calib: Path | None = typer.Option(
@@ -25,7 +25,16 @@ def register(app: typer.Typer) -> None:
             None, "--gt", help="reference: a corrected CARMEN log or a TUM trajectory"
         ),
         config: Path | None = typer.Option(None, "--config", help="YAML with Slam2dConfig fields"),
-        fmt: str = typer.Option("auto", "--format", help="auto, carmen, breezyslam or sim"),
+        fmt: str = typer.Option("auto", "--format", help="auto, carmen, breezyslam, bag or sim"),
+        scan_topic: str | None = typer.Option(
+            None, "--scan-topic", help="bag: LaserScan / MultiEchoLaserScan topic"
+        ),
+        imu_topic: str | None = typer.Option(
+            None, "--imu-topic", help="bag: Imu topic (default: the only one)"
+        ),
+        odom_topic: str | None = typer.Option(
+            None, "--odom-topic", help="bag: Odometry topic (default: the only one)"
+        ),
         no_odometry: bool = typer.Option(
             False, "--no-odometry", help="do not use the wheel odometry"
         ),
@@ -60,7 +69,7 @@ def register(app: typer.Typer) -> None:
                                      "use_imu": cfg.use_imu and not no_imu})  # fmt: skip
         if no_loop:
             cfg.loop.enabled = False
-        log_ = load_laser_log(log_path, fmt)
+        log_ = load_laser_log(log_path, fmt, scan_topic, imu_topic, odom_topic)
         if calib is not None:
             if log_.imu is None:
                 raise InputError(f"--calib: {log_path} has no IMU to correct")
@@ -69,7 +78,13 @@ def register(app: typer.Typer) -> None:
             log_.imu = ImuCalibration.load_yaml(calib).correct(log_.imu)
         t0 = time.perf_counter()
         with tqdm(total=len(log_), unit="scan", desc="map2d", disable=not progress) as bar:
-            res = run_slam2d(log_, cfg, progress=lambda k: bar.update(1) if k % 50 == 49 else None)
+
+            def tick(k: int) -> None:
+                if k % 50 == 49:
+                    bar.update(50)
+
+            res = run_slam2d(log_, cfg, progress=tick)
+            bar.update(len(log_) - bar.n)
         grid = render_map(log_, res.pose_xy_yaw, cfg)
         wall = time.perf_counter() - t0
         metrics = None

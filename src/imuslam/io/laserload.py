@@ -1,5 +1,6 @@
 """Open any 2D laser log by its kind: CARMEN (``.clf``, ``.log``, ``.gz``, ``.bz2``), BreezySLAM
-(``.dat``), or a folder written by ``imuslam simulate room`` (``sim.npz``)."""
+(``.dat``), a bag (ROS 1 ``.bag``, ROS 2 folder, ``.mcap``: LaserScan / MultiEchoLaserScan, Imu,
+Odometry), or a folder written by ``imuslam simulate room`` (``sim.npz``)."""
 
 from __future__ import annotations
 
@@ -13,14 +14,16 @@ from imuslam.io.carmen import read_breezyslam, read_carmen
 from imuslam.io.imulog import ImuLog
 from imuslam.io.laserlog import LaserLog, check_time_order, clean_ranges, odometry_jumps
 
-LaserFormat = Literal["auto", "carmen", "breezyslam", "sim"]
-LASER_FORMATS = ("auto", "carmen", "breezyslam", "sim")
+LaserFormat = Literal["auto", "carmen", "breezyslam", "sim", "bag"]
+LASER_FORMATS = ("auto", "carmen", "breezyslam", "sim", "bag")
 
 
 def detect_format(path: Path) -> str:
     if path.is_dir():
         if (path / "sim.npz").is_file():
             return "sim"
+        if (path / "metadata.yaml").is_file():
+            return "bag"
         raise InputError(
             f"{path}: a folder without sim.npz (expected the output of imuslam simulate)"
         )
@@ -29,6 +32,8 @@ def detect_format(path: Path) -> str:
         return "breezyslam"
     if name.endswith(".npz"):
         return "sim"
+    if name.endswith((".bag", ".mcap", ".db3")):
+        return "bag"
     for ext in (".clf", ".log", ".clf.gz", ".clf.bz2", ".log.gz", ".log.bz2", ".gz", ".bz2"):
         if name.endswith(ext):
             return "carmen"
@@ -70,8 +75,60 @@ def read_sim_room(path: str | Path, with_imu: bool = True) -> LaserLog:
     )  # fmt: skip
 
 
-def load_laser_log(path: str | Path, fmt: str = "auto") -> LaserLog:
-    """Read a 2D laser log of any supported kind."""
+def read_bag_laser(
+    path: str | Path, scan_topic: str | None = None, imu_topic: str | None = None,
+    odom_topic: str | None = None,
+) -> LaserLog:  # fmt: skip
+    """The scans of a LaserScan / MultiEchoLaserScan topic (first echo), the Imu topic if the bag has one
+    (or ``imu_topic``), and the Odometry topic's planar pose interpolated at the scan stamps."""
+    from imuslam.io import rosmsg
+    from imuslam.io.bag import Bag
+
+    with Bag(path) as b:
+        topics = b.topics()
+        scans = list(b.scans2d(scan_topic))
+        src = f"{path}:{scan_topic or 'scan'}"
+        if not scans:
+            raise InputError(f"{src}: the topic has no scans")
+        imu = None
+        if imu_topic is not None or any(m == rosmsg.IMU for m in topics.values()):
+            imu = b.imu(imu_topic)
+        odo_traj = None
+        if odom_topic is not None or any(m == rosmsg.ODOMETRY for m in topics.values()):
+            odo_traj = b.trajectory(
+                odom_topic or next(t for t, m in topics.items() if m == rosmsg.ODOMETRY)
+            )
+    nb = len(scans[0].ranges)
+    for k, sc in enumerate(scans):
+        if len(sc.ranges) != nb or abs(sc.angle_increment - scans[0].angle_increment) > 1e-9 * max(
+            1.0, nb
+        ):
+            raise InputError(f"{src}: scan {k} has {len(sc.ranges)} beams / increment {sc.angle_increment:.6g}; "
+                             f"scan 0 has {nb} / {scans[0].angle_increment:.6g}")  # fmt: skip
+    t_ns = np.array([sc.t_ns for sc in scans], np.int64)
+    warnings: dict[str, int] = {}
+    check_time_order(t_ns, src, warnings)
+    r_min = float(min(sc.range_min for sc in scans))
+    r_max = float(max(sc.range_max for sc in scans))
+    ranges = clean_ranges(np.array([sc.ranges for sc in scans]), max(r_min, 1e-3), r_max, warnings)
+    odo = None
+    if odo_traj is not None:
+        yaw = np.unwrap(np.arctan2(odo_traj.R_w_b[:, 1, 0], odo_traj.R_w_b[:, 0, 0]))
+        ot = odo_traj.t_ns.astype(float)
+        ts = t_ns.astype(float)
+        odo = np.column_stack([np.interp(ts, ot, odo_traj.p_w[:, 0]), np.interp(ts, ot, odo_traj.p_w[:, 1]),
+                               np.interp(ts, ot, yaw)])  # fmt: skip
+        odo = odometry_jumps(odo, t_ns, 3.0, 6.0, warnings)
+    s0 = scans[0]
+    return LaserLog(t_ns, ranges, s0.angle_min, s0.angle_increment, max(r_min, 1e-3), r_max, odo, np.zeros(3),
+                    imu, src, warnings, max(float(s0.time_increment), 0.0))  # fmt: skip
+
+
+def load_laser_log(
+    path: str | Path, fmt: str = "auto", scan_topic: str | None = None, imu_topic: str | None = None,
+    odom_topic: str | None = None,
+) -> LaserLog:  # fmt: skip
+    """Read a 2D laser log of any supported kind (topics: bags only)."""
     p = Path(path)
     if not p.exists():
         raise InputError(f"{p}: no such file or folder")
@@ -82,4 +139,6 @@ def load_laser_log(path: str | Path, fmt: str = "auto") -> LaserLog:
         return read_carmen(p).laser
     if kind == "breezyslam":
         return read_breezyslam(p)
+    if kind == "bag":
+        return read_bag_laser(p, scan_topic, imu_topic, odom_topic)
     return read_sim_room(p)

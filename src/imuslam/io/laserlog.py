@@ -81,7 +81,9 @@ class LaserLog:
     @property
     def angles(self) -> FloatArray:
         """(B,) beam angles, rad, laser frame."""
-        return self.angle_min + np.arange(self.n_beams) * self.angle_increment
+        return np.asarray(
+            self.angle_min + np.arange(self.n_beams) * self.angle_increment, dtype=np.float64
+        )
 
     @property
     def duration_s(self) -> float:

@@ -165,6 +165,16 @@ class ProbabilityGrid:
     def known(self) -> NDArray[np.bool_]:
         return self.stamp >= 0
 
+    def cropped_known(self) -> tuple[F32, NDArray[np.bool_], float, float]:
+        """The probability and the observed mask of the observed bounding box, and its lower-left corner."""
+        k = self.known()
+        if not k.any():
+            return self.prob[:1, :1].copy(), k[:1, :1].copy(), self.x0, self.y0
+        ys, xs = np.flatnonzero(k.any(axis=1)), np.flatnonzero(k.any(axis=0))
+        r = self.params.resolution
+        win = (slice(ys[0], ys[-1] + 1), slice(xs[0], xs[-1] + 1))
+        return self.prob[win].copy(), k[win].copy(), self.x0 + xs[0] * r, self.y0 + ys[0] * r
+
     def cropped(self) -> tuple[F32, float, float]:
         """The probability of the observed bounding box, and its lower-left corner (m)."""
         k = self.known()

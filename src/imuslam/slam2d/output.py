@@ -56,13 +56,14 @@ def summary(result: Slam2dResult, log_: LaserLog, wall_s: float) -> dict[str, An
 def map_figure(grid: ProbabilityGrid, result: Slam2dResult, title: str):  # type: ignore[no-untyped-def]
     from matplotlib.figure import Figure
 
-    prob = np.where(grid.known(), grid.prob, 0.5)
+    pr, known, x0, y0 = grid.cropped_known()
+    prob = np.where(known, pr, 0.5)
     r = grid.params.resolution
     H, W = prob.shape
     fig = Figure(figsize=(8, 8 * H / max(W, 1) + 0.5))
     ax = fig.add_subplot(111)
     ax.imshow(1.0 - prob, cmap="gray", origin="lower", vmin=0, vmax=1,
-              extent=(grid.x0, grid.x0 + W * r, grid.y0, grid.y0 + H * r))  # fmt: skip
+              extent=(x0, x0 + W * r, y0, y0 + H * r))  # fmt: skip
     P = result.pose_xy_yaw
     ax.plot(P[:, 0], P[:, 1], "-", color="tab:blue", lw=0.7, label="SLAM")
     for c in result.loops[:: max(1, len(result.loops) // 300)]:
@@ -86,7 +87,8 @@ def write_outputs(
 
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / "trajectory.tum", tum_text(result.t_ns, result.pose_xy_yaw))
-    write_map_server(out, grid.prob, grid.known(), grid.x0, grid.y0, grid.params.resolution)
+    pr, known, x0, y0 = grid.cropped_known()
+    write_map_server(out, pr, known, x0, y0, grid.params.resolution)
     save_figure(map_figure(grid, result, Path(result.source).name), out / "map.png")
     write_atomic(out / "config.yaml", yaml.safe_dump(result.config.model_dump(), sort_keys=False))
     s = summary(result, log_, wall_s)
