@@ -93,8 +93,12 @@ def main() -> None:
                   f"{s['n']} |", flush=True)  # fmt: skip
         else:
             log_ = read_breezyslam(DATA / "breezyslam_mines" / f"{name}.dat")
-            res, wall, cpu = run(log_, cfg)
-            dm, dd, sc = loop_check(log_, res, cfg)
+            # the 4 m Hokuyo in the mine scores 0.57 on average even against its own submap: accept loop
+            # matches from 0.5 (Cartographer's default global minimum score is 0.6, local 0.55)
+            cfg_b = cfg.model_copy(deep=True)
+            cfg_b.loop.min_score = 0.5
+            res, wall, cpu = run(log_, cfg_b)
+            dm, dd, sc = loop_check(log_, res, cfg_b)
             rows.append((name, len(log_), log_.duration_s, wall, cpu, len(res.loops), dm, dd, sc))
         if maps:
             save_map(log_, res, cfg, maps / f"{name}.png", name)

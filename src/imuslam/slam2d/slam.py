@@ -331,7 +331,9 @@ class Slam2d:
         cands: list[tuple[float, int, FloatArray]] = []
         for s in finished:
             T_s_n = pose2.between(self.submap_global(s), g)
-            d = float(np.hypot(T_s_n[0], T_s_n[1]))
+            # the submap covers the surroundings of its nodes: distance to its first node
+            a = self.node_global[self.submaps[s].anchor_node]
+            d = float(np.hypot(a[0] - g[0], a[1] - g[1]))
             if d <= cfg.max_distance:
                 cands.append((d, s, T_s_n))
         cands.sort(key=lambda c: c[0])
