@@ -197,6 +197,7 @@ def test_pose_graph_closes_a_simulated_loop() -> None:
     assert np.hypot(*(end[:2] - truth[-1][:2])) < 0.1
 
 
+@pytest.mark.slow
 def test_simulated_room_ate_below_one_cell() -> None:
     """30 s of seed 000's drive (wheel odometry and a BWT901CL with seed 000's errors): the SLAM poses,
     SE(2)-aligned, are within one grid cell (5 cm) RMS of the truth, and better than the odometry."""
@@ -219,6 +220,7 @@ def test_simulated_room_ate_below_one_cell() -> None:
     assert ate(res.pose_xy_yaw) < ate(sim.log.odom_xy_yaw)
 
 
+@pytest.mark.slow
 def test_intel_relations_beat_odometry_and_match_published(shared_data: Path) -> None:
     """The first 1000 scans of the Intel lab (raw laser + raw odometry) against the corrected poses of the
     same scans (associated by their readings): Kümmerle 2009's relation error below what that paper
@@ -245,3 +247,80 @@ def test_intel_relations_beat_odometry_and_match_published(shared_data: Path) ->
     assert s["trans_sq_mean"] + np.deg2rad(1) ** 2 * s["rot_sq_mean_deg2"] < 0.5 * (
         o["trans_sq_mean"] + np.deg2rad(1) ** 2 * o["rot_sq_mean_deg2"]
     )
+
+
+def test_laserscan_angle_fields_must_match_ranges() -> None:
+    import dataclasses
+
+    from imuslam.interfaces.lidar import Scan2d
+    from imuslam.io import rosmsg
+
+    s = Scan2d(
+        5, -1.0, 0.01, 0.0, 0.1, 0.1, 10.0, np.ones(201, np.float32), np.zeros(201, np.float32)
+    )
+    msg = rosmsg.laserscan_message(s)
+    assert len(rosmsg.scan2d_from_msg(msg).ranges) == 201
+    bad = dataclasses.replace(msg, angle_max=msg.angle_max + 0.5)
+    with pytest.raises(InputError, match="give 251.0 beams but it has 201 ranges"):
+        rosmsg.scan2d_from_msg(bad)
+
+
+def test_backpack_bag_reads_multiecho_scans_and_imu(shared_data: Path) -> None:
+    """Cartographer's 2D backpack bag: 10 s of MultiEchoLaserScan (1079 beams, +-134.75 deg) and a 200 Hz
+    IMU; with two laser topics the reader asks for one by name."""
+    from imuslam.io.laserload import load_laser_log
+
+    bag = shared_data / "cartographer_backpack_2d" / "b0-2014-07-21-12-42-53-short.bag"
+    with pytest.raises(InputError, match="several .* topics; name one"):
+        load_laser_log(bag)
+    log_ = load_laser_log(bag, scan_topic="horizontal_laser_2d")
+    assert log_.n_beams == 1079
+    assert np.rad2deg(log_.angle_min) == pytest.approx(-134.75, abs=0.05)
+    assert 300 < len(log_) < 400  # ~35 Hz for 10 s
+    assert log_.imu is not None and 1800 < len(log_.imu) < 2100
+    assert log_.odom_xy_yaw is None
+
+
+@pytest.mark.slow
+def test_map2d_cli_on_simulated_room(tmp_path: Path) -> None:
+    """imuslam simulate room -> imuslam map2d --gt: every output file, the trajectory one pose per scan with
+    the log's stamps, ATE below one grid cell; a bad --config is one line with exit 2 and no folder."""
+    from typer.testing import CliRunner
+
+    from imuslam.cli import app
+
+    runner = CliRunner()
+    sim = tmp_path / "sim"
+    r = runner.invoke(app, ["simulate", "room", "--duration", "20", "--out", str(sim)])
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "map"
+    r = runner.invoke(
+        app,
+        [
+            "map2d",
+            str(sim),
+            "--out",
+            str(out),
+            "--gt",
+            str(sim / "ground_truth.tum"),
+            "--no-progress",
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    for f in ("trajectory.tum", "map.pgm", "map.yaml", "map.png", "config.yaml", "summary.json"):
+        assert (out / f).is_file(), f
+    import json
+
+    s = json.loads((out / "summary.json").read_text())
+    assert s["scans"] == 200
+    rows = np.loadtxt(out / "trajectory.tum")
+    stamps = np.load(sim / "sim.npz")["scan_t_ns"]
+    assert rows.shape == (200, 8)
+    assert np.allclose(rows[:, 0], stamps * 1e-9, atol=1e-6)
+    assert s["metrics"]["slam"]["ate_rmse_m"] < 0.05
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("resolution: -1\n")
+    r = runner.invoke(app, ["map2d", str(sim), "--out", str(tmp_path / "no"), "--config", str(bad)])
+    assert r.exit_code == 2
+    assert "resolution" in r.output
+    assert not (tmp_path / "no").exists()
