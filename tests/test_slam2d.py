@@ -324,3 +324,27 @@ def test_map2d_cli_on_simulated_room(tmp_path: Path) -> None:
     assert r.exit_code == 2
     assert "resolution" in r.output
     assert not (tmp_path / "no").exists()
+
+
+def test_tilted_scans_are_rejected_by_gravity() -> None:
+    """The IMU says the robot is tilted by 10 deg for 2 s (as on a ramp or a bump): those scans are not
+    matched or inserted (a tilted 2D scan cuts the walls obliquely) and are counted."""
+    from imuslam.sim.imu import ImuErrorSpec
+    from imuslam.sim.robot2d import simulate_robot2d
+    from imuslam.sim.trajectory import SquareLoopCcwCw
+    from imuslam.slam2d.slam import Slam2dConfig, run_slam2d
+
+    sim = simulate_robot2d(SquareLoopCcwCw(), 8.0, np.random.default_rng(7), ImuErrorSpec.ideal())
+    imu = sim.log.imu
+    assert imu is not None
+    t = (imu.t_ns - imu.t_ns[0]) * 1e-9
+    tilt = (t > 3.0) & (t < 5.0)
+    a = np.deg2rad(10.0)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    imu.accel[tilt] = imu.accel[tilt] @ R.T
+    cfg = Slam2dConfig()
+    cfg.loop.enabled = False
+    res = run_slam2d(sim.log, cfg)
+    # 20 scans in the 2 s; the gravity direction is averaged over 1 s, which moves the edges by <= 0.5 s
+    assert 10 <= res.rejected_tilt <= 30
+    assert res.warnings["scans rejected by the IMU tilt (pose from the prior)"] == res.rejected_tilt
