@@ -265,6 +265,7 @@ def test_laserscan_angle_fields_must_match_ranges() -> None:
         rosmsg.scan2d_from_msg(bad)
 
 
+@pytest.mark.slow
 def test_backpack_bag_reads_multiecho_scans_and_imu(shared_data: Path) -> None:
     """Cartographer's 2D backpack bag: 10 s of MultiEchoLaserScan (1079 beams, +-134.75 deg) and a 200 Hz
     IMU; with two laser topics the reader asks for one by name."""
