@@ -7,12 +7,23 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log, table
+from imuslam.cli import validate
+from imuslam.cli.common import (
+    ACCEL_UNITS,
+    FORMAT_HELP,
+    GYRO_UNITS,
+    console,
+    friendly_errors,
+    load_log,
+    table,
+)
 from imuslam.config import dump_config, load_config
 from imuslam.imu.calibrate import CalibrationConfig, CalibrationResult, calibrate
 from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
 from imuslam.imu.report import write_report
 from imuslam.io.imulog import ImuLog
+from imuslam.io.load import FORMATS
+from imuslam.io.results import results_folder
 
 
 def print_result(
@@ -75,24 +86,41 @@ def register(app: typer.Typer) -> None:
         gyro: Path | None = typer.Argument(
             None, help="gyroscope file, for imu_tk text in two files"
         ),
-        fmt: str = typer.Option("auto", "--format", help=FORMAT_HELP),
+        fmt: str = typer.Option(
+            "auto", "--format", help=FORMAT_HELP, callback=validate.choice(FORMATS)
+        ),
         topic: str | None = typer.Option(None, help="IMU topic of a bag"),
-        g: float | None = typer.Option(None, "--g", help="local gravity, m/s^2 (default 9.80665)"),
+        g: float | None = typer.Option(
+            None, "--g", help="local gravity, m/s^2 (default 9.80665)", callback=validate.gravity()
+        ),
         t_init: float | None = typer.Option(
-            None, "--t-init", help="initial still period, s (default 50)"
+            None,
+            "--t-init",
+            help="initial still period, s (default 50)",
+            callback=validate.positive("s"),
         ),
         bias_sign: str | None = typer.Option(
-            None, help="plus: T K (x + b) (default); minus: T K (x - b) (imu_tk)"
+            None,
+            help="plus: T K (x + b) (default); minus: T K (x - b) (imu_tk)",
+            callback=validate.choice(("plus", "minus")),
         ),
-        accel_unit: str | None = typer.Option(None, help="m/s^2, g or counts (guessed if absent)"),
+        accel_unit: str | None = typer.Option(
+            None,
+            help="m/s^2, g or counts (guessed if absent)",
+            callback=validate.choice(ACCEL_UNITS),
+        ),
         gyro_unit: str | None = typer.Option(
-            None, help="rad/s, deg/s or counts (guessed if absent)"
+            None,
+            help="rad/s, deg/s or counts (guessed if absent)",
+            callback=validate.choice(GYRO_UNITS),
         ),
         columns: str | None = typer.Option(
             None, help="CSV column mapping: t=..,ax=..,ay=..,az=..,gx=..,gy=..,gz=.."
         ),
         config: Path | None = typer.Option(None, help="YAML with CalibrationConfig fields"),
-        out: Path = typer.Option(Path("calib_out"), "--out", help="results folder"),
+        out: Path = typer.Option(
+            Path("calib_out"), "--out", help="results folder", callback=validate.out_folder()
+        ),
     ) -> None:
         """Calibrate accelerometer and gyroscope from a log of static poses (Tedaldi 2014, imu_tk's method)."""
         cfg = load_config(config, CalibrationConfig) if config else CalibrationConfig()
@@ -105,5 +133,6 @@ def register(app: typer.Typer) -> None:
         log = load_log(acc, gyro, fmt, topic, accel_unit, gyro_unit, columns)
         res = calibrate(log, cfg)
         print_result(res)
-        write_outputs(res, log, out)
+        with results_folder(out) as tmp:
+            write_outputs(res, log, tmp)
         console.print(f"wrote {out}/calibration.yaml, acc.calib, gyro.calib, report.html")

@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from imuslam.io.atomic import write_atomic
 from imuslam.io.imulog import ImuLog, InputError
+from imuslam.io.text import read_text
 
 FloatArray = NDArray[np.float64]
 BiasSign = Literal["plus", "minus"]
@@ -138,9 +139,7 @@ class TriadModel:
         """Read an imu_tk ``.calib`` file (21 numbers: T row-major, K row-major, B) as a ``minus`` model."""
         p = Path(path)
         try:
-            vals = np.array(p.read_text().split(), dtype=float)
-        except OSError as exc:
-            raise InputError(f"{p}: cannot read: {exc}") from exc
+            vals = np.array(read_text(p).split(), dtype=float)
         except ValueError as exc:
             raise InputError(f"{p}: not an imu_tk .calib file (non-numeric token): {exc}") from exc
         if vals.size != 21:
@@ -253,9 +252,7 @@ class ImuCalibration:
         """Read a calibration written by :meth:`save_yaml`; a bad field is an InputError naming it."""
         p = Path(path)
         try:
-            d = yaml.safe_load(p.read_text())
-        except OSError as exc:
-            raise InputError(f"{p}: cannot read: {exc}") from exc
+            d = yaml.safe_load(read_text(p))
         except yaml.YAMLError as exc:
             raise InputError(f"{p}: not valid YAML: {exc}") from exc
         if not isinstance(d, dict) or "accel" not in d or "gyro" not in d:
@@ -267,25 +264,53 @@ class ImuCalibration:
             v = d.get(key)
             if v is None:
                 return None
-            c = np.asarray(v, dtype=float)
+            try:
+                c = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                raise InputError(
+                    f"{p}: field '{key}' must be a {n}x{n} matrix of numbers"
+                ) from None
             if c.shape != (n, n):
                 raise InputError(f"{p}: field '{key}' must be {n}x{n}, got {c.shape}")
             return c
 
-        units = d.get("units") or {}
+        def mapping(key: str, value: Any) -> dict[str, Any]:
+            if not isinstance(value, dict):
+                raise InputError(
+                    f"{p}: field '{key}' must be a mapping, got {type(value).__name__} {value!r:.40}"
+                )
+            return value
+
+        units = mapping("units", d.get("units") or {})
+        unit_in: dict[str, str] = {}
+        for key, allowed, default in (
+            ("accel_in", ("m/s^2", "g", "counts"), "m/s^2"),
+            ("gyro_in", ("rad/s", "deg/s", "counts"), "rad/s"),
+        ):
+            u = units.get(key, default)
+            if u not in allowed:
+                raise InputError(
+                    f"{p}: field 'units.{key}' is {u!r}; expected one of {', '.join(allowed)}"
+                )
+            unit_in[key] = u
+        g = d.get("g", 9.80665)
+        if isinstance(g, bool) or not isinstance(g, int | float) or not 9.7 <= g <= 9.9:
+            raise InputError(
+                f"{p}: field 'g' is {g!r}; expected a gravity magnitude in [9.7, 9.9] m/s^2"
+            )
         return cls(
-            accel=TriadModel.from_dict(d["accel"], f"{p}: field 'accel'"),
-            gyro=TriadModel.from_dict(d["gyro"], f"{p}: field 'gyro'"),
+            accel=TriadModel.from_dict(mapping("accel", d["accel"]), f"{p}: field 'accel'"),
+            gyro=TriadModel.from_dict(mapping("gyro", d["gyro"]), f"{p}: field 'gyro'"),
             cov_accel=cov("cov_accel", 9),
             cov_gyro=cov("cov_gyro", 9),
             cov_gyro_bias=cov("cov_gyro_bias", 3),
-            accel_unit=str(units.get("accel_in", "m/s^2")),
-            gyro_unit=str(units.get("gyro_in", "rad/s")),
-            g=float(d.get("g", 9.80665)),
+            accel_unit=unit_in["accel_in"],
+            gyro_unit=unit_in["gyro_in"],
+            g=float(g),
             sensor_id=str(d.get("sensor_id", "")),
             date=str(d.get("date", "")),
             source=str(d.get("source", "")),
-            notes=dict(d.get("notes") or {}),
+            notes=mapping("notes", d.get("notes") or {}),
         )
 
     def export_imutk(self, acc_path: str | Path, gyro_path: str | Path) -> None:

@@ -6,6 +6,8 @@ replaced by a corrected log and every other message copied byte for byte.
 
 from __future__ import annotations
 
+import os
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Literal
@@ -19,6 +21,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from imuslam.io.atomic import atomic_path
 from imuslam.io.imulog import ImuLog, InputError
+from imuslam.io.readers import check_samples
 from imuslam.io.timestamps import check_and_repair
 
 IMU_TYPE = "sensor_msgs/msg/Imu"
@@ -37,12 +40,16 @@ def bag_kind(path: str | Path) -> BagKind:
     return "ros2"
 
 
-def _open(path: Path) -> AnyReader:
+def open_bag(path: Path) -> AnyReader:
+    """A reader of the bag at ``path``: a ROS 1 ``.bag``, a ROS 2 bag folder, a standalone ``.mcap``
+    (read as it is, never through a folder it happens to lie in), or a ``.db3`` of a ROS 2 folder."""
     p = path
-    if p.suffix == ".mcap" and p.is_file():
-        p = p.parent  # a ROS 2 bag is its folder (metadata.yaml beside the .mcap)
     if not p.exists():
         raise InputError(f"{path}: no such bag")
+    if p.suffix == ".db3" and p.is_file() and (p.parent / "metadata.yaml").is_file():
+        p = p.parent  # an sqlite3 file carries no message definitions; its folder's metadata does
+    if p.is_dir() and not (p / "metadata.yaml").is_file():
+        raise InputError(f"{path}: a folder without metadata.yaml; expected a ROS 2 bag folder")
     try:
         reader = AnyReader([p], default_typestore=_TS1 if p.suffix == ".bag" else _TS2)
         reader.open()
@@ -51,9 +58,29 @@ def _open(path: Path) -> AnyReader:
     return reader
 
 
+def messages(
+    reader: AnyReader, source: str | Path, connections: Any = None
+) -> Iterator[tuple[Any, int, Any]]:
+    """``(connection, time_ns, message)`` of ``reader``, deserialised; a bag corrupted after its header
+    (a truncated or damaged chunk, a bad message) is an InputError naming the message."""
+    k = 0
+    it = reader.messages(connections=connections) if connections is not None else reader.messages()
+    while True:
+        try:
+            item = next(it, None)
+            if item is None:
+                return
+            conn, t, raw = item
+            msg = reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:  # rosbags' ReaderError / AnyReaderError, struct and decode errors
+            raise InputError(f"{source}: corrupted after message {k}: {exc}") from exc
+        yield conn, t, (msg, raw)
+        k += 1
+
+
 def list_topics(path: str | Path) -> dict[str, str]:
     """Topic -> message type of every connection in the bag."""
-    reader = _open(Path(path))
+    reader = open_bag(Path(path))
     try:
         return {c.topic: c.msgtype for c in reader.connections}
     finally:
@@ -64,7 +91,7 @@ def read_imu_bag(path: str | Path, topic: str | None = None) -> ImuLog:
     """The ``sensor_msgs/Imu`` messages of ``topic`` (the only Imu topic when None), stamped by their
     header. A bag without the topic is an InputError listing the topics it has."""
     p = Path(path)
-    reader = _open(p)
+    reader = open_bag(p)
     try:
         conns = [c for c in reader.connections if c.msgtype == IMU_TYPE]
         listing = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections) or "none"
@@ -80,8 +107,9 @@ def read_imu_bag(path: str | Path, topic: str | None = None) -> ImuLog:
         acc = np.empty((n, 3))
         gyr = np.empty((n, 3))
         k = 0
-        for conn, _, raw in reader.messages(connections=conns):
-            m: Any = reader.deserialize(raw, conn.msgtype)
+        for _, _, (m, _) in messages(reader, p, conns):
+            if k >= n:
+                raise InputError(f"{p}: more {conns[0].topic} messages than its index counts ({n})")
             t[k] = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
             a, w = m.linear_acceleration, m.angular_velocity
             acc[k] = (a.x, a.y, a.z)
@@ -92,6 +120,7 @@ def read_imu_bag(path: str | Path, topic: str | None = None) -> ImuLog:
     src = f"{p}:{conns[0].topic}"
     if k == 0:
         raise InputError(f"{src}: the topic has no messages")
+    check_samples(acc[:k], gyr[:k], src)
     tc = check_and_repair(t[:k], src)
     return ImuLog(tc.t_ns, acc[:k], gyr[:k], "m/s^2", "rad/s", src, list(tc.warnings))
 
@@ -134,6 +163,20 @@ def _check_si(log: ImuLog) -> None:
         )
 
 
+def _writer2(tmp: Path, plugin: StoragePlugin) -> Any:
+    return Writer2(tmp, version=8, storage_plugin=plugin)
+
+
+def _single_mcap(tmp: Path) -> None:
+    """rosbags writes a ROS 2 bag as a folder ``x.mcap/x.mcap.mcap`` + metadata.yaml: keep the one
+    .mcap file (it holds its schemas and is read on its own) under the name ``x.mcap``."""
+    inner = tmp / f"{tmp.name}.mcap"
+    single = tmp.with_name(tmp.name + ".single")
+    os.replace(inner, single)
+    shutil.rmtree(tmp)
+    os.replace(single, tmp)
+
+
 def write_imu_bag(
     log: ImuLog,
     path: str | Path,
@@ -155,12 +198,14 @@ def write_imu_bag(
             w1.close()
         else:
             plugin = StoragePlugin.MCAP if k == "mcap" else StoragePlugin.SQLITE3
-            w2 = Writer2(tmp, version=8, storage_plugin=plugin)
+            w2 = _writer2(tmp, plugin)
             w2.open()
             c2 = w2.add_connection(topic, IMU_TYPE, typestore=_TS2)
             for t, msg in _imu_msgs(log, frame_id, _TS2):
                 w2.write(c2, t, _TS2.serialize_cdr(msg, IMU_TYPE))
             w2.close()
+            if p.suffix == ".mcap":
+                _single_mcap(tmp)
 
 
 def replace_imu_topic(src: str | Path, dst: str | Path, topic: str, corrected: ImuLog) -> int:
@@ -170,7 +215,7 @@ def replace_imu_topic(src: str | Path, dst: str | Path, topic: str, corrected: I
     _check_si(corrected)
     sp, dp = Path(src), Path(dst)
     kind = bag_kind(sp)
-    reader = _open(sp)
+    reader = open_bag(sp)
     try:
         if not any(c.topic == topic and c.msgtype == IMU_TYPE for c in reader.connections):
             listing = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections)
@@ -182,7 +227,7 @@ def replace_imu_topic(src: str | Path, dst: str | Path, topic: str, corrected: I
                 writer = Writer1(tmp)
             else:
                 plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
-                writer = Writer2(tmp, version=8, storage_plugin=plugin)
+                writer = _writer2(tmp, plugin)
             writer.open()
             out_conns = {}
             for c in reader.connections:
@@ -195,9 +240,8 @@ def replace_imu_topic(src: str | Path, dst: str | Path, topic: str, corrected: I
                         c.topic, c.msgtype, typestore=reader.typestore
                     )
             i = 0
-            for c, t, raw in reader.messages():
+            for c, t, (msg, raw) in messages(reader, sp):
                 if c.topic == topic and c.msgtype == IMU_TYPE:
-                    msg: Any = reader.deserialize(raw, c.msgtype)
                     stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
                     if i >= len(corrected) or int(corrected.t_ns[i]) != stamp:
                         raise InputError(
@@ -222,6 +266,8 @@ def replace_imu_topic(src: str | Path, dst: str | Path, topic: str, corrected: I
                 else:
                     writer.write(out_conns[c.id], t, raw)
             writer.close()
+            if kind != "ros1" and dp.suffix == ".mcap":
+                _single_mcap(tmp)
             if i != len(corrected):
                 raise InputError(
                     f"{sp}:{topic}: {i} messages but {len(corrected)} corrected samples"

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from imuslam.geometry import quat_from_matrix, quat_to_matrix
 from imuslam.io.atomic import write_atomic
 from imuslam.io.imulog import InputError
-from imuslam.io.text import read_table
+from imuslam.io.text import read_table, read_table_ns
 
 FloatArray = NDArray[np.float64]
 TrajFormat = Literal["tum", "kitti", "euroc", "bag"]
@@ -71,18 +71,59 @@ class Trajectory:
         return float(np.sum(np.linalg.norm(np.diff(self.p_w, axis=0), axis=1)))
 
 
-def _t_ns_from_seconds(t: FloatArray) -> NDArray[np.int64]:
+def _t_ns_from_seconds(
+    t: FloatArray, source: str = "", lines: NDArray[np.int64] | None = None
+) -> NDArray[np.int64]:
+    big = np.abs(t) >= 9.2e9  # int64 nanoseconds end in 2262
+    if big.any():
+        i = int(np.argmax(big))
+        raise InputError(
+            f"{source}, line {int(lines[i]) if lines is not None else i}: time {t[i]:g} s is beyond the "
+            "int64 nanosecond range (the year 2262); expected seconds"
+        )
     t0 = np.floor(t[0]) if len(t) else 0.0
     return (np.int64(t0) * 1_000_000_000 + np.round((t - t0) * 1e9).astype(np.int64)).astype(
         np.int64
     )
 
 
+def check_times(
+    t_ns: NDArray[np.int64], source: str, lines: NDArray[np.int64] | None = None
+) -> None:
+    """InputError naming the line (or pose) where time stops increasing: a trajectory's stamps must be
+    strictly increasing, or association pairs the wrong poses."""
+    d = np.diff(t_ns)
+    bad = np.flatnonzero(d <= 0)
+    if bad.size:
+        i = int(bad[0]) + 1
+        at = f"line {int(lines[i])}" if lines is not None else f"pose {i}"
+        what = "repeats" if d[bad[0]] == 0 else "goes backwards"
+        raise InputError(
+            f"{source}, {at}: time {what} ({t_ns[i]} ns after {t_ns[i - 1]} ns); expected strictly "
+            "increasing time stamps"
+        )
+
+
+def _rotations(q_wxyz: FloatArray, source: str, lines: NDArray[np.int64] | None) -> FloatArray:
+    """Rotation matrices of quaternions (normalised); a quaternion of (near) zero norm names its line."""
+    n = np.linalg.norm(q_wxyz, axis=1)
+    bad = ~(n > 1e-6)
+    if bad.any():
+        i = int(np.argmax(bad))
+        at = f"line {int(lines[i])}" if lines is not None else f"pose {i}"
+        raise InputError(
+            f"{source}, {at}: the quaternion has norm {n[i]:g}; expected a unit quaternion"
+        )
+    return quat_to_matrix(q_wxyz / n[:, None])
+
+
 def read_tum(path: str | Path) -> Trajectory:
     """TUM: ``t x y z qx qy qz qw`` per line (s, m), spaces or commas, '#' comments."""
-    d, _ = read_table(path, 8)
+    d, ln = read_table(path, 8)
     q = d[:, [7, 4, 5, 6]]
-    return Trajectory(_t_ns_from_seconds(d[:, 0]), d[:, 1:4], quat_to_matrix(q), str(path))
+    t_ns = _t_ns_from_seconds(d[:, 0], str(path), ln)
+    check_times(t_ns, str(path), ln)
+    return Trajectory(t_ns, d[:, 1:4], _rotations(q, str(path), ln), str(path))
 
 
 def read_kitti(path: str | Path, times: str | Path | None = None) -> Trajectory:
@@ -90,29 +131,25 @@ def read_kitti(path: str | Path, times: str | Path | None = None) -> Trajectory:
     d, _ = read_table(path, 12)
     M = d.reshape(-1, 3, 4)
     if times is not None:
-        t, _ = read_table(times, 1)
+        t, lt = read_table(times, 1)
         if len(t) != len(d):
             raise InputError(f"{times}: {len(t)} times for {len(d)} poses in {path}")
-        t_ns = _t_ns_from_seconds(t[:, 0])
+        t_ns = _t_ns_from_seconds(t[:, 0], str(times), lt)
+        check_times(t_ns, str(times), lt)
     else:
         t_ns = np.arange(len(d), dtype=np.int64) * 100_000_000  # one pose per frame, 10 Hz nominal
     return Trajectory(t_ns, M[:, :, 3].copy(), M[:, :, :3].copy(), str(path))
 
 
 def read_euroc_gt(path: str | Path) -> Trajectory:
-    """EuRoC ground truth csv: ``#timestamp [ns], p x y z, q w x y z, ...`` (more columns ignored)."""
+    """EuRoC ground truth csv: ``#timestamp [ns], p x y z, q w x y z, ...`` (more columns ignored);
+    commas or spaces; the stamps are read as integers, exactly."""
     p = Path(path)
     if p.is_dir():
         p = p / "mav0" / "state_groundtruth_estimate0" / "data.csv" if (p / "mav0").is_dir() else p
-    d, _ = read_table(p, (8, 11, 14, 17))
-    ints = []
-    with open(p) as fh:
-        for line in fh:
-            s = line.strip()
-            if s and not s.startswith("#"):
-                ints.append(int(s.split(",")[0]))
-    t_ns = np.asarray(ints, dtype=np.int64) if len(ints) == len(d) else d[:, 0].astype(np.int64)
-    return Trajectory(t_ns, d[:, 1:4], quat_to_matrix(d[:, 4:8]), str(p))
+    d, ln, t_ns = read_table_ns(p, (8, 11, 14, 17))
+    check_times(t_ns, str(p), ln)
+    return Trajectory(t_ns, d[:, 1:4], _rotations(d[:, 4:8], str(p), ln), str(p))
 
 
 @dataclass
@@ -146,10 +183,10 @@ def read_euroc_state(path: str | Path) -> StateTruth:
 
 def read_bag_poses(path: str | Path, topic: str | None = None) -> Trajectory:
     """``geometry_msgs/PoseStamped`` (or ``nav_msgs/Odometry``) messages of a ROS 1/2 bag, by header stamp."""
-    from imuslam.io.rosbag import _open
+    from imuslam.io.rosbag import messages, open_bag
 
     p = Path(path)
-    reader = _open(p)
+    reader = open_bag(p)
     types = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry")
     try:
         conns = [
@@ -163,8 +200,7 @@ def read_bag_poses(path: str | Path, topic: str | None = None) -> Trajectory:
                 f"{p}: name one pose topic (PoseStamped or Odometry); the bag has: {listing}"
             )
         t, pos, q = [], [], []
-        for c, _, raw in reader.messages(connections=conns):
-            m: Any = reader.deserialize(raw, c.msgtype)
+        for c, _, (m, _) in messages(reader, p, conns):
             pose = m.pose.pose if c.msgtype.endswith("Odometry") else m.pose
             t.append(m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec)
             pos.append((pose.position.x, pose.position.y, pose.position.z))
@@ -172,9 +208,16 @@ def read_bag_poses(path: str | Path, topic: str | None = None) -> Trajectory:
             q.append((o.w, o.x, o.y, o.z))
     finally:
         reader.close()
-    return Trajectory(
-        np.asarray(t), np.asarray(pos), quat_to_matrix(np.asarray(q)), f"{p}:{conns[0].topic}"
-    )
+    src = f"{p}:{conns[0].topic}"
+    if len(t) < 2:
+        raise InputError(f"{src}: {len(t)} pose(s); a trajectory needs at least 2")
+    t_ns = np.asarray(t, dtype=np.int64)
+    check_times(t_ns, src)
+    pos_w = np.asarray(pos, dtype=float)
+    bad = ~np.isfinite(pos_w).all(axis=1)
+    if bad.any():
+        raise InputError(f"{src}: message {int(np.argmax(bad))}: the position is NaN or infinite")
+    return Trajectory(t_ns, pos_w, _rotations(np.asarray(q, dtype=float), src, None), src)
 
 
 def read_trajectory(
