@@ -79,7 +79,11 @@ def _path_ids(p: FloatArray, delta: float) -> IntArray:  # pragma: no cover - co
 
 def rpe_pairs(est: Trajectory, delta: float, unit: str) -> tuple[IntArray, IntArray]:
     """Index pairs (i, j) for the RPE: consecutive pairs ``delta`` frames or metres apart (evo's rule)."""
+    if not (np.isfinite(delta) and delta > 0):
+        raise InputError(f"RPE delta {delta}; expected a positive number of {unit}")
     if unit == "frames":
+        if delta != int(delta):
+            raise InputError(f"RPE delta {delta} frames; expected a whole number of frames")
         ids = np.arange(0, len(est), int(delta), dtype=np.int64)
     elif unit == "m":
         ids = _path_ids(np.ascontiguousarray(est.p_w), float(delta))

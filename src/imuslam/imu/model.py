@@ -203,6 +203,28 @@ class ImuCalibration:
         )
         return out
 
+    def check_magnitudes(self, corrected: ImuLog, max_rate_rad_s: float = 35.0) -> None:
+        """InputError when a corrected log cannot be what the calibration was made for: the median
+        |accel| of any log of a robot on earth is near g (still, driving or walking), and no MEMS gyro
+        measures over 2000 deg/s (35 rad/s). Either failing means the log's units differ from the
+        calibration's (``units.accel_in`` / ``gyro_in``)."""
+        if len(corrected) == 0:
+            return
+        na = float(np.median(np.linalg.norm(corrected.accel, axis=1)))
+        if not 0.5 * self.g <= na <= 2.0 * self.g:
+            raise InputError(
+                f"{corrected.source}: corrected, the accelerations have a median magnitude of {na:.4g} "
+                f"m/s^2 where gravity is {self.g:g}: the log is not in the calibration's accelerometer "
+                f"unit ({self.accel_unit}); check --accel-unit and the calibration's units.accel_in"
+            )
+        ng = float(np.quantile(np.linalg.norm(corrected.gyro, axis=1), 0.99))
+        if not ng <= max_rate_rad_s:
+            raise InputError(
+                f"{corrected.source}: corrected, 1 % of the angular rates exceed {ng:.4g} rad/s (over "
+                f"{np.rad2deg(max_rate_rad_s):.0f} deg/s): the log is not in the calibration's gyro unit "
+                f"({self.gyro_unit}); check --gyro-unit and the calibration's units.gyro_in"
+            )
+
     @property
     def accel_params(self) -> FloatArray:
         """The 9 accelerometer parameters (``ACCEL_PARAM_NAMES``), bias in the model's sign."""

@@ -7,6 +7,7 @@ TUM is ``qx qy qz qw``, EuRoC ``qw qx qy qz``.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -19,6 +20,7 @@ from imuslam.io.atomic import write_atomic
 from imuslam.io.imulog import InputError
 from imuslam.io.text import read_table, read_table_ns
 
+log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 TrajFormat = Literal["tum", "kitti", "euroc", "bag"]
 TRAJ_FORMATS = ("tum", "kitti", "euroc", "bag")
@@ -88,19 +90,35 @@ def _t_ns_from_seconds(
 
 
 def check_times(
-    t_ns: NDArray[np.int64], source: str, lines: NDArray[np.int64] | None = None
+    t_ns: NDArray[np.int64],
+    source: str,
+    lines: NDArray[np.int64] | None = None,
+    max_repeat_frac: float = 0.01,
 ) -> None:
-    """InputError naming the line (or pose) where time stops increasing: a trajectory's stamps must be
-    strictly increasing, or association pairs the wrong poses."""
+    """InputError naming the line (or pose) where time goes backwards, or where it first repeats when
+    more than ``max_repeat_frac`` of the stamps repeat one before. A few repeats are real (motion-capture
+    stamps rounded to 0.1 ms: one in TUM's fr2_desk ground truth, four in evo's V102 estimate) and are
+    kept with a warning, as evo keeps them; many mean the file is broken and association would pair
+    the wrong poses."""
     d = np.diff(t_ns)
-    bad = np.flatnonzero(d <= 0)
-    if bad.size:
-        i = int(bad[0]) + 1
-        at = f"line {int(lines[i])}" if lines is not None else f"pose {i}"
-        what = "repeats" if d[bad[0]] == 0 else "goes backwards"
+    at = (lambda i: f"line {int(lines[i])}") if lines is not None else (lambda i: f"pose {i}")
+    back = np.flatnonzero(d < 0)
+    if back.size:
+        i = int(back[0]) + 1
         raise InputError(
-            f"{source}, {at}: time {what} ({t_ns[i]} ns after {t_ns[i - 1]} ns); expected strictly "
+            f"{source}, {at(i)}: time goes backwards ({t_ns[i]} ns after {t_ns[i - 1]} ns); expected "
             "increasing time stamps"
+        )
+    rep = np.flatnonzero(d == 0)
+    if rep.size > max_repeat_frac * len(t_ns):
+        i = int(rep[0]) + 1
+        raise InputError(
+            f"{source}, {at(i)}: time repeats ({t_ns[i]} ns), and {rep.size - 1} more times; expected "
+            "increasing time stamps"
+        )
+    if rep.size:
+        log.warning(
+            "%s: %d repeated time stamp(s), the first at %s", source, rep.size, at(int(rep[0]) + 1)
         )
 
 
