@@ -67,13 +67,17 @@ def print_result(
 
 
 def write_outputs(
-    res: CalibrationResult, log: ImuLog, out: Path, **truth: np.ndarray | None
+    res: CalibrationResult,
+    log: ImuLog,
+    out: Path,
+    extra_html: str = "",
+    **truth: np.ndarray | None,
 ) -> None:
     c = res.calibration
     c.save_yaml(out / "calibration.yaml")
     c.export_imutk(out / "acc.calib", out / "gyro.calib")
     dump_config(res.config, out / "config.yaml")
-    write_report(res, log, out, truth.get("truth_accel"), truth.get("truth_gyro"))
+    write_report(res, log, out, truth.get("truth_accel"), truth.get("truth_gyro"), extra_html)
 
 
 def register(app: typer.Typer) -> None:

@@ -7,7 +7,9 @@ from pathlib import Path
 import numpy as np
 import typer
 
+from imuslam.cli import validate
 from imuslam.cli.common import console, friendly_errors, table
+from imuslam.errors import HardwareError
 from imuslam.imu.calibrate import CalibrationConfig
 from imuslam.imu.history import CalibrationHistory
 from imuslam.imu.online import OnlineCalibrator, OnlineConfig
@@ -47,23 +49,47 @@ def register(app: typer.Typer) -> None:
         sim: bool = typer.Option(
             False, "--sim", help="run on a simulated robot, faster than real time"
         ),
-        duration_h: float = typer.Option(1.0, help="--sim: hours of operation"),
+        duration_h: float = typer.Option(
+            1.0,
+            help="--sim: hours of operation (at most 168)",
+            callback=validate.positive("h", hi=168),
+        ),
         drift_accel: float = typer.Option(
-            0.05, help="--sim: z accelerometer bias drift, m/s^2 per hour"
+            0.05,
+            help="--sim: z accelerometer bias drift, m/s^2 per hour",
+            callback=validate.number(-1, 1, unit="m/s^2 per hour"),
         ),
         drift_gyro: float = typer.Option(
-            0.001, help="--sim: gyro bias drift per axis, rad/s per hour"
+            0.001,
+            help="--sim: gyro bias drift per axis, rad/s per hour",
+            callback=validate.number(-0.1, 0.1, unit="rad/s per hour"),
         ),
-        poses: int = typer.Option(24, help="gimbal poses per session"),
-        t_init: float = typer.Option(20.0, "--t-init", help="initial still period of a session, s"),
+        poses: int = typer.Option(
+            24, help="gimbal poses per session (12..200)", callback=validate.integer(12, 200)
+        ),
+        t_init: float = typer.Option(
+            20.0,
+            "--t-init",
+            help="initial still period of a session, s",
+            callback=validate.positive("s", hi=600),
+        ),
         imu_port: str | None = typer.Option(
             None, help="serial port of a WitMotion IMU, e.g. /dev/ttyUSB0"
         ),
-        gimbal: str = typer.Option("pca9685", help="gimbal driver: pca9685"),
-        rate: float = typer.Option(100.0, help="IMU output rate, Hz"),
-        seed: int = typer.Option(0, help="--sim: random seed"),
+        gimbal: str = typer.Option(
+            "pca9685", help="gimbal driver: pca9685", callback=validate.choice(("pca9685",))
+        ),
+        rate: float = typer.Option(
+            100.0, help="IMU output rate, Hz", callback=validate.positive("Hz", hi=1000)
+        ),
+        seed: int = typer.Option(
+            0, help="--sim: random seed (>= 0)", callback=validate.integer(lo=0)
+        ),
         out: Path = typer.Option(
-            Path("online_out"), "--out", help="folder of the calibration history"
+            Path("online_out"),
+            "--out",
+            help="folder of the calibration history",
+            callback=validate.out_folder(),
         ),
     ) -> None:
         """Calibrate with the gimbal, publish, watch for drift in still moments, recalibrate."""
@@ -86,8 +112,17 @@ def register(app: typer.Typer) -> None:
 
         if gimbal != "pca9685":
             raise InputError(f"--gimbal: '{gimbal}'; supported: pca9685")
-        g = Pca9685Gimbal(ServoSpec(0), ServoSpec(1, min_deg=-180, max_deg=180))
-        imu = WitMotionImu(imu_port)
+        try:  # the drivers import pyserial and smbus2 (the hw extra) when they open their device
+            g = Pca9685Gimbal(ServoSpec(0), ServoSpec(1, min_deg=-180, max_deg=180))
+            imu = WitMotionImu(imu_port)
+        except ImportError as exc:
+            raise InputError(
+                f"--imu-port needs the hardware extra ({exc.name} is missing): pip install 'imuslam[hw]'"
+            ) from None
+        except OSError as exc:
+            raise HardwareError(
+                f"--imu-port {imu_port} or the gimbal: cannot open ({exc})"
+            ) from None
         imu.configure(rate)
 
         def command(angles: np.ndarray) -> float:
