@@ -18,7 +18,7 @@ from imuslam.cli.common import (
 from imuslam.imu.model import ImuCalibration
 from imuslam.io.imulog import InputError
 from imuslam.io.load import FORMATS, detect_format, write_imu
-from imuslam.io.results import results_file, results_folder
+from imuslam.io.results import check_out_dir, results_file, results_folder
 
 
 def register(app: typer.Typer) -> None:
@@ -53,6 +53,7 @@ def register(app: typer.Typer) -> None:
         columns: str | None = typer.Option(None, help="CSV column mapping"),
     ) -> None:
         """Write the corrected IMU (m/s^2, rad/s, body frame); a bag keeps every other message untouched."""
+        check_out_dir(out, "folder" if gyro is not None else "file")
         cal = ImuCalibration.load_yaml(calib)
         log = load_log(
             log_path,

@@ -303,7 +303,7 @@ class ImuCalibration:
                 )
             return value
 
-        units = mapping("units", d.get("units") or {})
+        units = mapping("units", {} if d.get("units") is None else d["units"])
         unit_in: dict[str, str] = {}
         for key, allowed, default in (
             ("accel_in", ("m/s^2", "g", "counts"), "m/s^2"),
@@ -332,7 +332,7 @@ class ImuCalibration:
             sensor_id=str(d.get("sensor_id", "")),
             date=str(d.get("date", "")),
             source=str(d.get("source", "")),
-            notes=mapping("notes", d.get("notes") or {}),
+            notes=mapping("notes", {} if d.get("notes") is None else d["notes"]),
         )
 
     def export_imutk(self, acc_path: str | Path, gyro_path: str | Path) -> None:

@@ -122,17 +122,31 @@ def check_times(
         )
 
 
-def _rotations(q_wxyz: FloatArray, source: str, lines: NDArray[np.int64] | None) -> FloatArray:
-    """Rotation matrices of quaternions (normalised); a quaternion of (near) zero norm names its line."""
+#: Farther than any robot's map (earth-centred coordinates are 6.4e6 m): a larger position is corrupted.
+MAX_ABS_POSITION_M = 1e8
+
+
+def _poses(
+    p_w: FloatArray, q_wxyz: FloatArray, source: str, lines: NDArray[np.int64] | None
+) -> tuple[FloatArray, FloatArray]:
+    """Positions and rotation matrices; an absurd position or a quaternion that is not a unit one
+    (norm off by more than 10 %, as a corrupted field makes it) is an InputError naming the line."""
+    at = (lambda i: f"line {int(lines[i])}") if lines is not None else (lambda i: f"pose {i}")
+    far = ~(np.abs(p_w) <= MAX_ABS_POSITION_M).all(axis=1)
+    if far.any():
+        i = int(np.argmax(far))
+        raise InputError(
+            f"{source}, {at(i)}: position {p_w[i].tolist()} m is not finite or beyond "
+            f"{MAX_ABS_POSITION_M:g} m"
+        )
     n = np.linalg.norm(q_wxyz, axis=1)
-    bad = ~(n > 1e-6)
+    bad = ~(np.abs(n - 1.0) <= 0.1)
     if bad.any():
         i = int(np.argmax(bad))
-        at = f"line {int(lines[i])}" if lines is not None else f"pose {i}"
         raise InputError(
-            f"{source}, {at}: the quaternion has norm {n[i]:g}; expected a unit quaternion"
+            f"{source}, {at(i)}: the quaternion has norm {n[i]:g}; expected a unit quaternion"
         )
-    return quat_to_matrix(q_wxyz / n[:, None])
+    return p_w, quat_to_matrix(q_wxyz / n[:, None])
 
 
 def read_tum(path: str | Path) -> Trajectory:
@@ -141,13 +155,21 @@ def read_tum(path: str | Path) -> Trajectory:
     q = d[:, [7, 4, 5, 6]]
     t_ns = _t_ns_from_seconds(d[:, 0], str(path), ln)
     check_times(t_ns, str(path), ln)
-    return Trajectory(t_ns, d[:, 1:4], _rotations(q, str(path), ln), str(path))
+    return Trajectory(t_ns, *_poses(d[:, 1:4], q, str(path), ln), str(path))
 
 
 def read_kitti(path: str | Path, times: str | Path | None = None) -> Trajectory:
     """KITTI: a 3x4 pose matrix per line (row-major); times (s) from ``times`` or the line index."""
-    d, _ = read_table(path, 12)
+    d, ln = read_table(path, 12)
     M = d.reshape(-1, 3, 4)
+    off = np.abs(np.einsum("nji,njk->nik", M[:, :, :3], M[:, :, :3]) - np.eye(3)).max(axis=(1, 2))
+    bad = ~(off <= 0.1) | ~(np.abs(M[:, :, 3]) <= MAX_ABS_POSITION_M).all(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(
+            f"{path}, line {int(ln[i])}: not a pose (the 3x3 part is not a rotation, or the position "
+            f"is beyond {MAX_ABS_POSITION_M:g} m)"
+        )
     if times is not None:
         t, lt = read_table(times, 1)
         if len(t) != len(d):
@@ -167,7 +189,7 @@ def read_euroc_gt(path: str | Path) -> Trajectory:
         p = p / "mav0" / "state_groundtruth_estimate0" / "data.csv" if (p / "mav0").is_dir() else p
     d, ln, t_ns = read_table_ns(p, (8, 11, 14, 17))
     check_times(t_ns, str(p), ln)
-    return Trajectory(t_ns, d[:, 1:4], _rotations(d[:, 4:8], str(p), ln), str(p))
+    return Trajectory(t_ns, *_poses(d[:, 1:4], d[:, 4:8], str(p), ln), str(p))
 
 
 @dataclass
@@ -231,11 +253,8 @@ def read_bag_poses(path: str | Path, topic: str | None = None) -> Trajectory:
         raise InputError(f"{src}: {len(t)} pose(s); a trajectory needs at least 2")
     t_ns = np.asarray(t, dtype=np.int64)
     check_times(t_ns, src)
-    pos_w = np.asarray(pos, dtype=float)
-    bad = ~np.isfinite(pos_w).all(axis=1)
-    if bad.any():
-        raise InputError(f"{src}: message {int(np.argmax(bad))}: the position is NaN or infinite")
-    return Trajectory(t_ns, pos_w, _rotations(np.asarray(q, dtype=float), src, None), src)
+    p_w, R_w_b = _poses(np.asarray(pos, dtype=float), np.asarray(q, dtype=float), src, None)
+    return Trajectory(t_ns, p_w, R_w_b, src)
 
 
 def read_trajectory(
