@@ -8,9 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from hypothesis import HealthCheck, Phase, given, settings
-from hypothesis import strategies as st
-from tests.cli.helpers import (
+from cli_helpers import (
     assert_rejected,
     imu_rows,
     imu_text,
@@ -20,7 +18,9 @@ from tests.cli.helpers import (
     write_calibration,
     write_rows,
 )
-from tests.cli.strategies import bad_calibration_field, set_field, spoiled_table
+from cli_strategies import bad_calibration_field, set_field, spoiled_table
+from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import strategies as st
 
 SETTINGS = settings(
     max_examples=25,

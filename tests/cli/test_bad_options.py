@@ -8,10 +8,10 @@ import tempfile
 from pathlib import Path
 from unittest import mock
 
+from cli_helpers import assert_rejected, imu_rows, imu_text, run, tum_rows, write_rows
+from cli_strategies import bad_choice, bad_float, bad_int
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
-from tests.cli.helpers import assert_rejected, imu_rows, imu_text, run, tum_rows, write_rows
-from tests.cli.strategies import bad_choice, bad_float, bad_int
 
 from imuslam.io import results
 

@@ -139,7 +139,8 @@ def _poses(
             f"{source}, {at(i)}: position {p_w[i].tolist()} m is not finite or beyond "
             f"{MAX_ABS_POSITION_M:g} m"
         )
-    n = np.linalg.norm(q_wxyz, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):  # a corrupted 1e308 is reported below
+        n = np.linalg.norm(q_wxyz, axis=1)
     bad = ~(np.abs(n - 1.0) <= 0.1)
     if bad.any():
         i = int(np.argmax(bad))
