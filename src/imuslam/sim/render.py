@@ -178,13 +178,17 @@ def _two_sided(world: World) -> NDArray[np.int64]:
     return out
 
 
-def pixel_bbox(world: World, rig: CameraRig, R_w_c: FloatArray, p_w_c: FloatArray) -> NDArray[np.int64]:
+def pixel_bbox(
+    world: World, rig: CameraRig, R_w_c: FloatArray, p_w_c: FloatArray
+) -> NDArray[np.int64]:
     """(Q, 4) ``[u_min, u_max, v_min, v_max]`` of each rectangle's projection, clipped to the image; the
     whole image when a corner is behind or near the camera plane, an empty box when all are behind."""
     W, H = rig.width, rig.height
-    c = world.centre[:, None, :] + np.array([-1, 1, 1, -1])[None, :, None] * (
-        world.half[:, None, 0:1] * world.u[:, None, :]
-    ) + np.array([-1, -1, 1, 1])[None, :, None] * (world.half[:, None, 1:2] * world.v[:, None, :])
+    c = (
+        world.centre[:, None, :]
+        + np.array([-1, 1, 1, -1])[None, :, None] * (world.half[:, None, 0:1] * world.u[:, None, :])
+        + np.array([-1, -1, 1, 1])[None, :, None] * (world.half[:, None, 1:2] * world.v[:, None, :])
+    )
     pc = (c - p_w_c) @ R_w_c  # (Q, 4, 3) in the camera
     z = pc[..., 2]
     out = np.empty((len(world), 4), dtype=np.int64)

@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.io.imulog import ImuLog
 from imuslam.io.trajectory import Trajectory
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.imu_errors import BWT901CL_ACCEL_DENSITY, BWT901CL_GYRO_DENSITY, TriadErrors
