@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from imuslam.errors import InputError
 from imuslam.io.imulog import ImuLog
-from imuslam.vio.calib import StereoCalibration, read_calibration
+from imuslam.vio.calib import Rectification, StereoCalibration, read_calibration
 
 U8Image = NDArray[np.uint8]
 
@@ -121,6 +121,12 @@ class EurocStereo:
 
     def __len__(self) -> int:
         return len(self._pairs)
+
+    def rectification(self) -> Rectification:
+        return self.calibration.rectification()
+
+    def skipped_frames(self) -> dict[str, int]:
+        return {"missing": self.counts.missing, "unreadable": self.counts.unreadable}
 
     @property
     def t_ns(self) -> NDArray[np.int64]:
