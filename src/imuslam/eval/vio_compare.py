@@ -45,3 +45,62 @@ def compare_tracks(
         res, _, _ = evaluate(r, interpolate(tr, t), align, rpe_delta, rpe_unit, by_index=True)  # type: ignore[arg-type]
         out[name] = res
     return out
+
+
+def plot_vio(
+    ref: Trajectory | None,
+    tracks: dict[str, Trajectory],
+    nis: dict[str, tuple[NDArray[np.float64], NDArray[np.bool_], int]],
+    bias: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]],
+    out_dir: str,
+) -> list[str]:
+    """``tracks.png`` (top view of every track, and the reference), ``nis.png`` (NIS per update and kind
+    with the 99.9 % gate), ``biases.png`` (estimated biases with 1-sigma). Returns the file names."""
+    from matplotlib.figure import Figure
+    from scipy.stats import chi2
+
+    from imuslam.io.figures import save_figure
+
+    names = []
+    fig = Figure(figsize=(7, 7))
+    ax = fig.add_subplot()
+    if ref is not None:
+        ax.plot(ref.p_w[:, 0], ref.p_w[:, 1], "k-", lw=1.2, label="reference")
+    for i, (name, tr) in enumerate(tracks.items()):
+        ax.plot(tr.p_w[:, 0], tr.p_w[:, 1], f"C{i}-", lw=0.9, label=name)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend()
+    save_figure(fig, f"{out_dir}/tracks.png")
+    names.append("tracks.png")
+    if nis:
+        fig = Figure(figsize=(10, 2.6 * len(nis)))
+        for i, (kind, (vals, acc, dof)) in enumerate(nis.items()):
+            ax = fig.add_subplot(len(nis), 1, i + 1)
+            k = np.arange(len(vals))
+            ax.semilogy(k[acc], vals[acc], "C0.", ms=3, label="accepted")
+            ax.semilogy(k[~acc], vals[~acc], "C3x", ms=4, label="rejected")
+            ax.axhline(chi2.ppf(0.999, dof), color="k", ls="--", lw=0.8, label="gate 99.9 %")
+            ax.axhline(dof, color="g", ls=":", lw=0.8, label=f"E[NIS] = {dof}")
+            ax.set_ylabel(f"NIS {kind}")
+            ax.legend(loc="upper right", fontsize=7)
+        ax.set_xlabel("update")
+        save_figure(fig, f"{out_dir}/nis.png")
+        names.append("nis.png")
+    t, b, s = bias
+    if len(t):
+        fig = Figure(figsize=(10, 5))
+        for j, (lab, unit) in enumerate((("accelerometer bias", "m/s^2"), ("gyro bias", "rad/s"))):
+            ax = fig.add_subplot(2, 1, j + 1)
+            for a in range(3):
+                y = b[:, 3 * j + a]
+                e = s[:, 3 * j + a]
+                ax.plot(t, y, f"C{a}-", lw=0.9, label="xyz"[a])
+                ax.fill_between(t, y - e, y + e, color=f"C{a}", alpha=0.2)
+            ax.set_ylabel(f"{lab} [{unit}]")
+            ax.legend(fontsize=7)
+        ax.set_xlabel("time [s]")
+        save_figure(fig, f"{out_dir}/biases.png")
+        names.append("biases.png")
+    return names

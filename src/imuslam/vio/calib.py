@@ -195,8 +195,8 @@ def read_kalibr_camchain(path: str | Path) -> StereoCalibration:
         T_c1_i = _floats(c1, "T_cn_cnm1", 16, f"{p}: cam1").reshape(4, 4) @ T_c0_i
     else:
         raise InputError(f"{p}: cam1 has neither T_cam_imu nor T_cn_cnm1")
-    left = _camera(c0, f"{p}: cam0", np.linalg.inv(T_c0_i), kalibr=True)
-    right = _camera(c1, f"{p}: cam1", np.linalg.inv(T_c1_i), kalibr=True)
+    left = _camera(c0, f"{p}: cam0", np.asarray(np.linalg.inv(T_c0_i), float), kalibr=True)
+    right = _camera(c1, f"{p}: cam1", np.asarray(np.linalg.inv(T_c1_i), float), kalibr=True)
     return StereoCalibration(left, right, str(p))
 
 

@@ -120,9 +120,13 @@ class StereoVO:
         self.cfg = cfg or VoConfig()
         c = self.cfg
         if c.detector == "sift":
-            self._det: Any = cv2.SIFT_create(nfeatures=2 * c.max_features, contrastThreshold=0.02)
+            self._det: Any = cv2.SIFT_create(  # type: ignore[attr-defined]
+                nfeatures=2 * c.max_features, contrastThreshold=0.02
+            )
         else:
-            self._det = cv2.ORB_create(nfeatures=2 * c.max_features, fastThreshold=10)
+            self._det = cv2.ORB_create(  # type: ignore[attr-defined]
+                nfeatures=2 * c.max_features, fastThreshold=10
+            )
         self.stats = VoStats()
         self.T_b_r = _se3(rect.R_b_r, rect.p_b_r)
         self.T_r_b = _inv(self.T_b_r)
@@ -160,8 +164,8 @@ class StereoVO:
 
     def _triangulate(
         self,
-        left: NDArray[np.float32],
-        right: NDArray[np.float32],
+        left: NDArray[Any],
+        right: NDArray[Any],
         uv: FloatArray,
         d_pred: FloatArray,
     ) -> tuple[FloatArray, FloatArray]:
@@ -258,8 +262,8 @@ class StereoVO:
         c = self.cfg
         st = self.stats
         st.frames += 1
-        left = left_u8.astype(np.float32)
-        right = right_u8.astype(np.float32)
+        left: Any = left_u8.astype(np.float32)
+        right: Any = right_u8.astype(np.float32)
         if c.blur_sigma > 0:
             left = cv2.GaussianBlur(left, (0, 0), c.blur_sigma)
             right = cv2.GaussianBlur(right, (0, 0), c.blur_sigma)
@@ -303,7 +307,13 @@ class StereoVO:
                 else:
                     ii = inl.ravel()
                     R0, _ = cv2.Rodrigues(rvec)
-                    R, t, cov_d, _ = self._refine(Xo[ii], covo[ii], uvo[ii], R0, tvec.ravel())
+                    R, t, cov_d, _ = self._refine(
+                        Xo[ii],
+                        covo[ii],
+                        uvo[ii],
+                        np.asarray(R0, float),
+                        np.asarray(tvec, float).ravel(),
+                    )
                     T = _se3(R, t)
                     self._T_rel = T
                     z0 = self._to_body(T, dt)

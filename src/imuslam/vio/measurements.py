@@ -32,7 +32,9 @@ class VoVelocity:
     cov: FloatArray
     kind: str = "vo_velocity"
 
-    def linearize(self, x: InsState, layout: ErrorLayout) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
         vb = x.R_n_b.T @ x.v_n
         H = np.zeros((3, layout.dim))
         H[:, layout.V] = x.R_n_b.T
@@ -52,7 +54,9 @@ class VoRate:
     gyro_var: float
     kind: str = "vo_rate"
 
-    def linearize(self, x: InsState, layout: ErrorLayout) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
         H = np.zeros((3, layout.dim))
         H[:, layout.BG] = -np.eye(3)
         r = self.omega_b - (self.gyro_mean - x.gyro_bias)
@@ -84,7 +88,9 @@ class NonHolonomic:
     p_b_v: FloatArray = field(default_factory=lambda: np.zeros(3))
     kind: str = "nhc"
 
-    def linearize(self, x: InsState, layout: ErrorLayout) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
         vv, H = _vehicle_velocity(x, layout, self.gyro, self.R_b_v, self.p_b_v)
         return -vv[1:], H[1:], np.eye(2) * self.std**2
 
@@ -100,6 +106,8 @@ class WheelSpeed:
     p_b_v: FloatArray = field(default_factory=lambda: np.zeros(3))
     kind: str = "wheel"
 
-    def linearize(self, x: InsState, layout: ErrorLayout) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
         vv, H = _vehicle_velocity(x, layout, self.gyro, self.R_b_v, self.p_b_v)
         return np.array([self.speed - vv[0]]), H[:1], np.array([[self.std**2]])

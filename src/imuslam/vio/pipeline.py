@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from imuslam.errors import InputError
 from imuslam.geometry import exp
-from imuslam.ins.core import Eskf, ErrorLayout, InsState, KfNoise, Measurement, integrate_nominal
+from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise, Measurement, integrate_nominal
 from imuslam.io.imulog import ImuLog
 from imuslam.io.trajectory import Trajectory
 from imuslam.vio.frontend import StereoVO, VoConfig, VoMeasurement, VoStats
@@ -57,10 +57,13 @@ class VioConfig(BaseModel):
     noise: NoiseConfig = Field(default_factory=NoiseConfig)
     g: float = Field(9.80665, gt=9.7, lt=9.9, description="local gravity, m/s^2")
     noise_from_log: bool = Field(
-        True, description="raise the noise densities to what the log shows (vibration; KfNoise.from_log)"
+        True,
+        description="raise the noise densities to what the log shows (vibration; KfNoise.from_log)",
     )
     nhc: bool = Field(False, description="non-holonomic constraints (ground vehicles)")
-    nhc_std: float = Field(0.02, gt=0, description="1-sigma of lateral / vertical vehicle velocity, m/s")
+    nhc_std: float = Field(
+        0.02, gt=0, description="1-sigma of lateral / vertical vehicle velocity, m/s"
+    )
     nhc_rate_hz: float = Field(20.0, gt=0, le=1000)
     vehicle_rpy_deg: tuple[float, float, float] = Field(
         (0.0, 0.0, 0.0), description="vehicle frame in the body (roll, pitch, yaw), deg"
@@ -71,15 +74,21 @@ class VioConfig(BaseModel):
     gate_prob: float | None = Field(0.999, gt=0.5, lt=1.0, description="chi-square gate; None: off")
     vo_velocity: bool = True
     vo_rate: bool = True
-    level_window_s: float = Field(0.5, gt=0, description="IMU averaged for the initial roll and pitch")
+    level_window_s: float = Field(
+        0.5, gt=0, description="IMU averaged for the initial roll and pitch"
+    )
     init_std_theta: float = Field(0.02, gt=0, description="rad (roll, pitch; yaw is free: 1 rad)")
     init_std_ba: float = Field(0.1, gt=0, description="m/s^2")
     init_std_bg: float = Field(
         0.002, gt=0, description="rad/s, added to the first VO rate's covariance (bias change)"
     )
-    outlier_fraction: float = Field(0.0, ge=0, lt=1, description="simulation: VO measurements corrupted")
+    outlier_fraction: float = Field(
+        0.0, ge=0, lt=1, description="simulation: VO measurements corrupted"
+    )
     outlier_vel: tuple[float, float] = Field((0.1, 0.5), description="m/s, uniform magnitude range")
-    outlier_rate: tuple[float, float] = Field((0.02, 0.1), description="rad/s, uniform magnitude range")
+    outlier_rate: tuple[float, float] = Field(
+        (0.02, 0.1), description="rad/s, uniform magnitude range"
+    )
     outlier_seed: int = 0
 
 
@@ -99,7 +108,11 @@ class GateStats:
         nis = np.asarray(self.nis)
         acc = np.asarray(self.accepted_mask, bool)
         n = int(acc.sum())
-        out: dict[str, Any] = {"dof": self.dof, "accepted": self.accepted, "rejected": self.rejected}
+        out: dict[str, Any] = {
+            "dof": self.dof,
+            "accepted": self.accepted,
+            "rejected": self.rejected,
+        }
         if n:
             m = float(nis[acc].mean())
             out["nis_mean_accepted"] = m
@@ -126,7 +139,9 @@ def _level(accel_b: FloatArray) -> FloatArray:
 def rpy_matrix(rpy_deg: tuple[float, float, float]) -> FloatArray:
     """R = Rz(yaw) Ry(pitch) Rx(roll) from degrees."""
     r, p, y = np.deg2rad(rpy_deg)
-    return exp(np.array([0.0, 0.0, y])) @ exp(np.array([0.0, p, 0.0])) @ exp(np.array([r, 0.0, 0.0]))
+    return (
+        exp(np.array([0.0, 0.0, y])) @ exp(np.array([0.0, p, 0.0])) @ exp(np.array([r, 0.0, 0.0]))
+    )
 
 
 class VioFilter:
@@ -164,7 +179,9 @@ class VioFilter:
         """Interpolated (accel, gyro) at time t."""
         k = int(np.clip(np.searchsorted(self.t_imu, t) - 1, 0, len(self.t_imu) - 2))
         w = (t - self.t_imu[k]) / (self.t_imu[k + 1] - self.t_imu[k])
-        return (1 - w) * self.acc[k] + w * self.acc[k + 1], (1 - w) * self.gyr[k] + w * self.gyr[k + 1]
+        return (1 - w) * self.acc[k] + w * self.acc[k + 1], (1 - w) * self.gyr[k] + w * self.gyr[
+            k + 1
+        ]
 
     def gyro_mean(self, t0: float, t1: float) -> FloatArray:
         """Mean raw gyro over [t0, t1] (trapezoid over the samples and the interpolated ends)."""
@@ -229,7 +246,10 @@ class VioFilter:
         # a time recorded twice (prior then posterior): keep the last
         last = np.concatenate([t_ns[1:] != t_ns[:-1], [True]])
         return Trajectory(
-            t_ns[last], np.concatenate(self._p)[order][last], np.concatenate(self._R)[order][last], source
+            t_ns[last],
+            np.concatenate(self._p)[order][last],
+            np.concatenate(self._R)[order][last],
+            source,
         )
 
     def biases(self) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -278,8 +298,12 @@ class VioResult:
                 "measurements": self.vo_stats.measurements,
                 "skipped_few_features": self.vo_stats.skipped_few_features,
                 "skipped_few_inliers": self.vo_stats.skipped_few_inliers,
-                "mean_tracked": float(np.mean(self.vo_stats.tracked)) if self.vo_stats.tracked else 0.0,
-                "mean_inliers": float(np.mean(self.vo_stats.inliers)) if self.vo_stats.inliers else 0.0,
+                "mean_tracked": float(np.mean(self.vo_stats.tracked))
+                if self.vo_stats.tracked
+                else 0.0,
+                "mean_inliers": float(np.mean(self.vo_stats.inliers))
+                if self.vo_stats.inliers
+                else 0.0,
             },
             "gating": {k: v.summary() for k, v in self.gating.items()},
             "outliers": self.outliers,
@@ -300,20 +324,52 @@ def _check_imu_span(imu: ImuLog, t_first: int, t_last: int, source: str) -> None
         )
 
 
+@dataclass
+class VoRun:
+    """The front end's output over a run, reusable by several filter configurations: per used frame its
+    time and the measurement since the previous one (None: first frame or skipped), and the counts."""
+
+    frames: list[tuple[int, VoMeasurement | None]]
+    stats: VoStats
+    seen: int
+    unreadable: int
+
+
+def compute_vo(
+    data: StereoImuDataset, cfg: VoConfig, progress: Callable[[int], None] | None = None
+) -> VoRun:
+    """The whole front end at once (see :class:`VoRun`)."""
+    rect = data.rectification()
+    vo = StereoVO(rect, cfg)
+    frames: list[tuple[int, VoMeasurement | None]] = []
+    seen = unreadable = 0
+    for t_ns, left, right in data.frames():
+        seen += 1
+        if progress is not None:
+            progress(1)
+        if left is None or right is None:
+            unreadable += 1
+            continue
+        lr, rr = rect.rectify(left, right)
+        frames.append((t_ns, vo.process(t_ns, lr, rr)))
+    return VoRun(frames, vo.stats, seen, unreadable)
+
+
 def run_vio(
     data: StereoImuDataset,
     cfg: VioConfig | None = None,
     progress: Callable[[int], None] | None = None,
+    vo_run: VoRun | None = None,
 ) -> VioResult:
-    """VO on every stereo pair and the EKF over the IMU; ``progress(n)`` is called per frame."""
+    """VO on every stereo pair (or the given ``vo_run``) and the EKF over the IMU; ``progress(n)`` is
+    called per frame."""
     cfg = cfg or VioConfig()
     imu = data.imu.to_si()
-    rect = data.rectification()
-    vo = StereoVO(rect, cfg.vo)
+    if vo_run is None:
+        vo_run = compute_vo(data, cfg.vo, progress)
     rng = np.random.default_rng(cfg.outlier_seed)
     R_b_v = rpy_matrix(cfg.vehicle_rpy_deg)
     p_b_v = np.asarray(cfg.vehicle_p_b, float)
-    gyro_var_density = cfg.noise.gyro**2
 
     filt: VioFilter | None = None
     t_ref = 0
@@ -325,23 +381,13 @@ def run_vio(
     corrupted: list[bool] = []
     vel_acc: list[bool] = []
     next_nhc = 0.0
-    frames_seen = 0
-    unreadable = 0
-    t_first_frame: int | None = None
+    frames_seen = vo_run.seen
+    unreadable = vo_run.unreadable
+    if vo_run.frames:
+        _check_imu_span(imu, vo_run.frames[0][0], vo_run.frames[-1][0], data.source)
     T_prev_rel = np.eye(4)
 
-    for t_ns, left, right in data.frames():
-        frames_seen += 1
-        if progress is not None:
-            progress(1)
-        if left is None or right is None:
-            unreadable += 1
-            continue
-        if t_first_frame is None:
-            t_first_frame = t_ns
-            _check_imu_span(imu, t_ns, t_ns + 1, data.source)
-        lr, rr = rect.rectify(left, right)
-        m = vo.process(t_ns, lr, rr)
+    for t_ns, m in vo_run.frames:
         # VO alone: chain the relative poses (a skipped pair keeps the last motion)
         if m is not None:
             T_prev_rel = m.T_b0_b1
@@ -359,7 +405,9 @@ def run_vio(
             t_ref = m.t0_ns
             t_imu = (imu.t_ns - t_ref) * 1e-9
             t_mid = (m.t_mid_ns - t_ref) * 1e-9
-            win = (t_imu >= t_mid - cfg.level_window_s / 2) & (t_imu <= t_mid + cfg.level_window_s / 2)
+            win = (t_imu >= t_mid - cfg.level_window_s / 2) & (
+                t_imu <= t_mid + cfg.level_window_s / 2
+            )
             if win.sum() < 2:
                 _check_imu_span(imu, m.t0_ns, m.t1_ns, data.source)
                 win = np.abs(t_imu - t_mid) == np.min(np.abs(t_imu - t_mid))
@@ -375,7 +423,7 @@ def run_vio(
             P0[lay.V, lay.V] = R0 @ m.cov[3:, 3:] @ R0.T + np.eye(3) * 1e-4
             P0[lay.BA, lay.BA] = np.eye(3) * cfg.init_std_ba**2
             P0[lay.BG, lay.BG] = m.cov[:3, :3] + np.eye(3) * (
-                cfg.init_std_bg**2 + gyro_var_density / max(m.dt, 1e-3)
+                cfg.init_std_bg**2 + cfg.noise.gyro**2 / max(m.dt, 1e-3)
             )
             filt = VioFilter(imu, t_ref, x0, P0, t_mid, cfg)
             filt.mark()
@@ -425,7 +473,7 @@ def run_vio(
     if filt is None or imu_track is None:
         raise InputError(
             f"{data.source}: no VO measurement from {frames_seen} frames "
-            f"({unreadable} unreadable, {vo.stats.skipped_few_features} with too few features); "
+            f"({unreadable} unreadable, {vo_run.stats.skipped_few_features} with too few features); "
             "nothing to fuse"
         )
     # to the last frame
@@ -449,11 +497,10 @@ def run_vio(
     skipped = data.skipped_frames()
     bt, b, bs = filt.biases()
     return VioResult(
-        fused, vo_traj, imu_track, filt.stats, vo.stats,
+        fused, vo_traj, imu_track, filt.stats, vo_run.stats,
         {"listed_or_rendered": frames_seen + skipped.get("missing", 0), "missing": skipped.get("missing", 0),
          "unreadable": unreadable, "used": frames_seen - unreadable},
         {"corrupted": int(cor.sum()), "corrupted_rejected": int((cor & ~va).sum()),
          "good": int((~cor).sum()), "good_rejected": int((~cor & ~va).sum())},
         bt, b, bs, cfg, meas_all, cor, va,
     )  # fmt: skip
-

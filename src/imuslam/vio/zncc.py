@@ -10,6 +10,8 @@ Slow pure-numpy references for the tests are :func:`zncc_ref` and :func:`stereo_
 
 from __future__ import annotations
 
+from typing import Any
+
 import numba as nb
 import numpy as np
 from numpy.typing import NDArray
@@ -358,7 +360,7 @@ def track(
     return out, score
 
 
-def zncc_ref(a: FloatArray, b: FloatArray) -> float:
+def zncc_ref(a: NDArray[Any], b: NDArray[Any]) -> float:
     """Reference ZNCC of two equal-shape patches (numpy)."""
     a = a.astype(float).ravel() - a.mean()
     b = b.astype(float).ravel() - b.mean()
