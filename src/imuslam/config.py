@@ -11,8 +11,8 @@ from typing import Any, TypeVar
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from imuslam.errors import InputError
 from imuslam.io.atomic import write_atomic
-from imuslam.io.imulog import InputError
 from imuslam.io.text import read_text
 
 ModelT = TypeVar("ModelT", bound=BaseModel)

@@ -15,8 +15,8 @@ from imuslam.cli.common import (
     friendly_errors,
     load_log,
 )
+from imuslam.errors import InputError
 from imuslam.imu.model import ImuCalibration
-from imuslam.io.imulog import InputError
 from imuslam.io.load import FORMATS, detect_format, write_imu
 from imuslam.io.results import check_out_dir, results_file, results_folder
 

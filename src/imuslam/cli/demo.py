@@ -77,7 +77,7 @@ def register(app: typer.Typer) -> None:
                 "bag",
                 topic="/imu/data",
             )
-            write_outputs(res, sim.log, tmp, _ins_html(title, cols, rows),
+            write_outputs(res, sim.log, tmp, extra_html=_ins_html(title, cols, rows),
                           truth_accel=truth.accel_params, truth_gyro=truth.gyro_params)  # fmt: skip
             save_figure(fig, tmp / "ins_benefit.png")
             write_json(tmp / "ins_benefit.json", [{"variant": r.name, "attitude_err_deg": r.attitude_err_deg,

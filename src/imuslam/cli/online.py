@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -9,15 +10,19 @@ import typer
 
 from imuslam.cli import validate
 from imuslam.cli.common import console, friendly_errors, table
-from imuslam.errors import HardwareError
+from imuslam.errors import HardwareError, InputError
 from imuslam.imu.calibrate import CalibrationConfig
 from imuslam.imu.history import CalibrationHistory
-from imuslam.imu.online import OnlineCalibrator, OnlineConfig
+from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
+from imuslam.imu.online import OnlineConfig
 from imuslam.imu.online_sim import Drift, run_simulated_robot
 from imuslam.imu.poseplan import PlanModel, optimise_order
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.rosbag import write_imu_bag
 from imuslam.sim.multipose import sphere_plan_deg
+
+SEED_POSES = 40  # seed 000's pose count
+SEED_T_INIT_S = 50.0  # seed 000's initial still period, s
 
 
 def _print_history(hist: CalibrationHistory) -> None:
@@ -40,6 +45,31 @@ def _print_history(hist: CalibrationHistory) -> None:
             rows,
         )
     )
+
+
+def _print_predicted(model: PlanModel, plan: np.ndarray) -> None:
+    """Predicted 1-sigma of a shorter plan against seed 000's 40 poses (lattice order)."""
+    sa, sg = model.predicted_std(plan)
+    sa40, sg40 = model.predicted_std(sphere_plan_deg(SEED_POSES))
+    rows = [
+        [n, f"{s:.2e}", f"{s40:.2e}", f"{s / s40:.2f}"]
+        for n, s, s40 in zip(
+            ACCEL_PARAM_NAMES + GYRO_PARAM_NAMES,
+            np.concatenate([sa, sg]),
+            np.concatenate([sa40, sg40]),
+            strict=True,
+        )
+    ]
+    console.print(
+        table(
+            f"Predicted 1-sigma with {len(plan)} poses (seed 000 uses {SEED_POSES})",
+            ["parameter", f"{len(plan)} poses", f"{SEED_POSES} poses", "ratio"],
+            rows,
+        )
+    )
+
+
+_NO_HW = "--imu-port needs the hardware extra ({} is missing): pip install 'imuslam[hw]'"
 
 
 def register(app: typer.Typer) -> None:
@@ -65,12 +95,15 @@ def register(app: typer.Typer) -> None:
             callback=validate.number(-0.1, 0.1, unit="rad/s per hour"),
         ),
         poses: int = typer.Option(
-            24, help="gimbal poses per session (12..200)", callback=validate.integer(12, 200)
+            SEED_POSES,
+            help="gimbal poses per session, 12..200 (seed 000: 40); with fewer than 40 the predicted "
+            "1-sigma is printed",
+            callback=validate.integer(12, 200),
         ),
         t_init: float = typer.Option(
-            20.0,
+            SEED_T_INIT_S,
             "--t-init",
-            help="initial still period of a session, s",
+            help="initial still period of a session, s (seed 000: 50)",
             callback=validate.positive("s", hi=600),
         ),
         imu_port: str | None = typer.Option(
@@ -96,7 +129,28 @@ def register(app: typer.Typer) -> None:
         cfg = OnlineConfig(calibration=CalibrationConfig(t_init_s=t_init))
         hist = CalibrationHistory(out / "history")
         rng = np.random.default_rng(seed)
-        plan = optimise_order(PlanModel.seed000(), sphere_plan_deg(poses), iterations=1000)
+        model = PlanModel.seed000()
+        if not sim:
+            if imu_port is None:
+                raise InputError("give --sim, or --imu-port for a WitMotion IMU on the robot")
+            if gimbal != "pca9685":
+                raise InputError(f"--gimbal: '{gimbal}'; supported: pca9685")
+            from imuslam.hw.gimbal import Pca9685Gimbal, ServoSpec
+
+            try:  # the drivers import smbus2 and pyserial (the hw extra) when they open a device
+                g = Pca9685Gimbal(ServoSpec(0), ServoSpec(1, min_deg=-180, max_deg=180))
+            except ImportError as exc:
+                raise InputError(_NO_HW.format(exc.name)) from None
+            except OSError as exc:
+                raise HardwareError(f"--gimbal {gimbal}: cannot open its I2C bus ({exc})") from None
+            model = replace(model, resolution_deg=g.resolution_deg)
+            console.print(
+                f"gimbal: PCA9685 hobby servos, {g.resolution_deg:.2f} deg per PWM count "
+                "(seed 000's gimbal: 0.088 deg); plans are predicted at the reachable angles"
+            )
+        plan = optimise_order(model, sphere_plan_deg(poses), iterations=1000)
+        if poses < SEED_POSES:
+            _print_predicted(model, plan)
         if sim:
             drift = Drift(np.array([0.0, 0.0, drift_accel]), np.full(3, drift_gyro))
             run = run_simulated_robot(plan, duration_h * 3600.0, drift, rng, cfg, hist)
@@ -105,30 +159,18 @@ def register(app: typer.Typer) -> None:
                     console.print(f"{e.t_ns * 1e-9:8.1f} s  {e.kind:<13} {e.detail}")
             _print_history(hist)
             return
-        if imu_port is None:
-            raise InputError("give --sim, or --imu-port for a WitMotion IMU on the robot")
-        from imuslam.hw.gimbal import Pca9685Gimbal, ServoSpec
+        from imuslam.hw.session import run_online
         from imuslam.hw.witmotion import WitMotionImu
+        from imuslam.imu.online import Event
 
-        if gimbal != "pca9685":
-            raise InputError(f"--gimbal: '{gimbal}'; supported: pca9685")
-        try:  # the drivers import pyserial and smbus2 (the hw extra) when they open their device
-            g = Pca9685Gimbal(ServoSpec(0), ServoSpec(1, min_deg=-180, max_deg=180))
+        assert imu_port is not None  # checked before the plan is built
+        try:
             imu = WitMotionImu(imu_port)
         except ImportError as exc:
-            raise InputError(
-                f"--imu-port needs the hardware extra ({exc.name} is missing): pip install 'imuslam[hw]'"
-            ) from None
+            raise InputError(_NO_HW.format(exc.name)) from None
         except OSError as exc:
-            raise HardwareError(
-                f"--imu-port {imu_port} or the gimbal: cannot open ({exc})"
-            ) from None
+            raise HardwareError(f"--imu-port {imu_port}: cannot open ({exc})") from None
         imu.configure(rate)
-
-        def command(angles: np.ndarray) -> float:
-            wait = g.settle_time_s((float(angles[0]), float(angles[1])))
-            g.move_to((float(angles[0]), float(angles[1])))
-            return wait
 
         buf_t: list[int] = []
         buf: list[np.ndarray] = []
@@ -137,20 +179,11 @@ def register(app: typer.Typer) -> None:
             buf_t.append(t)
             buf.append(np.concatenate([a, w]))
 
-        cal = OnlineCalibrator(
-            plan, command, cfg, current=hist.latest(), history=hist, rate_hz=rate, on_corrected=keep
-        )
-        if cal.current is None:
-            cal.start_session(0)
-        seen = 0
+        def show(e: Event) -> None:
+            console.print(f"{e.kind}: {e.detail}")
+
         try:
-            for t, a, w in imu.samples(rate):
-                cal.step(t, a, w)
-                for e in cal.events[seen:]:
-                    console.print(f"{e.kind}: {e.detail}")
-                    if e.kind in ("drift", "schedule"):
-                        cal.start_session(t)
-                seen = len(cal.events)
+            run_online(imu, g, plan, cfg, hist, rate, on_event=show, on_corrected=keep)
         except KeyboardInterrupt:
             pass
         finally:

@@ -76,13 +76,15 @@ def gravity() -> Callable[[float | None], float | None]:
     return number(*G_BAND, unit="m/s^2", what="a gravity magnitude on earth")
 
 
-def integer(lo: int | None = None, hi: int | None = None) -> Callable[[int | None], int | None]:
-    """An int within ``[lo, hi]``."""
-    rng = _fmt_range(lo, hi, False, False)
+def integer(
+    lo: int | None = None, hi: int | None = None, also: tuple[int, ...] = ()
+) -> Callable[[int | None], int | None]:
+    """An int within ``[lo, hi]``, or one of ``also`` (e.g. 0 for "none")."""
+    rng = _fmt_range(lo, hi, False, False) + "".join(f" or {a}" for a in also)
 
     def check(value: int | None) -> int | None:
-        if value is None:
-            return None
+        if value is None or value in also:
+            return value
         if (lo is not None and value < lo) or (hi is not None and value > hi):
             raise typer.BadParameter(f"{value}; expected an integer {rng}")
         return value

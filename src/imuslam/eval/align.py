@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import EstimatorError
-from imuslam.io.trajectory import Trajectory
+from imuslam.interfaces.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
 AlignMethod = Literal["se3", "sim3", "yaw", "first", "none"]

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.io.imulog import InputError
+from imuslam.errors import InputError
 
 INT64_MAX = np.iinfo(np.int64).max
 

@@ -1,6 +1,6 @@
 """Trajectories: TUM, KITTI and EuRoC ground-truth files, and PoseStamped topics of bags.
 
-A :class:`Trajectory` holds integer ``t_ns``, positions ``p_w`` (N, 3) and rotations ``R_w_b``
+A :class:`~imuslam.interfaces.Trajectory` (re-exported here) holds integer ``t_ns``, positions ``p_w`` (N, 3) and rotations ``R_w_b``
 (N, 3, 3) mapping body vectors into the world. Quaternion orders are converted here and only here:
 TUM is ``qx qy qz qw``, EuRoC ``qw qx qy qz``.
 """
@@ -15,9 +15,10 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.geometry import quat_from_matrix, quat_to_matrix
+from imuslam.errors import InputError
+from imuslam.geometry import quat_to_matrix
+from imuslam.interfaces.trajectory import Trajectory
 from imuslam.io.atomic import write_atomic
-from imuslam.io.imulog import InputError
 from imuslam.io.text import read_table, read_table_ns
 
 log = logging.getLogger(__name__)
@@ -25,52 +26,14 @@ FloatArray = NDArray[np.float64]
 TrajFormat = Literal["tum", "kitti", "euroc", "bag"]
 TRAJ_FORMATS = ("tum", "kitti", "euroc", "bag")
 
-
-@dataclass
-class Trajectory:
-    """Poses over time. t_ns: (N,) int64; p_w: (N, 3) m; R_w_b: (N, 3, 3)."""
-
-    t_ns: NDArray[np.int64]
-    p_w: FloatArray
-    R_w_b: FloatArray
-    source: str = "<memory>"
-
-    def __post_init__(self) -> None:
-        self.t_ns = np.asarray(self.t_ns, dtype=np.int64)
-        self.p_w = np.asarray(self.p_w, dtype=float)
-        self.R_w_b = np.asarray(self.R_w_b, dtype=float)
-        n = len(self.t_ns)
-        if self.p_w.shape != (n, 3) or self.R_w_b.shape != (n, 3, 3):
-            raise InputError(
-                f"{self.source}: expected N times, (N, 3) positions and (N, 3, 3) rotations"
-            )
-        bad = ~(np.isfinite(self.p_w).all(axis=1) & np.isfinite(self.R_w_b).all(axis=(1, 2)))
-        if bad.any():
-            raise InputError(f"{self.source}: pose {int(np.argmax(bad))} is NaN or infinite")
-
-    def __len__(self) -> int:
-        return int(self.t_ns.shape[0])
-
-    @property
-    def t_s(self) -> FloatArray:
-        """(N,) times in seconds (absolute); whole and fractional seconds are added last, which gives
-        the same double as parsing the decimal stamp of a text file."""
-        whole = self.t_ns // 1_000_000_000
-        return (
-            whole.astype(np.float64) + (self.t_ns - whole * 1_000_000_000).astype(np.float64) * 1e-9
-        )
-
-    @property
-    def quat_wxyz(self) -> FloatArray:
-        return quat_from_matrix(self.R_w_b)
-
-    def subset(self, idx: NDArray[np.int64]) -> Trajectory:
-        return Trajectory(self.t_ns[idx], self.p_w[idx], self.R_w_b[idx], self.source)
-
-    @property
-    def path_length(self) -> float:
-        """Length of the path through the positions, m."""
-        return float(np.sum(np.linalg.norm(np.diff(self.p_w, axis=0), axis=1)))
+__all__ = [
+    "TRAJ_FORMATS",
+    "StateTruth",
+    "Trajectory",
+    "read_trajectory",
+    "write_kitti",
+    "write_tum",
+]
 
 
 def _t_ns_from_seconds(
@@ -126,8 +89,8 @@ def check_times(
 MAX_ABS_POSITION_M = 1e8
 
 
-def _poses(
-    p_w: FloatArray, q_wxyz: FloatArray, source: str, lines: NDArray[np.int64] | None
+def check_poses(
+    p_w: FloatArray, q_wxyz: FloatArray, source: str, lines: NDArray[np.int64] | None = None
 ) -> tuple[FloatArray, FloatArray]:
     """Positions and rotation matrices; an absurd position or a quaternion that is not a unit one
     (norm off by more than 10 %, as a corrupted field makes it) is an InputError naming the line."""
@@ -156,7 +119,7 @@ def read_tum(path: str | Path) -> Trajectory:
     q = d[:, [7, 4, 5, 6]]
     t_ns = _t_ns_from_seconds(d[:, 0], str(path), ln)
     check_times(t_ns, str(path), ln)
-    return Trajectory(t_ns, *_poses(d[:, 1:4], q, str(path), ln), str(path))
+    return Trajectory(t_ns, *check_poses(d[:, 1:4], q, str(path), ln), str(path))
 
 
 def read_kitti(path: str | Path, times: str | Path | None = None) -> Trajectory:
@@ -190,7 +153,7 @@ def read_euroc_gt(path: str | Path) -> Trajectory:
         p = p / "mav0" / "state_groundtruth_estimate0" / "data.csv" if (p / "mav0").is_dir() else p
     d, ln, t_ns = read_table_ns(p, (8, 11, 14, 17))
     check_times(t_ns, str(p), ln)
-    return Trajectory(t_ns, *_poses(d[:, 1:4], d[:, 4:8], str(p), ln), str(p))
+    return Trajectory(t_ns, *check_poses(d[:, 1:4], d[:, 4:8], str(p), ln), str(p))
 
 
 @dataclass
@@ -223,39 +186,12 @@ def read_euroc_state(path: str | Path) -> StateTruth:
 
 
 def read_bag_poses(path: str | Path, topic: str | None = None) -> Trajectory:
-    """``geometry_msgs/PoseStamped`` (or ``nav_msgs/Odometry``) messages of a ROS 1/2 bag, by header stamp."""
-    from imuslam.io.rosbag import messages, open_bag
+    """``geometry_msgs/PoseStamped`` (or ``nav_msgs/Odometry``, ``PointStamped``) messages of a ROS 1/2
+    bag, by header stamp (:meth:`imuslam.io.bag.Bag.trajectory`)."""
+    from imuslam.io.bag import Bag
 
-    p = Path(path)
-    reader = open_bag(p)
-    types = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry")
-    try:
-        conns = [
-            c
-            for c in reader.connections
-            if c.msgtype in types and (topic is None or c.topic == topic)
-        ]
-        listing = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections)
-        if not conns or len({c.topic for c in conns}) > 1:
-            raise InputError(
-                f"{p}: name one pose topic (PoseStamped or Odometry); the bag has: {listing}"
-            )
-        t, pos, q = [], [], []
-        for c, _, (m, _) in messages(reader, p, conns):
-            pose = m.pose.pose if c.msgtype.endswith("Odometry") else m.pose
-            t.append(m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec)
-            pos.append((pose.position.x, pose.position.y, pose.position.z))
-            o = pose.orientation
-            q.append((o.w, o.x, o.y, o.z))
-    finally:
-        reader.close()
-    src = f"{p}:{conns[0].topic}"
-    if len(t) < 2:
-        raise InputError(f"{src}: {len(t)} pose(s); a trajectory needs at least 2")
-    t_ns = np.asarray(t, dtype=np.int64)
-    check_times(t_ns, src)
-    p_w, R_w_b = _poses(np.asarray(pos, dtype=float), np.asarray(q, dtype=float), src, None)
-    return Trajectory(t_ns, p_w, R_w_b, src)
+    with Bag(path) as bag:
+        return bag.trajectory(topic)
 
 
 def read_trajectory(
