@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 from imuslam.ins.align import Aiding, run_alignment
-from imuslam.ins.kf import KfNoise
 from imuslam.ins.rwnn import RwnnConfig, observer_matrix, run_rwnn
 from imuslam.ins.strapdown import NavState
 from imuslam.io.imulog import InputError
