@@ -74,6 +74,9 @@ def test_xsens_gyro_matches_imutk_within_uncertainty(xsens_result) -> None:  # t
     gyro = r.calibration.gyro
     off = ~np.eye(3, dtype=bool)
     assert np.all(np.abs(gyro.T - IMUTK_GYRO_T)[off] < 0.1 * np.max(r.std_gyro[:6]))
+    print(f"xsens gyro misalignment vs imu_tk: max |diff| {np.max(np.abs(gyro.T - IMUTK_GYRO_T)[off]):.2e}, "
+          f"1-sigma {np.min(r.std_gyro[:6]):.1e}-{np.max(r.std_gyro[:6]):.1e}; gravity-direction RMS "
+          f"{r.gyro_rms_deg:.2f} deg")  # fmt: skip
     np.testing.assert_allclose(gyro.K, IMUTK_GYRO_K, rtol=1e-4)
     np.testing.assert_allclose(gyro.b, IMUTK_GYRO_B, atol=0.06)
     assert r.gyro_rms_deg <= IMUTK_GYRO_DIR_DEG * 1.1
