@@ -83,6 +83,12 @@ class CalibrationConfig(BaseModel):
         description="joint method: estimate the gyro's g-sensitivity G (omega = T K (w ± b) - G f, rad/s per "
         "m/s^2) and the gyro bias from the rate at every static pose, not only the still start",
     )
+    joint_poses: Literal["middle", "still"] = Field(
+        "middle",
+        description="joint method: middle: each pose referred to its middle sample (motion-compensated "
+        "mean, gyro integrated middle to middle); still: plain mean of its still part, gyro integrated "
+        "between still parts",
+    )
     weigh_by_length: bool = Field(
         True,
         description="joint method: weigh each pose by the square root of its length (white noise)",
@@ -807,11 +813,14 @@ def calibrate(
         still[pairs[:, 0], 1] = np.minimum(still[pairs[:, 0], 1], segs[:, 0])
         short = still[:, 1] - still[:, 0] < 20
         still[short] = iv[short]
-        refs = (iv[:, 0] + iv[:, 1]) // 2
-        segs = np.stack([refs[pairs[:, 0]], refs[pairs[:, 1]]], axis=1)
-        pose_means = motion_compensated_means(
-            acc, accel_model, w @ _gyro_M(theta_g[:9]).T, t_s, iv, refs
-        )
+        if cfg.joint_poses == "middle":
+            refs = (iv[:, 0] + iv[:, 1]) // 2
+            segs = np.stack([refs[pairs[:, 0]], refs[pairs[:, 1]]], axis=1)
+            pose_means = motion_compensated_means(
+                acc, accel_model, w @ _gyro_M(theta_g[:9]).T, t_s, iv, refs
+            )
+        else:  # "still": plain means of the still parts, gyro segments between them
+            pose_means = np.stack([acc[s : e + 1].mean(axis=0) for s, e in still])
         raw_means = pose_means
         gyro_means = np.stack([w[s : e + 1].mean(axis=0) for s, e in still])
         jf = joint_refine(
