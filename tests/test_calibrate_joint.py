@@ -45,12 +45,14 @@ def test_kernel_with_bias_offsets_and_g_sensitivity_matches_reference() -> None:
 
 
 def test_motion_compensated_mean_matches_rotated_samples() -> None:
-    """A slow drift of 0.5 deg over a 3 s window: the mean referred to the middle sample equals the
-    mean of the samples each turned by the exact rotation to the middle, to second order (~1e-5 g)."""
+    """The slow end of a motion (0.5 deg, dying out over the 3 s window): the mean referred to the middle
+    sample equals the mean of the samples each turned by the exact rotation to the middle, up to the
+    second-order term (phi^2 g / 2 < 4e-4 m/s^2); the plain mean is off by more than 5e-3 m/s^2."""
     rng = np.random.default_rng(8)
     n = 301
     t = np.arange(n) * 0.01
-    omega = np.tile(np.deg2rad([0.1, -0.12, 0.05]), (n, 1)) + rng.normal(size=(n, 3)) * 1e-4
+    decay = np.exp(-t / 0.7)[:, None]
+    omega = np.deg2rad([0.45, -0.5, 0.2]) * decay + rng.normal(size=(n, 3)) * 1e-4
     R0 = Rotation.from_rotvec([0.3, -0.2, 0.1])
     # attitude R_w_i(t); specific force f_i = R_i_w [0, 0, g]
     att = [R0]
@@ -61,8 +63,8 @@ def test_motion_compensated_mean_matches_rotated_samples() -> None:
     c = 150
     got = motion_compensated_means(f, model, omega, t, np.array([[0, n - 1]]), np.array([c]))[0]
     want = np.mean([(att[c].inv() * a).apply(fk) for a, fk in zip(att, f, strict=True)], axis=0)
-    np.testing.assert_allclose(got, want, atol=1e-4)
-    assert np.linalg.norm(f.mean(axis=0) - want) > 10 * 1e-4  # the compensation matters here
+    np.testing.assert_allclose(got, want, atol=4e-4)
+    assert np.linalg.norm(f.mean(axis=0) - want) > 0.005  # 12x the tolerance: compensation matters
 
 
 @pytest.fixture(scope="module")
@@ -98,8 +100,10 @@ def test_g_sensitivity_recovered_and_predicts_poses(g_sensitive) -> None:  # typ
 
 
 def test_cross_validation_close_to_the_true_parameters_score() -> None:
-    """Held-out errors of the joint fit on a simulated log: at most 30 % above what the true parameters
-    score on the same poses (the noise floor), and every pose and pair is scored."""
+    """Held-out errors of the joint fit on a simulated log against what the true parameters score on the
+    same poses (the noise floor): the 21 gyro-side parameters are estimated from about 46 direction
+    degrees of freedom per fold, which adds up to about as much again to the held-out direction error;
+    every pose and pair is scored."""
     rng = np.random.default_rng(3)
     sim = simulate_multipose(sphere_plan_deg(30, rng), rng)
     cfg = CalibrationConfig()
@@ -109,5 +113,5 @@ def test_cross_validation_close_to_the_true_parameters_score() -> None:
     floor = pose_errors(sim.log, TRUTH, poses, 9.80665)
     assert len(cv.norm_error) == len(poses) and np.all(np.isfinite(cv.norm_error))
     assert len(cv.direction_error_deg) == 2 * (len(poses) - 1)
-    assert cv.direction_rms_deg < 1.3 * rms(floor.direction_error_deg)
+    assert cv.direction_rms_deg < 2.0 * rms(floor.direction_error_deg)
     assert cv.norm_rms < 1.3 * rms(floor.norm_error) + 5e-4

@@ -84,7 +84,7 @@ class CalibrationConfig(BaseModel):
         "m/s^2) and the gyro bias from the rate at every static pose, not only the still start",
     )
     joint_poses: Literal["middle", "still"] = Field(
-        "middle",
+        "still",
         description="joint method: middle: each pose referred to its middle sample (motion-compensated "
         "mean, gyro integrated middle to middle); still: plain mean of its still part, gyro integrated "
         "between still parts",
