@@ -46,8 +46,8 @@ class FrontEndConfig(BaseModel):
     scan_voxel: float = Field(0.5, gt=0)
     min_range: float = Field(1.0, ge=0)
     max_range: float = Field(100.0, gt=0)
-    edge_threshold: float = Field(0.02, gt=0)
-    plane_threshold: float = Field(0.005, gt=0)
+    edge_threshold: float = Field(0.005, gt=0)
+    plane_threshold: float = Field(0.003, gt=0)
 
 
 class MapConfig(BaseModel):

@@ -28,9 +28,9 @@ class FeatureParams:
     sectors: per ring; parallel_ratio: a neighbour farther than this fraction of the range on both sides
     marks a surface parallel to the beam; occlusion_ratio: a relative depth jump that marks an occlusion."""
 
-    edge_threshold: float = 0.02
-    plane_threshold: float = 0.005
-    max_edges: int = 20
+    edge_threshold: float = 0.005
+    plane_threshold: float = 0.003
+    max_edges: int = 4
     sectors: int = 6
     parallel_ratio: float = 0.05
     occlusion_ratio: float = 0.1

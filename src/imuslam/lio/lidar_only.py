@@ -74,6 +74,8 @@ class LidarOdometry:
         self.n_scans = 0
         self.last_iterations = 0
         self.last_n_corr = 0
+        self.last_n_used = 0
+        self.peak_map_points = 0
 
     def register_scan(
         self,
@@ -114,4 +116,6 @@ class LidarOdometry:
         self.t_last = t_end
         self.n_scans += 1
         self.last_iterations, self.last_n_corr = reg.iterations, reg.n_corr
+        self.last_n_used = len(surf) + len(edge)
+        self.peak_map_points = max(self.peak_map_points, len(self.map))
         return T
