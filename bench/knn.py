@@ -28,7 +28,7 @@ def main() -> None:
     vmap = VoxelMap(0.5, 1, 100.0)
     queries = np.zeros((0, 3))
     for s in d.scans:
-        i = np.searchsorted(d.gt_t_ns, s.t0_ns)
+        i = np.searchsorted(d.gt_t_ns, s.t_ns)
         R, p = d.gt_R_w_b[i], d.gt_p_w[i] + d.gt_R_w_b[i] @ d.T_i_l[:3, 3]
         pts = s.points_l.astype(float)
         pts = pts[voxel_downsample(pts, 0.5)]

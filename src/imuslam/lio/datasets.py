@@ -14,9 +14,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import InputError
+from imuslam.interfaces import Scan3d
 from imuslam.io.imulog import ImuLog
 from imuslam.io.pointcloud import read_kitti_bin, read_pcd
-from imuslam.sim.lidar import Scan3d
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]

@@ -108,6 +108,11 @@ class LocalMap:
         if len(edge_i):
             self.edge.add(edge_i @ R_w_i.T + p_w)
 
+    def transform(self, R: FloatArray, t: FloatArray) -> None:
+        """Express the map in another world frame: ``x -> R x + t``."""
+        self.surf.transform(R, t)
+        self.edge.transform(R, t)
+
     def prune(self, centre_w: FloatArray) -> None:
         self.surf.prune(centre_w)
         self.edge.prune(centre_w)

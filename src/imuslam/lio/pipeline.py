@@ -16,13 +16,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import EstimatorError, InputError
+from imuslam.interfaces import Scan3d
 from imuslam.io.imulog import ImuLog
 from imuslam.io.trajectory import Trajectory
 from imuslam.lio.config import LioConfig
 from imuslam.lio.features import voxel_downsample
 from imuslam.lio.lidar_only import LidarOdometry
 from imuslam.lio.voxelmap import VoxelMap
-from imuslam.sim.lidar import Scan3d
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -118,6 +118,12 @@ class LioPipeline:
         return LidarOdometry(self.config)
 
     def run(self) -> LioResult:
+        from imuslam.lio.threads import blas_threads
+
+        with blas_threads(1):
+            return self._run()
+
+    def _run(self) -> LioResult:
         from tqdm import tqdm
 
         est = self._estimator()
@@ -130,7 +136,7 @@ class LioPipeline:
         stats: list[ScanStats] = []
         warnings: list[str] = []
         n_empty = n_back = n_dropped = 0
-        t_ref: int | None = None
+        t_ref: int | None = None if lidar_only else int(self.imu.t_ns[0])  # type: ignore[union-attr]
         last_end: int | None = None
         total = (
             len(self.dataset) if self.max_scans is None else min(len(self.dataset), self.max_scans)
@@ -146,7 +152,7 @@ class LioPipeline:
             if len(pts) < 100:
                 n_empty += 1
                 continue
-            stamp = int(scan.t0_ns) + offset_ns
+            stamp = int(scan.t_ns) + offset_ns
             if t_ref is None:
                 t_ref = stamp
             end_ns = stamp + int(round(float(toff.max()) * 1e9))
@@ -193,6 +199,9 @@ class LioPipeline:
                 f"{self.dataset.name}: {len(poses)} usable scans; at least 2 are needed"
             )
         P = np.array(poses)
+        n_pre = int(getattr(est, "n_before_filter", 0))
+        if n_pre:  # poses returned before the filter's world existed: move them into it
+            P[:n_pre] = est.T_w_i0 @ P[:n_pre]
         traj = Trajectory(
             np.array(t_ns, np.int64), P[:, :3, 3], P[:, :3, :3], f"imuslam lio {self.dataset.name}"
         )

@@ -132,6 +132,13 @@ class VoxelMap:
             self._index = None
         return n_drop
 
+    def transform(self, R: FloatArray, t: FloatArray) -> None:
+        """Move every point by ``x -> R x + t`` (a change of world frame) and re-hash the voxels."""
+        self.points = self.points @ np.asarray(R).T + np.asarray(t)
+        self._counts = _new_counts()
+        _admit(voxel_keys(self.points, self.voxel_size), self._counts, 1 << 30)
+        self._index = None
+
     def knn(self, q_w: FloatArray, k: int) -> tuple[IntArray, FloatArray]:
         """k nearest map points of each query (M, 3): indices (M, k) and squared distances (M, k)."""
         if self._index is None:

@@ -93,7 +93,7 @@ def simulate_lidar_drive(
     scans = []
     for k in tqdm(range(n), desc="3D LiDAR", unit="scan", disable=not progress):
         s = simulate_lidar3d_scan(world, pose_w_l, k / cfg.rate_hz, cfg, rng)
-        s.t0_ns += T0_NS
+        s.t_ns += T0_NS
         scans.append(s)
     gt_t = np.arange(0.0, duration_s + 1e-9, 0.01)
     st = traj.state(gt_t)
