@@ -43,7 +43,7 @@ class FrontEndConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     mode: Literal["features", "direct"] = "features"
-    scan_voxel: float = Field(0.5, gt=0)
+    scan_voxel: float = Field(1.0, gt=0)
     min_range: float = Field(1.0, ge=0)
     max_range: float = Field(100.0, gt=0)
     edge_threshold: float = Field(0.005, gt=0)
@@ -89,5 +89,5 @@ class LioConfig(BaseModel):
     map: MapConfig = MapConfig()
     filter: FilterConfig = FilterConfig()
     align: Literal["none", "kf", "stkf", "rwnn"] = "none"
-    align_seconds: float = Field(2.0, gt=0)
+    align_seconds: float = Field(1.0, gt=0)
     use_imu: bool = True

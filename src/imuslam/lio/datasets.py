@@ -150,3 +150,80 @@ class KittiFolder(_FolderDataset):
             pts, refl = read_kitti_bin(path)
             yield Scan3d(int(t), pts.astype(np.float32), np.zeros(len(pts), np.float32),
                          np.zeros(0, np.uint16), refl.astype(np.float32))  # fmt: skip
+
+
+class BagLidarDataset:
+    """A ROS 1 / ROS 2 / MCAP bag with a PointCloud2 topic and (optionally) an Imu topic.
+
+    Checks what readers leave to us: a scan without a per-point time field is timed from its azimuth
+    (one warning); a time field whose span in a scan is not a plausible sweep (1e-4 .. 1 s) is an
+    InputError naming the scan (an unknown unit, e.g. microseconds as floats); a ring field that is all
+    zeros is treated as absent. NaN points dropped by the reader are counted.
+    """
+
+    def __init__(self, path: str | Path, points_topic: str | None = None, imu_topic: str | None = None,
+                 use_imu: bool = True) -> None:  # fmt: skip
+        from imuslam.io.bag import Bag, rosmsg
+
+        self.path = Path(path)
+        self.name = str(self.path)
+        with Bag(self.path) as b:
+            self.points_topic = b.topic_of_type([rosmsg.POINTCLOUD2], points_topic)
+            self.n_scans = b.count(self.points_topic)
+            has_imu = any(m == rosmsg.IMU for m in b.topics().values())
+            self.imu_topic = (
+                b.topic_of_type([rosmsg.IMU], imu_topic)
+                if (use_imu and (has_imu or imu_topic))
+                else None
+            )
+        self.n_nan_dropped = 0
+        self.n_azimuth_timed = 0
+        self._imu: ImuLog | None = None
+
+    def __len__(self) -> int:
+        return self.n_scans
+
+    def imu(self) -> ImuLog | None:
+        if self.imu_topic is None:
+            return None
+        if self._imu is None:
+            from imuslam.io.bag import Bag
+
+            with Bag(self.path) as b:
+                self._imu = b.imu(self.imu_topic)
+        return self._imu
+
+    def lidar_scans(self) -> Iterator[Scan3d]:
+        from imuslam.io.bag import Bag
+        from imuslam.io.rosmsg import scan3d_from_msg
+
+        prev_stamp: int | None = None
+        with Bag(self.path) as b:
+            for k, (_, _, msg) in enumerate(b.messages([self.points_topic])):
+                s = scan3d_from_msg(msg)
+                self.n_nan_dropped += int(msg.width) * int(msg.height) - len(s)
+                period = (
+                    (s.t_ns - prev_stamp) * 1e-9
+                    if prev_stamp is not None and s.t_ns > prev_stamp
+                    else 0.1
+                )
+                prev_stamp = s.t_ns
+                if len(s):
+                    span = float(np.max(s.t_offset_s) - np.min(s.t_offset_s))
+                    if span == 0.0:
+                        if self.n_azimuth_timed == 0:
+                            log.warning("%s: scans have no per-point time field; points are timed from their "
+                                        "azimuth over %.3g s", self.points_topic, period)  # fmt: skip
+                        self.n_azimuth_timed += 1
+                        s.t_offset_s = azimuth_times(
+                            s.points_l.astype(np.float64), min(period, 0.2)
+                        )
+                    elif not 1e-4 <= span <= 1.0:
+                        raise InputError(
+                            f"{self.path}:{self.points_topic}: scan {k}: point times span {span:.6g} "
+                            "after conversion to seconds; the time field is in an unknown unit "
+                            "(expected float seconds or integer nanoseconds)"
+                        )
+                    if len(s.ring) and not np.any(s.ring):
+                        s.ring = np.zeros(0, np.uint16)
+                yield s

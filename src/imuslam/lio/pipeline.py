@@ -135,7 +135,9 @@ class LioPipeline:
         poses: list[FloatArray] = []
         stats: list[ScanStats] = []
         warnings: list[str] = []
-        n_empty = n_back = n_dropped = 0
+        n_empty = n_back = n_dropped = n_outside = 0
+        span = None if lidar_only else (int(self.imu.t_ns[0]), int(self.imu.t_ns[-1]))  # type: ignore[union-attr]
+        lidar_span: list[int] = []
         t_ref: int | None = None if lidar_only else int(self.imu.t_ns[0])  # type: ignore[union-attr]
         last_end: int | None = None
         total = (
@@ -156,6 +158,11 @@ class LioPipeline:
             if t_ref is None:
                 t_ref = stamp
             end_ns = stamp + int(round(float(toff.max()) * 1e9))
+            start_ns = stamp + int(round(float(toff.min()) * 1e9))
+            lidar_span = [lidar_span[0] if lidar_span else start_ns, end_ns]
+            if span is not None and (start_ns < span[0] or end_ns > span[1]):
+                n_outside += 1  # points before the first or after the last IMU sample
+                continue
             if last_end is not None and end_ns <= last_end:
                 n_back += 1
                 continue
@@ -190,10 +197,21 @@ class LioPipeline:
             warnings.append(f"{n_dropped} NaN / infinite / zero points dropped")
         if n_empty:
             warnings.append(f"{n_empty} scans with fewer than 100 valid points skipped")
+        if n_outside:
+            warnings.append(f"{n_outside} scans outside the IMU's time span skipped")
+        n_nan = int(getattr(self.dataset, "n_nan_dropped", 0))
+        if n_nan:
+            warnings.append(f"{n_nan} NaN points dropped by the reader")
         if n_back:
             warnings.append(f"{n_back} scans out of time order skipped")
         for w in warnings:
             log.warning("%s: %s", self.dataset.name, w)
+        if span is not None and not poses and lidar_span:
+            raise InputError(
+                f"{self.dataset.name}: no overlap between IMU times [{span[0] * 1e-9:.3f}, {span[1] * 1e-9:.3f}] s "
+                f"and LiDAR times [{lidar_span[0] * 1e-9:.3f}, {lidar_span[1] * 1e-9:.3f}] s (a time offset "
+                "goes in the config's extrinsic.time_offset_s)"
+            )
         if len(poses) < 2:
             raise InputError(
                 f"{self.dataset.name}: {len(poses)} usable scans; at least 2 are needed"
