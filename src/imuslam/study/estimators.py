@@ -1,0 +1,176 @@
+"""The estimators a study can run: a registry of name -> adapter.
+
+An adapter is one function ``run(inp: CellInput) -> Estimate``: it gets the cell's simulated scene, the
+IMU as the cell's condition and alignment left it, and the state at the start of the run, drives the
+estimator's library API (never the CLI), and returns the estimated body poses in the world frame; the
+study evaluates them against the truth the same way for every estimator. An adapter simulates the other
+sensors its estimator needs (LiDAR, stereo, wheels) from ``inp.sensor_rng(name)``, so every level of a
+claim sees the same sensor noise.
+
+Register an adapter with :func:`register` (its options as a strict pydantic model, checked when the
+study is loaded; the scenarios that carry its sensors). An estimator that this build does not have is
+declared with :func:`planned`, so a study naming it fails at once with "estimator X is not available".
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from imuslam.errors import InputError
+from imuslam.ins.strapdown import NavState, integrate
+from imuslam.io.imulog import ImuLog
+from imuslam.io.trajectory import Trajectory
+from imuslam.sim.imu import ImuTruth
+from imuslam.sim.trajectory import EulerTrajectory
+from imuslam.sim.world import World
+from imuslam.study.cells import Cell
+from imuslam.study.config import NAV_SCENARIOS, StudyConfig
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class CellInput:
+    """What an adapter gets.
+
+    imu: the IMU log of the run, from ``t_start_s`` to the end (SI units, body frame; corrected by the
+        cell's IMU condition and with the alignment's bias estimates removed); ``imu_truth`` the truth at
+        every sample of the whole simulated span (alignment window included), ``k_start`` the run's
+        first sample in it.
+    init: the navigation state at ``t_start_s`` (position and velocity true, attitude from the alignment).
+    traj / world: the simulated trajectory (``traj.state(t_s)``) and scene, for simulating other sensors.
+    rng: the estimator's own generator (seeded from the cell hash).
+    """
+
+    cell: Cell
+    options: BaseModel
+    traj: EulerTrajectory
+    world: World
+    imu: ImuLog
+    imu_truth: ImuTruth
+    k_start: int
+    t_start_s: float
+    t_end_s: float
+    init: NavState
+    g: float
+    rng: np.random.Generator
+
+    def sensor_rng(self, sensor: str) -> np.random.Generator:
+        """The scene's generator for ``sensor`` (the same for every level of a claim)."""
+        return self.cell.world_rng(sensor)
+
+
+@dataclass
+class Estimate:
+    """Estimated body poses in the world frame, and metrics of the estimator's own (map quality...)."""
+
+    traj: Trajectory
+    metrics: dict[str, float] = field(default_factory=dict)
+
+
+class NoOptions(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+@dataclass(frozen=True)
+class EstimatorEntry:
+    name: str
+    doc: str
+    options: type[BaseModel]
+    scenarios: tuple[str, ...]
+    run: Callable[[CellInput], Estimate] | None
+    missing: str = ""
+
+
+REGISTRY: dict[str, EstimatorEntry] = {}
+
+
+def register(
+    name: str, options: type[BaseModel], scenarios: tuple[str, ...], doc: str
+) -> Callable[[Callable[[CellInput], Estimate]], Callable[[CellInput], Estimate]]:
+    """Decorator: make ``run`` the adapter of estimator ``name``."""
+
+    def deco(run: Callable[[CellInput], Estimate]) -> Callable[[CellInput], Estimate]:
+        REGISTRY[name] = EstimatorEntry(name, doc, options, scenarios, run)
+        return run
+
+    return deco
+
+
+def planned(name: str, why: str) -> None:
+    """Declare an estimator this build does not have (a study naming it is rejected)."""
+    if name not in REGISTRY:
+        REGISTRY[name] = EstimatorEntry(name, "", NoOptions, (), None, why)
+
+
+def get_estimator(name: str) -> EstimatorEntry:
+    """The entry of ``name``; InputError when it is unknown or not available."""
+    e = REGISTRY.get(name)
+    avail = ", ".join(k for k, v in REGISTRY.items() if v.run is not None)
+    if e is None:
+        raise InputError(
+            f"unknown estimator '{name}'; expected one of {', '.join(REGISTRY)} (available: {avail})"
+        )
+    if e.run is None:
+        raise InputError(f"estimator '{name}' is not available: {e.missing} (available: {avail})")
+    return e
+
+
+def check_study(study: StudyConfig, source: str = "<study>") -> None:
+    """Every estimator exists, runs on the claim's scenarios, and its options are valid."""
+    for c in study.claims:
+        for i, est in enumerate(c.estimators):
+            where = f"{source}: claims[{c.name}].estimators[{i}]"
+            try:
+                e = get_estimator(est.name)
+            except InputError as exc:
+                raise InputError(f"{where}: {exc}") from None
+            try:
+                e.options.model_validate(est.options)
+            except ValidationError as exc:
+                err = exc.errors()[0]
+                loc = ".".join(str(p) for p in err["loc"])
+                msg = "unknown option" if err["type"] == "extra_forbidden" else err["msg"]
+                raise InputError(f"{where} ({est.name}).options.{loc}: {msg}") from None
+            for sc in c.scenarios:
+                if sc.name not in e.scenarios:
+                    raise InputError(
+                        f"{where}: estimator '{est.name}' needs a scene with its sensors "
+                        f"({', '.join(e.scenarios)}); scenario '{sc.name}' has none"
+                    )
+
+
+# ---------------------------------------------------------------------------------------------
+# ins: free inertial navigation from the aligned state
+
+
+class InsOptions(BaseModel):
+    """Free strapdown INS (``ins/strapdown.py``) from the state the alignment left."""
+
+    model_config = ConfigDict(extra="forbid")
+    pose_rate_hz: float = Field(
+        20.0, gt=0, description="rate of the poses handed to the evaluation"
+    )
+
+
+@register("ins", InsOptions, NAV_SCENARIOS, "free inertial navigation from the aligned state")
+def run_ins(inp: CellInput) -> Estimate:
+    opts = inp.options
+    assert isinstance(opts, InsOptions)
+    log = inp.imu
+    t = log.t_s
+    P, _, R = integrate(t, log.accel, log.gyro, inp.init, inp.g)
+    step = max(1, int(round(log.rate_hz / opts.pose_rate_hz)))
+    idx = np.arange(0, len(t), step)
+    return Estimate(Trajectory(log.t_ns[idx], P[idx], R[idx], "ins"))
+
+
+# Estimators built elsewhere; their adapters join when their pipelines exist.
+planned("lio", "LiDAR-inertial odometry (imuslam.lio) has no pipeline in this build")
+planned("vio", "stereo VO + EKF (imuslam.vio) has no pipeline in this build")
+planned("map2d", "2D SLAM (imuslam.slam2d) has no pipeline in this build")
