@@ -181,10 +181,17 @@ def parse_study(data: Any, source: str = "<study>") -> StudyConfig:
     except ValidationError as exc:
         err = exc.errors()[0]
         where = _where(tuple(err["loc"]), data)
-        msg = err["msg"].removeprefix("Value error, ")
+        msg = ": " + err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
-            msg = "unknown key"
-        raise InputError(f"{source}: {where}: {msg}") from None
+            msg = ": unknown key"
+        elif err["type"] == "too_short":
+            what = (
+                "a study needs at least one seed"
+                if err["loc"][-1] == "seeds"
+                else "the study has no cells"
+            )
+            msg = f" is empty: {what}"
+        raise InputError(f"{source}: {where}{msg}") from None
 
 
 def load_study(path: str | Path) -> StudyConfig:

@@ -123,9 +123,9 @@ def get_estimator(name: str) -> EstimatorEntry:
 
 def check_study(study: StudyConfig, source: str = "<study>") -> None:
     """Every estimator exists, runs on the claim's scenarios, and its options are valid."""
-    for c in study.claims:
+    for k, c in enumerate(study.claims):
         for i, est in enumerate(c.estimators):
-            where = f"{source}: claims[{c.name}].estimators[{i}]"
+            where = f"{source}: claims[{k}] ({c.name}).estimators[{i}]"
             try:
                 e = get_estimator(est.name)
             except InputError as exc:

@@ -59,6 +59,12 @@ def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
     single-threaded worker processes (default: one per core)."""
     from distributed import Client, LocalCluster
 
+    for name in (
+        "distributed",
+        "tornado",
+        "bokeh",
+    ):  # the scheduler's chatter is not the user's news
+        logging.getLogger(name).setLevel(logging.ERROR)
     if scheduler:
         try:
             client = Client(scheduler, timeout="5s")
