@@ -23,7 +23,8 @@ from imuslam.geometry import exp as exp_so3
 from imuslam.geometry import log as so3_log
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.kf import KfNoise
-from imuslam.ins.strapdown import NavState, integrate
+from imuslam.ins.strapdown import integrate
+from imuslam.interfaces.nav import NavState
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.imu_errors import BWT901CL_ACCEL_DENSITY, BWT901CL_GYRO_DENSITY, TriadErrors
 from imuslam.sim.trajectory import DiffDriveFigureEight, Static

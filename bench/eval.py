@@ -14,7 +14,7 @@ from rich.table import Table
 
 from imuslam.eval.metrics import evaluate
 from imuslam.geometry import exp, quat_from_matrix
-from imuslam.io.trajectory import Trajectory
+from imuslam.interfaces.trajectory import Trajectory
 
 
 def make_pair(n: int = 5000) -> tuple[Trajectory, Trajectory]:

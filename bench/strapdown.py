@@ -15,7 +15,8 @@ from rich.table import Table
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.kf import KfNoise
 from imuslam.ins.rwnn import run_rwnn
-from imuslam.ins.strapdown import NavState, integrate
+from imuslam.ins.strapdown import integrate
+from imuslam.interfaces.nav import NavState
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.trajectory import Handheld
 

@@ -6,8 +6,9 @@ import allantools
 import numpy as np
 import pytest
 
+from imuslam.errors import InputError
 from imuslam.imu.allan import allan, cluster_sizes, fit_noise_terms, overlapped_adev
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.matlab import read_mat_buffers
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from imuslam.imu.calibrate import CalibrationConfig, calibrate
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 
 # imu_tk on imu_tk_xsens (g = 9.81744, 50 s still start, model T K (X - B)).
 IMUTK_SWEEP_INTERVALS = [42, 40, 39, 38, 38, 38, 38, 38, 38]

@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
+from imuslam.errors import InputError
 from imuslam.imu.calibrate import CalibrationConfig, calibrate
 from imuslam.imu.model import ImuCalibration, TriadModel
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.interfaces.imu import ImuLog
 from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO
 from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
 

@@ -5,19 +5,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from imuslam.errors import InputError
 from imuslam.eval.align import align, apply
 from imuslam.eval.associate import interpolate
 from imuslam.eval.metrics import evaluate
 from imuslam.geometry import exp
-from imuslam.io.imulog import InputError
-from imuslam.io.trajectory import (
-    Trajectory,
-    read_kitti,
-    read_trajectory,
-    read_tum,
-    write_kitti,
-    write_tum,
-)
+from imuslam.interfaces.trajectory import Trajectory
+from imuslam.io.trajectory import read_kitti, read_trajectory, read_tum, write_kitti, write_tum
 
 
 def _traj(n: int = 300, seed: int = 0) -> Trajectory:

@@ -5,11 +5,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from imuslam.errors import InputError
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.coarse import coarse_align
+from imuslam.ins.core import ErrorLayout
 from imuslam.ins.kf import Eskf, FilterDivergence, KfNoise
-from imuslam.ins.strapdown import NavState, integrate
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.ins.strapdown import integrate
+from imuslam.interfaces.imu import ImuLog
+from imuslam.interfaces.nav import NavState
 from imuslam.io.readers import read_euroc
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.imu_errors import TriadErrors
@@ -252,7 +255,7 @@ def test_batch_filter_equals_step_filter(kind: str, strong: bool) -> None:
         init = NavState(tr.p_w[0], tr.vel_w[0], tr.R_w_i[0])
     noise = KfNoise(3e-3, 2e-4, 1e-5, 1e-6)
     res = run_alignment(log, aid, init, "stkf" if strong else "kf", noise, g=G)
-    p0 = np.array([0.1] * 6 + [0.05] * 3 + [0.2] * 3 + [0.02] * 3) ** 2
+    p0 = ErrorLayout.full().diag(theta=0.05**2, p=0.1**2, v=0.1**2, ba=0.2**2, bg=0.02**2)
     kf = Eskf(init.p_n.copy(), init.v_n.copy(), init.R_n_b.copy(), np.diag(p0), noise=noise, g=G,
               strong_tracking=strong)  # fmt: skip
     t = log.t_s

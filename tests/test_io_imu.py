@@ -5,7 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.errors import InputError
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.load import load_imu, write_imu
 from imuslam.io.rosbag import list_topics, read_imu_bag
 

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
+from imuslam.errors import InputError
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.kf import KfNoise
 from imuslam.ins.rwnn import RwnnConfig, observer_matrix, run_rwnn
-from imuslam.ins.strapdown import NavState
-from imuslam.io.imulog import InputError
+from imuslam.interfaces.nav import NavState
 from imuslam.sim.imu import simulate_imu
 from imuslam.sim.trajectory import Static
 from test_ins import BA, BG, G, _biased, _moving_case

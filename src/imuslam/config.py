@@ -11,8 +11,8 @@ from typing import TypeVar
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from imuslam.errors import InputError
 from imuslam.io.atomic import write_atomic
-from imuslam.io.imulog import InputError
 
 ModelT = TypeVar("ModelT", bound=BaseModel)
 

@@ -12,18 +12,21 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import typer  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
-from scipy.spatial.transform import Rotation, Slerp  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
 
 from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log, table, write_json  # noqa: E402
+from imuslam.errors import InputError  # noqa: E402
+from imuslam.geometry.interp import interpolate_linear, interpolate_poses  # noqa: E402
 from imuslam.ins.align import Aiding, AlignmentResult, run_alignment  # noqa: E402
 from imuslam.ins.coarse import coarse_align  # noqa: E402
 from imuslam.ins.kf import KfNoise  # noqa: E402
-from imuslam.ins.strapdown import NavState  # noqa: E402
+from imuslam.interfaces.imu import ImuLog  # noqa: E402
+from imuslam.interfaces.nav import NavState  # noqa: E402
+from imuslam.interfaces.trajectory import Trajectory  # noqa: E402
 from imuslam.io.atomic import write_atomic  # noqa: E402
 from imuslam.io.figures import save_figure  # noqa: E402
-from imuslam.io.imulog import ImuLog, InputError  # noqa: E402
 from imuslam.io.load import detect_format, write_imu  # noqa: E402
-from imuslam.io.trajectory import StateTruth, Trajectory, read_euroc_state, read_trajectory  # noqa: E402
+from imuslam.io.trajectory import StateTruth, read_euroc_state, read_trajectory  # noqa: E402
 
 FloatArray = NDArray[np.float64]
 
@@ -48,8 +51,10 @@ def _pose_at(tr: Trajectory, t_ns: int) -> NavState:
     """The trajectory's pose at ``t_ns`` (linear / slerp) and its velocity by central difference."""
     t = (tr.t_ns - tr.t_ns[0]) * 1e-9
     tq = (t_ns - tr.t_ns[0]) * 1e-9
-    p = np.array([np.interp(tq, t, tr.p_w[:, j]) for j in range(3)])
-    R = Slerp(t, Rotation.from_matrix(tr.R_w_b))([tq]).as_matrix()[0]
+    pq, Rq = interpolate_poses(
+        tr.t_ns, tr.p_w, tr.R_w_b, np.array([min(max(t_ns, tr.t_ns[0]), tr.t_ns[-1])])
+    )
+    p, R = pq[0], Rq[0]
     i = int(np.clip(np.searchsorted(t, tq), 1, len(t) - 2))
     v = (tr.p_w[i + 1] - tr.p_w[i - 1]) / (t[i + 1] - t[i - 1])
     return NavState(p, v, R)
@@ -65,11 +70,9 @@ def _truth_at(
             f"{truth.traj.source}: the truth covers {tt[0]}..{tt[-1]} ns, the estimates "
             f"{t_ns[0]}..{t_ns[-1]} ns: it must cover the whole alignment"
         )
-    t = (tt - tt[0]) * 1e-9
-    tq = (t_ns - tt[0]) * 1e-9
-    ba = np.stack([np.interp(tq, t, truth.accel_bias[:, j]) for j in range(3)], axis=1)
-    bg = np.stack([np.interp(tq, t, truth.gyro_bias[:, j]) for j in range(3)], axis=1)
-    R = Slerp(t, Rotation.from_matrix(truth.traj.R_w_b))(tq).as_matrix()
+    ba = interpolate_linear(tt, truth.accel_bias, t_ns)
+    bg = interpolate_linear(tt, truth.gyro_bias, t_ns)
+    _, R = interpolate_poses(tt, truth.traj.p_w, truth.traj.R_w_b, t_ns)
     return ba, bg, R
 
 

@@ -12,7 +12,7 @@ from imuslam.config import dump_config, load_config
 from imuslam.imu.calibrate import CalibrationConfig, CalibrationResult, calibrate
 from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
 from imuslam.imu.report import write_report
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 
 
 def print_result(

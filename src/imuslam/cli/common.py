@@ -12,9 +12,9 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from imuslam.errors import ImuslamError
+from imuslam.errors import ImuslamError, InputError
+from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
 from imuslam.io.atomic import write_atomic
-from imuslam.io.imulog import AccelUnit, GyroUnit, ImuLog, InputError
 from imuslam.io.load import FORMATS, ImuFormat, load_imu
 
 console = Console()

@@ -7,8 +7,8 @@ from pathlib import Path
 import typer
 
 from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log
+from imuslam.errors import InputError
 from imuslam.imu.model import ImuCalibration
-from imuslam.io.imulog import InputError
 from imuslam.io.load import detect_format, write_imu
 
 

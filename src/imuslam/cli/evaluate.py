@@ -7,10 +7,10 @@ from pathlib import Path
 import typer
 
 from imuslam.cli.common import console, friendly_errors, table, write_json
+from imuslam.errors import InputError
 from imuslam.eval.align import ALIGN_METHODS
 from imuslam.eval.metrics import KITTI_LENGTHS, evaluate
 from imuslam.eval.plots import plot_evaluation
-from imuslam.io.imulog import InputError
 from imuslam.io.trajectory import read_trajectory, write_tum
 
 

@@ -8,12 +8,13 @@ import numpy as np
 import typer
 
 from imuslam.cli.common import console, friendly_errors, table
+from imuslam.errors import InputError
 from imuslam.imu.calibrate import CalibrationConfig
 from imuslam.imu.history import CalibrationHistory
 from imuslam.imu.online import OnlineCalibrator, OnlineConfig
 from imuslam.imu.online_sim import Drift, run_simulated_robot
 from imuslam.imu.poseplan import PlanModel, optimise_order
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.rosbag import write_imu_bag
 from imuslam.sim.multipose import sphere_plan_deg
 

@@ -10,7 +10,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.io.trajectory import Trajectory
+from imuslam.interfaces.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
 AlignMethod = Literal["se3", "sim3", "yaw", "first", "none"]

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.geometry import exp, log
-from imuslam.io.imulog import InputError
-from imuslam.io.trajectory import Trajectory
+from imuslam.errors import InputError
+from imuslam.geometry.interp import interpolate_poses
+from imuslam.interfaces.trajectory import Trajectory
 
 IntArray = NDArray[np.int64]
 
@@ -63,9 +63,5 @@ def interpolate(traj: Trajectory, t_ns: NDArray[np.int64]) -> Trajectory:
     t = traj.t_ns
     if t_ns.min() < t[0] or t_ns.max() > t[-1]:
         raise InputError(f"{traj.source}: interpolation times leave the trajectory's span")
-    k = np.clip(np.searchsorted(t, t_ns, side="right") - 1, 0, len(t) - 2)
-    a = ((t_ns - t[k]) / (t[k + 1] - t[k]).astype(float))[:, None]
-    p = traj.p_w[k] * (1 - a) + traj.p_w[k + 1] * a
-    d = log(np.swapaxes(traj.R_w_b[k], 1, 2) @ traj.R_w_b[k + 1])
-    R = traj.R_w_b[k] @ exp(d * a)
+    p, R = interpolate_poses(t, traj.p_w, traj.R_w_b, t_ns)
     return Trajectory(t_ns, p, R, traj.source)

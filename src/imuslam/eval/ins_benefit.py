@@ -21,8 +21,9 @@ from imuslam.geometry import log as so3_log
 from imuslam.imu.model import ImuCalibration
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.kf import KfNoise
-from imuslam.ins.strapdown import NavState, integrate
-from imuslam.io.imulog import ImuLog
+from imuslam.ins.strapdown import integrate
+from imuslam.interfaces.imu import ImuLog
+from imuslam.interfaces.nav import NavState
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.trajectory import CarLoop, EulerTrajectory
 

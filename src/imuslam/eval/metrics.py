@@ -18,10 +18,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from imuslam.errors import InputError
 from imuslam.eval.align import AlignMethod, align, apply
 from imuslam.eval.associate import associate
-from imuslam.io.imulog import InputError
-from imuslam.io.trajectory import Trajectory
+from imuslam.interfaces.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -10,8 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from imuslam.eval.metrics import EvalResult  # noqa: E402
+from imuslam.interfaces.trajectory import Trajectory  # noqa: E402
 from imuslam.io.figures import save_figure  # noqa: E402
-from imuslam.io.trajectory import Trajectory  # noqa: E402
 
 
 def plot_evaluation(

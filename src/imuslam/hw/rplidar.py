@@ -13,7 +13,7 @@ from collections.abc import Iterable, Iterator
 
 import numpy as np
 
-from imuslam.sim.lidar import Scan2d
+from imuslam.interfaces.lidar import Scan2d
 
 
 def scan_from_measurements(

@@ -21,7 +21,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.errors import InputError
+from imuslam.interfaces.imu import ImuLog
 
 FloatArray = NDArray[np.float64]
 

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, Field, field_validator
 from scipy.optimize import least_squares
 
+from imuslam.errors import InputError
 from imuslam.imu.model import (
     ACCEL_PARAM_NAMES,
     GYRO_PARAM_NAMES,
@@ -39,7 +40,7 @@ from imuslam.imu.static import (
     window_half_size,
     windowed_variance_norm,
 )
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.interfaces.imu import ImuLog
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]

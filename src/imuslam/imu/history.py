@@ -12,8 +12,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from imuslam.errors import InputError
 from imuslam.imu.model import ImuCalibration
-from imuslam.io.imulog import InputError
 
 _NAME = re.compile(r"^v(\d{4,})\.yaml$")
 

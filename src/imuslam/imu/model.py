@@ -25,8 +25,9 @@ import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
 
+from imuslam.errors import InputError
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.atomic import write_atomic
-from imuslam.io.imulog import ImuLog, InputError
 
 FloatArray = NDArray[np.float64]
 BiasSign = Literal["plus", "minus"]

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, Field
 
+from imuslam.errors import InputError
 from imuslam.imu.calibrate import (
     CalibrationConfig,
     CalibrationResult,
@@ -28,7 +29,7 @@ from imuslam.imu.calibrate import (
 )
 from imuslam.imu.history import CalibrationHistory
 from imuslam.imu.model import ImuCalibration, TriadModel
-from imuslam.io.imulog import AccelUnit, GyroUnit, ImuLog, InputError
+from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]

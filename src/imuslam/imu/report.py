@@ -14,9 +14,9 @@ from matplotlib.figure import Figure  # noqa: E402
 
 from imuslam.imu.calibrate import CalibrationResult  # noqa: E402
 from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES  # noqa: E402
+from imuslam.interfaces.imu import ImuLog  # noqa: E402
 from imuslam.io.atomic import write_atomic  # noqa: E402
 from imuslam.io.figures import save_figure  # noqa: E402
-from imuslam.io.imulog import ImuLog  # noqa: E402
 
 
 def plot_static_detection(res: CalibrationResult, log: ImuLog) -> Figure:

@@ -17,10 +17,13 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.ins.kf import FilterDivergence, KfNoise, _eskf_batch
+from imuslam.errors import InputError
+from imuslam.ins.core import ErrorLayout
+from imuslam.ins.kf import FilterDivergence, KfNoise, eskf_batch
 from imuslam.ins.rwnn import run_rwnn
-from imuslam.ins.strapdown import NavState, integrate
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.ins.strapdown import integrate
+from imuslam.interfaces.imu import ImuLog
+from imuslam.interfaces.nav import NavState
 
 FloatArray = NDArray[np.float64]
 Method = Literal["none", "kf", "stkf", "rwnn"]
@@ -86,7 +89,7 @@ def run_alignment(
     init: NavState,
     method: Method = "kf",
     noise: KfNoise | None = None,
-    P0_diag: FloatArray | None = None,
+    P0_diag: FloatArray | None = None,  # in the layout's order [theta, p, v, b_a, b_g (, g)]
     g: float = 9.80665,
     estimate_gravity: bool = False,
     stkf_beta: float = 3.0,
@@ -126,18 +129,16 @@ def run_alignment(
                                r.p_n[idx], r.v_n[idx], np.ones(len(idx)), NavState(r.p_n[idx[-1]], r.v_n[idx[-1]], r.R_n_b[idx[-1]]))  # fmt: skip
     if method not in ("kf", "stkf"):
         raise InputError(f"alignment method '{method}'; expected one of {', '.join(METHODS)}")
-    p0 = (
-        np.array([0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.05, 0.05, 0.05, 0.2, 0.2, 0.2, 0.02, 0.02, 0.02])
-        ** 2
-        if P0_diag is None
-        else P0_diag
-    )
-    if estimate_gravity and len(p0) == 15:
-        p0 = np.concatenate([p0, np.full(3, 0.05**2)])
-    if len(p0) not in (15, 18):
-        raise InputError(f"P0_diag has {len(p0)} entries; expected 15 (or 18 with gravity)")
+    if P0_diag is None:
+        layout = ErrorLayout.full(gravity=estimate_gravity)
+        p0 = layout.diag(theta=0.05**2, p=0.1**2, v=0.1**2, ba=0.2**2, bg=0.02**2, g=0.05**2)
+    else:
+        p0 = np.asarray(P0_diag, dtype=float)
+        if len(p0) not in (15, 18):
+            raise InputError(f"P0_diag has {len(p0)} entries; expected 15 (or 18 with gravity)")
+        layout = ErrorLayout.full(gravity=len(p0) == 18)
     nz = noise or KfNoise()
-    q = np.array([nz.accel**2, nz.gyro**2, nz.accel_bias_rw**2, nz.gyro_bias_rw**2])
+    q = nz.q
     aid_k = np.searchsorted(t, aiding.t_s)
     n_ok = int(np.argmax(aid_k >= len(t))) if np.any(aid_k >= len(t)) else len(aid_k)
     if n_ok == 0:
@@ -145,12 +146,12 @@ def run_alignment(
     aid_k = aid_k[:n_ok].astype(np.int64)
     blk = aid_k - np.concatenate([[0], aid_k[:-1]]) + 1  # samples in each block, both ends
     zaru_std = nz.gyro * np.sqrt(log.rate_hz / blk)
-    hba, hbg, hsa, hsg, hR, hp, hv, hf, p, v, R, _, _, bad = _eskf_batch(
+    hba, hbg, hsa, hsg, hR, hp, hv, hf, p, v, R, _, _, bad = eskf_batch(
         np.ascontiguousarray(log.accel, float), np.ascontiguousarray(log.gyro, float), t, aid_k,
         np.ascontiguousarray(aiding.values[:n_ok], float), {"position": 0, "velocity": 1, "zupt": 2}[aiding.kind],
         float(aiding.std), zaru_std, init.p_n.astype(float).copy(), init.v_n.astype(float).copy(),
         np.ascontiguousarray(init.R_n_b, float), np.zeros(3), np.zeros(3), np.zeros(3), np.diag(p0).astype(float),
-        np.array([0.0, 0.0, -g]), q, method == "stkf", stkf_rho, stkf_beta, stkf_max_fading,
+        np.array([0.0, 0.0, -g]), q, method == "stkf", stkf_rho, stkf_beta, stkf_max_fading, layout.offsets,
     )  # fmt: skip
     if bad >= 0:
         raise FilterDivergence(

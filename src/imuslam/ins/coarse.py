@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.errors import InputError
+from imuslam.geometry.euler import euler_to_matrix
 from imuslam.ins.strapdown import EARTH_RATE
-from imuslam.io.imulog import InputError
-from imuslam.sim.trajectory import euler_to_matrix
 
 FloatArray = NDArray[np.float64]
 

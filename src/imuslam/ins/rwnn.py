@@ -48,8 +48,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, Field
 
-from imuslam.ins.strapdown import _exp3
-from imuslam.io.imulog import InputError
+from imuslam.errors import InputError
+from imuslam.ins.core import boxplus_attitude, strapdown_step
 
 FloatArray = NDArray[np.float64]
 
@@ -170,6 +170,7 @@ def _rwnn_observer(
     v = v0.copy()
     R = R0.copy()
     g_n = np.array([0.0, 0.0, -g])
+    no_earth_rate = np.zeros(3)
     ea_out = np.zeros((n, 3))
     eg_out = np.zeros((n, 3))
     sd_out = np.zeros((n, 6))
@@ -283,7 +284,9 @@ def _rwnn_observer(
             dx[6:9] += M @ a_c
             p = p + dx[0:3]
             v = v + dx[3:6]
-            R = _exp3(dx[6], dx[7], dx[8]) @ R
+            # the observer's tilt phi is in n (R_true = exp(phi) R); the core's convention is on the
+            # right in b: dtheta = R^T phi gives the same attitude
+            R = boxplus_attitude(R, R.T @ dx[6:9])
             for o in range(6):
                 for c in range(4):
                     W[o, c] += dtheta[o * 4 + c]
@@ -312,14 +315,10 @@ def _rwnn_observer(
             break
         # strapdown of the corrected sensor (trapezoidal, as ins/strapdown.py)
         h = t[k + 1] - t[k]
-        wm_ = 0.5 * (gyro[k] + gyro[k + 1]) - e_g
-        wm_ = wm_ + (h / 12.0) * np.cross(
-            gyro[k] - e_g, gyro[k + 1] - e_g
-        )  # coning, as ins/strapdown.py
-        Rn = R @ _exp3(wm_[0] * h, wm_[1] * h, wm_[2] * h)
         a0 = R @ (accel[k] - e_a)
-        vn = v + h * (0.5 * (a0 + Rn @ (accel[k + 1] - e_a)) + g_n)
-        p = p + 0.5 * h * (v + vn)
+        pn, vn, Rn = strapdown_step(p, v, R, accel[k] - e_a, accel[k + 1] - e_a, gyro[k] - e_g,
+                                    gyro[k + 1] - e_g, h, g_n, no_earth_rate)  # fmt: skip
+        p = pn
         # sensitivity: Y' = A(t) Y + Psi(t), A with the block-mean specific force
         for c in range(n_par):
             o = c // 4

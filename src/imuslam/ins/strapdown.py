@@ -20,11 +20,11 @@ given constant.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-import numba
 import numpy as np
 from numpy.typing import NDArray
+
+from imuslam.ins.core import integrate_nominal
+from imuslam.interfaces.nav import NavState
 
 FloatArray = NDArray[np.float64]
 EARTH_RATE = 7.292115e-5  # rad/s, WGS-84
@@ -42,30 +42,6 @@ def earth_rate_enu(lat_rad: float) -> FloatArray:
     return EARTH_RATE * np.array([0.0, np.cos(lat_rad), np.sin(lat_rad)])
 
 
-@numba.njit(cache=True, inline="always")
-def _exp3(wx: float, wy: float, wz: float) -> NDArray[np.float64]:  # pragma: no cover - compiled
-    th2 = wx * wx + wy * wy + wz * wz
-    th = np.sqrt(th2)
-    if th < 1e-8:
-        a = 1.0 - th2 / 6.0
-        b = 0.5 - th2 / 24.0
-    else:
-        a = np.sin(th) / th
-        b = (1.0 - np.cos(th)) / th2
-    R = np.empty((3, 3))
-    R[0, 0] = 1.0 - b * (wy * wy + wz * wz)
-    R[0, 1] = -a * wz + b * wx * wy
-    R[0, 2] = a * wy + b * wx * wz
-    R[1, 0] = a * wz + b * wx * wy
-    R[1, 1] = 1.0 - b * (wx * wx + wz * wz)
-    R[1, 2] = -a * wx + b * wy * wz
-    R[2, 0] = -a * wy + b * wx * wz
-    R[2, 1] = a * wx + b * wy * wz
-    R[2, 2] = 1.0 - b * (wx * wx + wy * wy)
-    return R
-
-
-@numba.njit(cache=True)
 def mechanise(
     accel_b: FloatArray,
     gyro_b: FloatArray,
@@ -75,51 +51,19 @@ def mechanise(
     R0: FloatArray,
     g_n: FloatArray,
     w_ie_n: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Integrate N samples (accel (N, 3) m/s^2, gyro (N, 3) rad/s, dt (N - 1,) s) from (p0, v0, R0).
 
-    Returns positions (N, 3), velocities (N, 3), R_n_b (N, 3, 3).
+    Returns positions (N, 3), velocities (N, 3), R_n_b (N, 3, 3): the core's propagation kernel
+    (:func:`imuslam.ins.core.integrate_nominal`) with zero biases.
     """
-    n = accel_b.shape[0]
-    P = np.empty((n, 3))
-    V = np.empty((n, 3))
-    Rs = np.empty((n, 3, 3))
-    P[0], V[0], Rs[0] = p0, v0, R0
-    E = _exp3(0.0, 0.0, 0.0)
-    for k in range(n - 1):
-        h = dt[k]
-        R = Rs[k]
-        wm = 0.5 * (gyro_b[k] + gyro_b[k + 1]) * h + (h * h / 12.0) * np.cross(
-            gyro_b[k], gyro_b[k + 1]
-        )
-        Rn = R @ _exp3(wm[0], wm[1], wm[2])
-        if w_ie_n[0] != 0.0 or w_ie_n[1] != 0.0 or w_ie_n[2] != 0.0:
-            E = _exp3(-w_ie_n[0] * h, -w_ie_n[1] * h, -w_ie_n[2] * h)
-            Rn = E @ Rn
-        f0 = R @ accel_b[k]
-        f1 = Rn @ accel_b[k + 1]
-        v = V[k]
-        cor = 2.0 * np.array(
-            [
-                w_ie_n[1] * v[2] - w_ie_n[2] * v[1],
-                w_ie_n[2] * v[0] - w_ie_n[0] * v[2],
-                w_ie_n[0] * v[1] - w_ie_n[1] * v[0],
-            ]
-        )
-        vn = v + h * (0.5 * (f0 + f1) + g_n - cor)
-        P[k + 1] = P[k] + 0.5 * h * (v + vn)
-        V[k + 1] = vn
-        Rs[k + 1] = Rn
-    return P, V, Rs
-
-
-@dataclass
-class NavState:
-    """Position (3,) m, velocity (3,) m/s in n (ENU), attitude R_n_b (3, 3)."""
-
-    p_n: FloatArray
-    v_n: FloatArray
-    R_n_b: FloatArray
+    z = np.zeros(3)
+    return integrate_nominal(
+        np.ascontiguousarray(accel_b, dtype=float), np.ascontiguousarray(gyro_b, dtype=float),
+        np.asarray(dt, dtype=float), np.asarray(p0, dtype=float), np.asarray(v0, dtype=float),
+        np.ascontiguousarray(R0, dtype=float), z, z, np.asarray(g_n, dtype=float),
+        np.asarray(w_ie_n, dtype=float),
+    )  # fmt: skip
 
 
 class Strapdown:
@@ -153,8 +97,5 @@ def integrate(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Batch mechanisation over a log: positions (N, 3), velocities (N, 3), R_n_b (N, 3, 3)."""
     w_ie = earth_rate_enu(lat_rad) if lat_rad is not None else np.zeros(3)
-    return mechanise(
-        np.ascontiguousarray(accel_b, dtype=float), np.ascontiguousarray(gyro_b, dtype=float),
-        np.diff(np.asarray(t_s, dtype=float)), init.p_n.astype(float), init.v_n.astype(float),
-        np.ascontiguousarray(init.R_n_b, dtype=float), np.array([0.0, 0.0, -g]), w_ie,
-    )  # fmt: skip
+    return mechanise(accel_b, gyro_b, np.diff(np.asarray(t_s, dtype=float)), init.p_n, init.v_n,
+                     init.R_n_b, np.array([0.0, 0.0, -g]), w_ie)  # fmt: skip

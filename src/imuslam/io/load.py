@@ -7,8 +7,9 @@ from typing import Literal
 
 import numpy as np
 
+from imuslam.errors import InputError
+from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
 from imuslam.io.atomic import write_atomic
-from imuslam.io.imulog import AccelUnit, GyroUnit, ImuLog, InputError
 from imuslam.io.readers import TimeUnit, read_csv, read_euroc, read_imutk
 from imuslam.io.rosbag import read_imu_bag, replace_imu_topic, write_imu_bag
 

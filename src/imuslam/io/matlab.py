@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from imuslam.io.imulog import AccelUnit, GyroUnit, ImuLog, InputError
+from imuslam.errors import InputError
+from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
 from imuslam.io.timestamps import check_and_repair
 
 

@@ -14,7 +14,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.io.imulog import AccelUnit, GyroUnit, ImuLog, InputError
+from imuslam.errors import InputError
+from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
 from imuslam.io.text import read_table
 from imuslam.io.timestamps import check_and_repair
 

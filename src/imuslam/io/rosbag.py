@@ -17,8 +17,9 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
+from imuslam.errors import InputError
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.atomic import atomic_path
-from imuslam.io.imulog import ImuLog, InputError
 from imuslam.io.timestamps import check_and_repair
 
 IMU_TYPE = "sensor_msgs/msg/Imu"

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.io.imulog import InputError
+from imuslam.errors import InputError
 
 
 def read_table(

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.io.imulog import InputError
+from imuslam.errors import InputError
 
 log = logging.getLogger(__name__)
 

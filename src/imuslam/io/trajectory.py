@@ -1,6 +1,6 @@
 """Trajectories: TUM, KITTI and EuRoC ground-truth files, and PoseStamped topics of bags.
 
-A :class:`Trajectory` holds integer ``t_ns``, positions ``p_w`` (N, 3) and rotations ``R_w_b``
+A :class:`~imuslam.interfaces.Trajectory` (re-exported here) holds integer ``t_ns``, positions ``p_w`` (N, 3) and rotations ``R_w_b``
 (N, 3, 3) mapping body vectors into the world. Quaternion orders are converted here and only here:
 TUM is ``qx qy qz qw``, EuRoC ``qw qx qy qz``.
 """
@@ -14,61 +14,24 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.geometry import quat_from_matrix, quat_to_matrix
+from imuslam.errors import InputError
+from imuslam.geometry import quat_to_matrix
+from imuslam.interfaces.trajectory import Trajectory
 from imuslam.io.atomic import write_atomic
-from imuslam.io.imulog import InputError
 from imuslam.io.text import read_table
 
 FloatArray = NDArray[np.float64]
 TrajFormat = Literal["tum", "kitti", "euroc", "bag"]
 TRAJ_FORMATS = ("tum", "kitti", "euroc", "bag")
 
-
-@dataclass
-class Trajectory:
-    """Poses over time. t_ns: (N,) int64; p_w: (N, 3) m; R_w_b: (N, 3, 3)."""
-
-    t_ns: NDArray[np.int64]
-    p_w: FloatArray
-    R_w_b: FloatArray
-    source: str = "<memory>"
-
-    def __post_init__(self) -> None:
-        self.t_ns = np.asarray(self.t_ns, dtype=np.int64)
-        self.p_w = np.asarray(self.p_w, dtype=float)
-        self.R_w_b = np.asarray(self.R_w_b, dtype=float)
-        n = len(self.t_ns)
-        if self.p_w.shape != (n, 3) or self.R_w_b.shape != (n, 3, 3):
-            raise InputError(
-                f"{self.source}: expected N times, (N, 3) positions and (N, 3, 3) rotations"
-            )
-        bad = ~(np.isfinite(self.p_w).all(axis=1) & np.isfinite(self.R_w_b).all(axis=(1, 2)))
-        if bad.any():
-            raise InputError(f"{self.source}: pose {int(np.argmax(bad))} is NaN or infinite")
-
-    def __len__(self) -> int:
-        return int(self.t_ns.shape[0])
-
-    @property
-    def t_s(self) -> FloatArray:
-        """(N,) times in seconds (absolute); whole and fractional seconds are added last, which gives
-        the same double as parsing the decimal stamp of a text file."""
-        whole = self.t_ns // 1_000_000_000
-        return (
-            whole.astype(np.float64) + (self.t_ns - whole * 1_000_000_000).astype(np.float64) * 1e-9
-        )
-
-    @property
-    def quat_wxyz(self) -> FloatArray:
-        return quat_from_matrix(self.R_w_b)
-
-    def subset(self, idx: NDArray[np.int64]) -> Trajectory:
-        return Trajectory(self.t_ns[idx], self.p_w[idx], self.R_w_b[idx], self.source)
-
-    @property
-    def path_length(self) -> float:
-        """Length of the path through the positions, m."""
-        return float(np.sum(np.linalg.norm(np.diff(self.p_w, axis=0), axis=1)))
+__all__ = [
+    "TRAJ_FORMATS",
+    "StateTruth",
+    "Trajectory",
+    "read_trajectory",
+    "write_kitti",
+    "write_tum",
+]
 
 
 def _t_ns_from_seconds(t: FloatArray) -> NDArray[np.int64]:

@@ -19,9 +19,9 @@ from numpy.typing import NDArray
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
+from imuslam.interfaces.imu import ImuLog
+from imuslam.interfaces.lidar import Scan2d, Scan3d
 from imuslam.io.atomic import atomic_path
-from imuslam.io.imulog import ImuLog
-from imuslam.sim.lidar import Scan2d, Scan3d
 
 TS = get_typestore(Stores.ROS2_HUMBLE)
 T = TS.types

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.geometry import exp
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.sim.imu_errors import (
     BWT901CL_ACCEL_DENSITY,
     BWT901CL_GYRO_DENSITY,
@@ -22,7 +22,7 @@ from imuslam.sim.imu_errors import (
     SEED000_GYRO,
     TriadErrors,
 )
-from imuslam.sim.trajectory import Trajectory
+from imuslam.sim.trajectory import TrajectoryModel
 
 FloatArray = NDArray[np.float64]
 IDEAL = TriadErrors(np.eye(3), np.ones(3), np.zeros(3))
@@ -81,7 +81,7 @@ class ImuTruth:
 
 
 def simulate_imu(
-    traj: Trajectory,
+    traj: TrajectoryModel,
     duration_s: float,
     rng: np.random.Generator,
     errors: ImuErrorSpec | None = None,

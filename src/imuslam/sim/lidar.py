@@ -8,12 +8,13 @@ as a real LiDAR reports them.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.interfaces.lidar import Scan2d, Scan3d
 from imuslam.sim.world import World
 
 FloatArray = NDArray[np.float64]
@@ -100,19 +101,6 @@ class Lidar3dConfig:
     range_noise_std: float = 0.02
 
 
-@dataclass
-class Scan3d:
-    """One turn. points_l: (P, 3) float32, sensor frame at each point's firing time; t_offset_s: (P,)
-    from scan start; ring: (P,) beam index (0 = lowest elevation); intensity: (P,)."""
-
-    t0_ns: int
-    points_l: NDArray[np.float32]
-    t_offset_s: NDArray[np.float32]
-    ring: NDArray[np.uint16]
-    intensity: NDArray[np.float32]
-    surface_id: NDArray[np.int64] = field(repr=False, default_factory=lambda: np.zeros(0, np.int64))
-
-
 def simulate_lidar3d_scan(
     world: World, pose_w_l: PoseFn, t0_s: float, config: Lidar3dConfig, rng: np.random.Generator
 ) -> Scan3d:
@@ -172,22 +160,6 @@ class Lidar2dConfig:
     min_range: float = 0.2
     max_range: float = 12.0
     range_noise_std: float = 0.01
-
-
-@dataclass
-class Scan2d:
-    """A LaserScan: ranges (B,) float32 with inf for no return, beam i at angle_min + i * angle_increment,
-    fired at t0 + i * time_increment."""
-
-    t0_ns: int
-    angle_min: float
-    angle_increment: float
-    time_increment: float
-    scan_time: float
-    range_min: float
-    range_max: float
-    ranges: NDArray[np.float32]
-    intensities: NDArray[np.float32]
 
 
 def simulate_lidar2d_scan(

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.geometry import quat_to_matrix
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.sim.imu_errors import (
     BWT901CL_ACCEL_DENSITY,
     BWT901CL_GYRO_DENSITY,

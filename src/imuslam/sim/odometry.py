@@ -8,7 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.sim.trajectory import Trajectory
+from imuslam.interfaces.odometry import WheelOdometry
+from imuslam.sim.trajectory import TrajectoryModel
 
 FloatArray = NDArray[np.float64]
 
@@ -27,18 +28,8 @@ class WheelConfig:
     slip_std: float = 0.02
 
 
-@dataclass
-class WheelOdometry:
-    """t_s (N,); ticks (N, 2) cumulative [left, right] encoder counts; pose_xy_yaw (N, 3) dead reckoning
-    from the ticks with the nominal geometry."""
-
-    t_s: FloatArray
-    ticks: NDArray[np.int64]
-    pose_xy_yaw: FloatArray
-
-
 def simulate_wheels(
-    traj: Trajectory,
+    traj: TrajectoryModel,
     duration_s: float,
     rng: np.random.Generator,
     cfg: WheelConfig | None = None,
@@ -63,7 +54,7 @@ def simulate_wheels(
     turns = np.cumsum(dist, axis=0) / (2 * np.pi * c.wheel_radius)
     ticks = np.floor(turns * c.ticks_per_rev).astype(np.int64)
     return WheelOdometry(
-        t,
+        np.round(t * 1e9).astype(np.int64),
         ticks,
         dead_reckoning(
             ticks, c, st.p_w[0, :2], float(np.arctan2(st.R_w_b[0, 1, 0], st.R_w_b[0, 0, 0]))
@@ -85,7 +76,7 @@ def dead_reckoning(
     return np.stack([x, y, yaw], axis=1)
 
 
-def simulate_rtk(traj: Trajectory, duration_s: float, rng: np.random.Generator, rate_hz: float = 10.0,
+def simulate_rtk(traj: TrajectoryModel, duration_s: float, rng: np.random.Generator, rate_hz: float = 10.0,
                  std_h: float = 0.02, std_v: float = 0.04, t0_s: float = 0.0) -> tuple[FloatArray, FloatArray]:  # fmt: skip
     """RTK-like fixes: times (N,) and positions (N, 3) with white noise (horizontal, vertical std, m)."""
     n = int(np.floor(duration_s * rate_hz)) + 1

@@ -22,9 +22,9 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from imuslam.errors import InputError
 from imuslam.geometry import quat_from_matrix
 from imuslam.io.atomic import write_atomic
-from imuslam.io.imulog import InputError
 from imuslam.sim import export
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.lidar import (
@@ -120,7 +120,7 @@ def run_scenario(
         if name in ("room", "corridor"):
             wc = WheelConfig()
             wo = simulate_wheels(traj, duration_s, rng, wc)
-            wt = t0 + np.round(wo.t_s * 1e9).astype(np.int64)
+            wt = t0 + wo.t_ns
             streams.append(export.odometry_messages(wt, wo.pose_xy_yaw))
             arrays.update(wheel_t_ns=wt, wheel_ticks=wo.ticks, wheel_odom_xy_yaw=wo.pose_xy_yaw)
             cfg2 = Lidar2dConfig()

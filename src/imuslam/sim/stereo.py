@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.interfaces.camera import StereoFrame
 from imuslam.sim.lidar import cast_rays
 from imuslam.sim.world import World
 
@@ -34,16 +35,6 @@ class StereoConfig:
     baseline: float = 0.11
     pixel_noise: float = 0.5
     max_depth: float = 20.0
-
-
-@dataclass
-class StereoFrame:
-    """Observations of one frame: landmark ids (M,), left pixels (M, 2), right pixels (M, 2)."""
-
-    t_ns: int
-    ids: NDArray[np.int64]
-    uv_left: FloatArray
-    uv_right: FloatArray
 
 
 def project(points_c: FloatArray, cfg: StereoConfig) -> tuple[FloatArray, FloatArray]:

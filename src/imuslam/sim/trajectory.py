@@ -16,6 +16,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, Field
 
+from imuslam.geometry.euler import euler_rates_to_body, euler_to_matrix
+
 FloatArray = NDArray[np.float64]
 
 
@@ -32,41 +34,18 @@ class TrajectoryState:
     omega_b: FloatArray
 
 
-class Trajectory(Protocol):
-    """Anything that gives the exact state at any times."""
+class TrajectoryModel(Protocol):
+    """Anything that gives the exact state at any times (a model of motion, not a record of poses:
+    the record is :class:`imuslam.interfaces.Trajectory`)."""
 
     def state(self, t_s: ArrayLike) -> TrajectoryState: ...
 
 
-def euler_to_matrix(angles: FloatArray) -> FloatArray:
-    """(N, 3) [roll, pitch, yaw] rad -> R_w_b (N, 3, 3) = Rz(yaw) Ry(pitch) Rx(roll)."""
-    r, p, y = angles[:, 0], angles[:, 1], angles[:, 2]
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    R = np.empty((len(r), 3, 3))
-    R[:, 0, 0] = cy * cp
-    R[:, 0, 1] = cy * sp * sr - sy * cr
-    R[:, 0, 2] = cy * sp * cr + sy * sr
-    R[:, 1, 0] = sy * cp
-    R[:, 1, 1] = sy * sp * sr + cy * cr
-    R[:, 1, 2] = sy * sp * cr - cy * sr
-    R[:, 2, 0] = -sp
-    R[:, 2, 1] = cp * sr
-    R[:, 2, 2] = cp * cr
-    return R
-
-
-def euler_rates_to_body(angles: FloatArray, rates: FloatArray) -> FloatArray:
-    """Body angular rate (N, 3) from Z-Y-X Euler angles and their time derivatives."""
-    r, p = angles[:, 0], angles[:, 1]
-    dr, dp, dy = rates[:, 0], rates[:, 1], rates[:, 2]
-    return np.stack(
-        [
-            dr - dy * np.sin(p),
-            dp * np.cos(r) + dy * np.sin(r) * np.cos(p),
-            -dp * np.sin(r) + dy * np.cos(r) * np.cos(p),
-        ],
-        axis=1,
-    )
+def __getattr__(name: str) -> object:
+    # the Protocol's old name, kept for imports written before the rename
+    if name == "Trajectory":
+        return TrajectoryModel
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class EulerTrajectory(ABC):

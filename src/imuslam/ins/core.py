@@ -1,0 +1,822 @@
+"""The inertial core every estimator shares: one propagation kernel, one error-state layout with one
+boxplus / boxminus, measurements that linearise themselves, chi-square gating, and an error-state Kalman
+filter with ``predict``, ``update`` and ``iterated_update``.
+
+Nominal state ``x = (p_n, v_n, R_n_b, b_a, b_g, g_n)``: position (m) and velocity (m/s) in the navigation
+frame n, attitude R_n_b, accelerometer and gyro biases (measured = true + bias + noise) and gravity in n.
+The error state is addressed by NAMED slices of an :class:`ErrorLayout`, rotation first as everywhere in
+imuslam (:mod:`imuslam.geometry`): ``[dtheta, dp, dv, db_a, db_g, dg]``, with the bias and gravity blocks
+optional: 15 states (alignment, VIO), 18 with gravity (a world frame whose z is not exactly vertical),
+12 = [dtheta, dp, dv, dg] (a LIO that leaves the biases out).
+
+ONE attitude convention: the error is on the right, in the body frame, ``R_true = R exp(dtheta)``
+(Sola, "Quaternion kinematics for the error-state Kalman filter", 2017, eqs. 262-270; FAST-LIO2's
+``boxplus``). An estimator that thinks in a navigation-frame tilt phi (R_true = exp(phi) R) converts with
+``dtheta = R^T phi`` before :func:`boxplus_attitude`.
+
+Propagation per sample interval h (:func:`strapdown_step`; Titterton & Weston 2nd ed. eqs. 3.29-3.33,
+transport rate dropped): the attitude by the rotation vector of the mean rate of the two samples plus the
+two-sample coning term (h^2 / 12) w_k x w_k+1 (Savage 1998, JGCD 21(1)); the velocity by the trapezoid of
+the specific force rotated by the attitude at each end (sculling to second order) plus gravity and
+Coriolis; the position by the trapezoid of the velocity. The error-state transition (continuous form,
+right perturbation):
+
+    dtheta' = -[w x] dtheta - db_g,   dp' = dv,   dv' = -R [f x] dtheta - R db_a + dg,   db' = random walk
+
+discretised per sample as Phi = I + F h with the attitude block exactly exp(-[w x] h) (first order is
+unstable at fast rates), and the velocity-attitude coupling using the navigation-frame specific force
+averaged over the block (with each noisy sample a filter on a still base would believe it observes the
+heading).
+
+The iterated update is FAST-LIO2's IEKF (Xu, Cai, He, Lin, Zhang, "FAST-LIO2: Fast direct LiDAR-inertial
+odometry", IEEE T-RO 38(4), 2022, eqs. 18-20; Xu & Zhang, FAST-LIO, RA-L 2021, eq. 20): re-linearise at
+each iterate, gain in state dimension K = (H^T R^-1 H + P^-1)^-1 H^T R^-1, stop when |dx| < eps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import numba
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from imuslam.errors import FilterDivergence, InputError
+from imuslam.geometry.so3_nb import exp_nb, log_nb
+from imuslam.interfaces.nav import ImuBias, NavState
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+__all__ = [
+    "Eskf",
+    "ErrorLayout",
+    "InsState",
+    "KfNoise",
+    "Measurement",
+    "PositionMeasurement",
+    "UpdateResult",
+    "VelocityMeasurement",
+    "ZeroAngularRate",
+    "boxminus",
+    "boxplus",
+    "boxplus_attitude",
+    "chi2_threshold",
+    "gate",
+    "integrate_nominal",
+    "is_pd",
+    "kalman_update",
+    "propagate",
+    "propagate_covariance",
+    "strapdown_step",
+]
+
+
+# ---------------------------------------------------------------------------------------------------
+# error-state layout
+
+
+@dataclass(frozen=True)
+class ErrorLayout:
+    """Which blocks the error state has and where: always TH (attitude), P, V; optionally BA, BG, G.
+
+    Blocks are 3 wide and in the order TH, P, V, BA, BG, G. ``offsets`` (6,) int64 gives each block's
+    first index or -1 (for compiled kernels)."""
+
+    accel_bias: bool = True
+    gyro_bias: bool = True
+    gravity: bool = False
+
+    @property
+    def offsets(self) -> IntArray:
+        off = []
+        i = 0
+        for present in (True, True, True, self.accel_bias, self.gyro_bias, self.gravity):
+            off.append(i if present else -1)
+            i += 3 if present else 0
+        return np.array(off, dtype=np.int64)
+
+    @property
+    def dim(self) -> int:
+        return 9 + 3 * (int(self.accel_bias) + int(self.gyro_bias) + int(self.gravity))
+
+    def _slice(self, k: int, name: str) -> slice:
+        o = int(self.offsets[k])
+        if o < 0:
+            raise KeyError(f"the error state {self.dim} has no {name} block")
+        return slice(o, o + 3)
+
+    @property
+    def TH(self) -> slice:
+        return self._slice(0, "attitude")
+
+    @property
+    def P(self) -> slice:
+        return self._slice(1, "position")
+
+    @property
+    def V(self) -> slice:
+        return self._slice(2, "velocity")
+
+    @property
+    def BA(self) -> slice:
+        return self._slice(3, "accelerometer bias")
+
+    @property
+    def BG(self) -> slice:
+        return self._slice(4, "gyro bias")
+
+    @property
+    def G(self) -> slice:
+        return self._slice(5, "gravity")
+
+    @classmethod
+    def full(cls, gravity: bool = False) -> ErrorLayout:
+        """15 states [dtheta, dp, dv, db_a, db_g] (18 with dg)."""
+        return cls(True, True, gravity)
+
+    @classmethod
+    def reduced(cls) -> ErrorLayout:
+        """12 states [dtheta, dp, dv, dg]: no biases (a LIO on a corrected IMU)."""
+        return cls(False, False, True)
+
+    def diag(self, *, theta: float, p: float, v: float, ba: float = 0.0, bg: float = 0.0,
+             g: float = 0.0) -> FloatArray:  # fmt: skip
+        """A covariance diagonal (dim,) from per-block variances, e.g. ``layout.diag(theta=0.05**2, ...)``."""
+        d = np.zeros(self.dim)
+        for k, val in enumerate((theta, p, v, ba, bg, g)):
+            o = int(self.offsets[k])
+            if o >= 0:
+                d[o : o + 3] = val
+        return d
+
+
+@dataclass
+class InsState:
+    """Nominal state: p_n (3,) m, v_n (3,) m/s, R_n_b (3, 3), accel_bias (3,) m/s^2, gyro_bias (3,) rad/s
+    (measured = true + bias), g_n (3,) m/s^2 gravity in n."""
+
+    p_n: FloatArray
+    v_n: FloatArray
+    R_n_b: FloatArray
+    accel_bias: FloatArray = field(default_factory=lambda: np.zeros(3))
+    gyro_bias: FloatArray = field(default_factory=lambda: np.zeros(3))
+    g_n: FloatArray = field(default_factory=lambda: np.array([0.0, 0.0, -9.80665]))
+
+    @classmethod
+    def from_nav(cls, nav: NavState, bias: ImuBias | None = None, g: float = 9.80665) -> InsState:
+        b = bias or ImuBias()
+        return cls(np.array(nav.p_n, float), np.array(nav.v_n, float), np.array(nav.R_n_b, float),
+                   np.array(b.accel_b, float), np.array(b.gyro_b, float), np.array([0.0, 0.0, -g]))  # fmt: skip
+
+    @property
+    def nav(self) -> NavState:
+        return NavState(self.p_n, self.v_n, self.R_n_b)
+
+    @property
+    def bias(self) -> ImuBias:
+        return ImuBias(self.accel_bias, self.gyro_bias)
+
+    def copy(self) -> InsState:
+        return InsState(self.p_n.copy(), self.v_n.copy(), self.R_n_b.copy(), self.accel_bias.copy(),
+                        self.gyro_bias.copy(), self.g_n.copy())  # fmt: skip
+
+
+@numba.njit(cache=True, inline="always")
+def boxplus_attitude(
+    R: FloatArray, dtheta: FloatArray
+) -> FloatArray:  # pragma: no cover - compiled
+    """``R exp(dtheta)``: the one attitude perturbation (right, body frame)."""
+    return R @ exp_nb(dtheta)
+
+
+def boxplus(x: InsState, dx: FloatArray, layout: ErrorLayout) -> InsState:
+    """``x ⊞ dx``: vector blocks add, the attitude is perturbed on the right."""
+    o = layout.offsets
+    y = x.copy()
+    y.R_n_b = boxplus_attitude(
+        np.ascontiguousarray(x.R_n_b), np.ascontiguousarray(dx[o[0] : o[0] + 3])
+    )
+    y.p_n = x.p_n + dx[o[1] : o[1] + 3]
+    y.v_n = x.v_n + dx[o[2] : o[2] + 3]
+    if o[3] >= 0:
+        y.accel_bias = x.accel_bias + dx[o[3] : o[3] + 3]
+    if o[4] >= 0:
+        y.gyro_bias = x.gyro_bias + dx[o[4] : o[4] + 3]
+    if o[5] >= 0:
+        y.g_n = x.g_n + dx[o[5] : o[5] + 3]
+    return y
+
+
+def boxminus(x1: InsState, x0: InsState, layout: ErrorLayout) -> FloatArray:
+    """``x1 ⊟ x0``: the dx with ``x0 ⊞ dx = x1`` (attitude ``log(R0^T R1)``)."""
+    o = layout.offsets
+    dx = np.zeros(layout.dim)
+    dx[o[0] : o[0] + 3] = log_nb(np.ascontiguousarray(x0.R_n_b.T @ x1.R_n_b))
+    dx[o[1] : o[1] + 3] = x1.p_n - x0.p_n
+    dx[o[2] : o[2] + 3] = x1.v_n - x0.v_n
+    if o[3] >= 0:
+        dx[o[3] : o[3] + 3] = x1.accel_bias - x0.accel_bias
+    if o[4] >= 0:
+        dx[o[4] : o[4] + 3] = x1.gyro_bias - x0.gyro_bias
+    if o[5] >= 0:
+        dx[o[5] : o[5] + 3] = x1.g_n - x0.g_n
+    return dx
+
+
+# ---------------------------------------------------------------------------------------------------
+# propagation: the one kernel
+
+
+@numba.njit(cache=True, inline="always")
+def strapdown_step(
+    p: FloatArray,
+    v: FloatArray,
+    R: FloatArray,
+    f0: FloatArray,
+    f1: FloatArray,
+    w0: FloatArray,
+    w1: FloatArray,
+    h: float,
+    g_n: FloatArray,
+    w_ie_n: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """One interval of length h (s) between samples (f0, w0) and (f1, w1) (bias-corrected specific force
+    m/s^2 and rate rad/s, body frame): the state (p, v, R_n_b) at the second sample. ``w_ie_n``: earth
+    rate in n (zeros to neglect it)."""
+    wm = 0.5 * (w0 + w1) * h + (h * h / 12.0) * np.cross(w0, w1)  # coning (Savage 1998)
+    Rn = R @ exp_nb(wm)
+    if w_ie_n[0] != 0.0 or w_ie_n[1] != 0.0 or w_ie_n[2] != 0.0:
+        Rn = exp_nb(-w_ie_n * h) @ Rn
+        cor = 2.0 * np.cross(w_ie_n, v)
+    else:
+        cor = np.zeros(3)
+    vn = v + h * (0.5 * (R @ f0 + Rn @ f1) + g_n - cor)
+    pn = p + 0.5 * h * (v + vn)
+    return pn, vn, Rn
+
+
+@numba.njit(cache=True)
+def integrate_nominal(
+    accel: FloatArray,
+    gyro: FloatArray,
+    dt: FloatArray,
+    p0: FloatArray,
+    v0: FloatArray,
+    R0: FloatArray,
+    ba: FloatArray,
+    bg: FloatArray,
+    g_n: FloatArray,
+    w_ie_n: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """IMU samples (N, 3) with intervals dt (N - 1,) s -> per-sample states p (N, 3), v (N, 3),
+    R_n_b (N, 3, 3), starting at (p0, v0, R0) on sample 0, biases removed from every sample."""
+    n = accel.shape[0]
+    P = np.empty((n, 3))
+    V = np.empty((n, 3))
+    Rs = np.empty((n, 3, 3))
+    P[0], V[0], Rs[0] = p0, v0, R0
+    for k in range(n - 1):
+        P[k + 1], V[k + 1], Rs[k + 1] = strapdown_step(
+            P[k], V[k], Rs[k], accel[k] - ba, accel[k + 1] - ba, gyro[k] - bg, gyro[k + 1] - bg,
+            dt[k], g_n, w_ie_n,
+        )  # fmt: skip
+    return P, V, Rs
+
+
+@numba.njit(cache=True)
+def propagate_covariance(
+    P: FloatArray,
+    Rs: FloatArray,
+    gyro: FloatArray,
+    bg: FloatArray,
+    dt: FloatArray,
+    fn_mean: FloatArray,
+    q: FloatArray,
+    off: IntArray,
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """Error-state covariance over the block: P (m, m) -> P, and the process noise added in it (Qsum).
+
+    Rs (N, 3, 3) the attitudes at the samples; fn_mean (3,) the block-mean specific force in n;
+    q = [accel^2, gyro^2, accel_bias_rw^2, gyro_bias_rw^2] (continuous densities squared); off the
+    layout's offsets (TH, P, V, BA, BG, G; -1 absent)."""
+    m = P.shape[0]
+    Qsum = np.zeros((m, m))
+    ith, ip, iv, iba, ibg, ig = off[0], off[1], off[2], off[3], off[4], off[5]
+    Fx = np.array(
+        [
+            [0.0, -fn_mean[2], fn_mean[1]],
+            [fn_mean[2], 0.0, -fn_mean[0]],
+            [-fn_mean[1], fn_mean[0], 0.0],
+        ]
+    )
+    eye3 = np.eye(3)
+    for k in range(dt.shape[0]):
+        h = dt[k]
+        Rk = Rs[k]
+        wm = 0.5 * (gyro[k] + gyro[k + 1]) - bg
+        Phi = np.eye(m)
+        Phi[ip : ip + 3, iv : iv + 3] += eye3 * h
+        Phi[iv : iv + 3, ith : ith + 3] += -(Fx @ Rk) * h
+        if iba >= 0:
+            Phi[iv : iv + 3, iba : iba + 3] += -Rk * h
+        if ibg >= 0:
+            Phi[ith : ith + 3, ibg : ibg + 3] += -eye3 * h
+        if ig >= 0:
+            Phi[iv : iv + 3, ig : ig + 3] += eye3 * h
+        Phi[ith : ith + 3, ith : ith + 3] = exp_nb(-wm * h)
+        Qd = np.zeros((m, m))
+        for i in range(3):
+            Qd[iv + i, iv + i] = q[0] * h
+            Qd[ith + i, ith + i] = q[1] * h
+            if iba >= 0:
+                Qd[iba + i, iba + i] = q[2] * h
+            if ibg >= 0:
+                Qd[ibg + i, ibg + i] = q[3] * h
+        P = Phi @ P @ Phi.T + Qd
+        Qsum = Phi @ Qsum @ Phi.T + Qd
+    return P, Qsum
+
+
+@numba.njit(cache=True)
+def propagate(
+    accel: FloatArray,
+    gyro: FloatArray,
+    dt: FloatArray,
+    p: FloatArray,
+    v: FloatArray,
+    R: FloatArray,
+    ba: FloatArray,
+    bg: FloatArray,
+    g_n: FloatArray,
+    P: FloatArray,
+    q: FloatArray,
+    off: IntArray,
+) -> tuple[
+    FloatArray, FloatArray, FloatArray, FloatArray, FloatArray
+]:  # pragma: no cover - compiled
+    """The filter's prediction over samples 0..N-1: per-sample p (N, 3), v (N, 3), R_n_b (N, 3, 3) from
+    :func:`integrate_nominal`, and the covariance P and the process noise Qsum at the last sample."""
+    Ps, Vs, Rs = integrate_nominal(accel, gyro, dt, p, v, R, ba, bg, g_n, np.zeros(3))
+    ns = dt.shape[0]
+    fn_mean = np.zeros(3)
+    for k in range(ns):
+        fn_mean += Rs[k] @ (accel[k] - ba)
+    fn_mean /= max(ns, 1)
+    P, Qsum = propagate_covariance(P, Rs, gyro, bg, dt, fn_mean, q, off)
+    return Ps, Vs, Rs, P, Qsum
+
+
+# ---------------------------------------------------------------------------------------------------
+# update
+
+
+@numba.njit(cache=True)
+def is_pd(P: FloatArray) -> bool:  # pragma: no cover - compiled
+    """Cholesky without raising: False when P is not positive definite or not finite."""
+    n = P.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = P[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not (s > 0.0):
+            return False
+        L[j, j] = np.sqrt(s)
+        for i in range(j + 1, n):
+            s = P[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+    return True
+
+
+@numba.njit(cache=True)
+def kalman_update(
+    P: FloatArray,
+    Qsum: FloatArray,
+    r: FloatArray,
+    H: FloatArray,
+    Rm: FloatArray,
+    stkf: bool,
+    V: FloatArray,
+    have_v: bool,
+    rho: float,
+    beta: float,
+    max_fading: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, float]:  # pragma: no cover - compiled
+    """One Kalman update (Joseph form) with innovation r (k,), Jacobian H (k, m), noise Rm (k, k); with
+    the strong tracking fading factor when ``stkf`` (Zhou & Frank, Int. J. Control 1996: lambda =
+    max(1, tr N / tr M), N = V - H Q H^T - beta R, M = H (P - Q) H^T, V the innovation covariance with
+    forgetting rho, Q the process noise since the last update; capped at max_fading).
+    Returns dx (m,), the new P, the new V and the fading factor."""
+    fading = 1.0
+    if stkf:
+        rr = np.outer(r, r)
+        V = rr if not have_v else (rho * V + rr) / (1.0 + rho)
+        N = V - H @ Qsum @ H.T - beta * Rm
+        M = H @ (P - Qsum) @ H.T
+        lam = np.trace(N) / max(np.trace(M), 1e-300)
+        fading = min(max(lam, 1.0), max_fading)
+        P = fading * (P - Qsum) + Qsum
+    PHt = P @ H.T
+    S = H @ PHt + Rm
+    K = np.linalg.solve(S, PHt.T).T
+    dx = K @ r
+    I_KH = np.eye(P.shape[0]) - K @ H
+    P = I_KH @ P @ I_KH.T + K @ Rm @ K.T
+    P = 0.5 * (P + P.T)
+    return dx, P, V, fading
+
+
+def chi2_threshold(prob: float, dof: int) -> float:
+    """The chi-square quantile: P(chi2_dof <= threshold) = prob (2 * gammaincinv(dof / 2, prob))."""
+    from scipy.special import gammaincinv
+
+    if not 0.0 < prob < 1.0:
+        raise InputError(f"gate probability must be in (0, 1), got {prob}")
+    return float(2.0 * gammaincinv(0.5 * dof, prob))
+
+
+def gate(
+    r: FloatArray, H: FloatArray, R: FloatArray, P: FloatArray, prob: float
+) -> tuple[bool, float]:
+    """Chi-square gate: the normalised innovation squared nis = r^T (H P H^T + R)^-1 r against the
+    ``prob`` quantile of chi2 with len(r) degrees of freedom. Returns (accepted, nis)."""
+    S = H @ P @ H.T + R
+    nis = float(r @ np.linalg.solve(S, r))
+    return bool(nis <= chi2_threshold(prob, len(r))), nis
+
+
+class Measurement(Protocol):
+    """A measurement that linearises itself at a state (pyins' ``Measurement.compute_matrices``):
+    innovation r = z - h(x) (k,), Jacobian H = dh/d(dx) (k, m) in the layout's error state, noise R
+    (k, k). ``kind`` names the model (the strong tracking filter keeps one innovation covariance per
+    kind)."""
+
+    kind: str
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]: ...
+
+
+@dataclass
+class PositionMeasurement:
+    """Position in n, m, with 1-sigma ``std`` per axis."""
+
+    p_n: FloatArray
+    std: float
+    kind: str = "position"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        H = np.zeros((3, layout.dim))
+        H[:, layout.P] = np.eye(3)
+        return np.asarray(self.p_n, float) - x.p_n, H, np.eye(3) * self.std**2
+
+
+@dataclass
+class VelocityMeasurement:
+    """Velocity in n, m/s (zeros: a zero-velocity update), with 1-sigma ``std`` per axis."""
+
+    v_n: FloatArray
+    std: float
+    kind: str = "velocity"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        H = np.zeros((3, layout.dim))
+        H[:, layout.V] = np.eye(3)
+        return np.asarray(self.v_n, float) - x.v_n, H, np.eye(3) * self.std**2
+
+
+@dataclass
+class ZeroAngularRate:
+    """On a still base the mean raw rate (3,) over a block is the gyro bias (earth rate neglected)."""
+
+    gyro_mean: FloatArray
+    std: float
+    kind: str = "zaru"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        H = np.zeros((3, layout.dim))
+        H[:, layout.BG] = np.eye(3)
+        return np.asarray(self.gyro_mean, float) - x.gyro_bias, H, np.eye(3) * self.std**2
+
+
+@dataclass
+class UpdateResult:
+    """What an update did: accepted by the gate, its nis (normalised innovation squared), the innovation
+    r at the prior, the correction dx applied (zeros when rejected), and the iterations (1 for a plain
+    update)."""
+
+    accepted: bool
+    nis: float
+    r: FloatArray
+    dx: FloatArray
+    iterations: int = 1
+
+
+# ---------------------------------------------------------------------------------------------------
+# noise and the filter
+
+
+@dataclass
+class KfNoise:
+    """Continuous noise densities: accel (m/s^2/sqrt(Hz)), gyro (rad/s/sqrt(Hz)), bias random walks."""
+
+    accel: float = 3e-3
+    gyro: float = 2e-4
+    accel_bias_rw: float = 1e-4
+    gyro_bias_rw: float = 2e-5
+
+    def __post_init__(self) -> None:
+        for name in ("accel", "gyro", "accel_bias_rw", "gyro_bias_rw"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"noise '{name}' must be a positive number, got {v}")
+
+    @property
+    def q(self) -> FloatArray:
+        """[accel^2, gyro^2, accel_bias_rw^2, gyro_bias_rw^2] for :func:`propagate_covariance`."""
+        return np.array([self.accel**2, self.gyro**2, self.accel_bias_rw**2, self.gyro_bias_rw**2])
+
+    @classmethod
+    def from_kalibr_yaml(cls, path: str | Path) -> KfNoise:
+        """Read a Kalibr ``imu.yaml`` (as ``imuslam allan`` writes): the four noise fields."""
+        p = Path(path)
+        if not p.is_file():
+            raise InputError(f"{p}: no such noise file")
+        try:
+            d = yaml.safe_load(p.read_text())
+        except yaml.YAMLError as e:
+            raise InputError(f"{p}: not valid YAML ({e})") from None
+        keys = ("accelerometer_noise_density", "gyroscope_noise_density", "accelerometer_random_walk",
+                "gyroscope_random_walk")  # fmt: skip
+        vals = []
+        for k in keys:
+            v = d.get(k) if isinstance(d, dict) else None
+            if not isinstance(v, (int, float)) or isinstance(v, bool):
+                raise InputError(f"{p}: field '{k}' must be a number (Kalibr imu.yaml), got {v!r}")
+            vals.append(float(v))
+        try:
+            return cls(*vals)
+        except InputError as e:
+            raise InputError(f"{p}: {e}") from None
+
+    @classmethod
+    def from_log(cls, accel: FloatArray, gyro: FloatArray, rate_hz: float,
+                 floor: KfNoise | None = None) -> KfNoise:  # fmt: skip
+        """White-noise densities as the log shows them, vibration included, never below ``floor``.
+
+        The Allan variance at the shortest cluster time tau0 = 1 / rate is E[(x[k+1] - x[k])^2] / 2, and
+        for white noise of density N it equals N^2 / tau0 (IEEE Std 952-1997, annex C), so
+        N = std(diff x) / sqrt(2 rate). On a moving robot this sees the vibration that a bench Allan
+        analysis does not (EuRoC's MAV: 0.04-0.10 m/s^2/sqrt(Hz) against the ADIS16448's 0.002), plus the
+        signal's own change between samples, which is small at IMU rates. Axes are combined as RMS; the
+        random walks cannot be seen in a short log and come from ``floor``.
+        """
+        fl = floor or cls()
+        a = np.asarray(accel, float)
+        w = np.asarray(gyro, float)
+        if a.ndim != 2 or a.shape[1] != 3 or a.shape != w.shape or len(a) < 3:
+            raise InputError(
+                f"noise estimate needs (N >= 3, 3) accel and gyro, got {a.shape} and {w.shape}"
+            )
+        if not (np.isfinite(rate_hz) and rate_hz > 0):
+            raise InputError(f"noise estimate needs a positive sample rate, got {rate_hz}")
+
+        def density(x: FloatArray) -> float:
+            return float(np.sqrt(np.mean(np.var(np.diff(x, axis=0), axis=0)) / (2.0 * rate_hz)))
+
+        return cls(
+            max(density(a), fl.accel), max(density(w), fl.gyro), fl.accel_bias_rw, fl.gyro_bias_rw
+        )
+
+
+class Eskf:
+    """Error-state Kalman filter on :class:`InsState` with the layout's error state.
+
+    ``predict`` runs the propagation kernel over IMU samples and returns the per-sample states;
+    ``update`` takes a :class:`Measurement` (optionally chi-square gated); ``iterated_update`` is the
+    IEKF of FAST-LIO2. ``strong_tracking`` turns on the fading factor (STKF) in ``update``. A covariance
+    that is not positive definite, or a state that is not finite, raises :class:`FilterDivergence`
+    naming the sample.
+
+    The positional form ``Eskf(p, v, R, P)`` (15 x 15 or 18 x 18 P in the layout's order) is kept.
+    """
+
+    def __init__(
+        self,
+        p: FloatArray | InsState,
+        v: FloatArray | None = None,
+        R: FloatArray | None = None,
+        P: FloatArray | None = None,
+        ba: FloatArray | None = None,
+        bg: FloatArray | None = None,
+        noise: KfNoise | None = None,
+        g: float = 9.80665,
+        strong_tracking: bool = False,
+        rho: float = 0.95,
+        beta: float = 3.0,
+        max_fading: float = 5.0,
+        layout: ErrorLayout | None = None,
+    ) -> None:
+        if isinstance(p, InsState):
+            self.x = p.copy()
+        else:
+            if v is None or R is None:
+                raise InputError("Eskf needs p, v, R (or an InsState)")
+            self.x = InsState(np.array(p, float), np.array(v, float), np.array(R, float),
+                              np.zeros(3) if ba is None else np.array(ba, float),
+                              np.zeros(3) if bg is None else np.array(bg, float),
+                              np.array([0.0, 0.0, -g]))  # fmt: skip
+        if P is None:
+            raise InputError("Eskf needs an initial covariance P")
+        self.P = np.array(P, dtype=float)
+        if layout is None:
+            if self.P.shape[0] not in (15, 18):
+                raise InputError(
+                    f"covariance must be 15 x 15 (or 18 x 18 with gravity), got {self.P.shape}"
+                )
+            layout = ErrorLayout.full(gravity=self.P.shape[0] == 18)
+        if self.P.shape != (layout.dim, layout.dim):
+            raise InputError(
+                f"covariance {self.P.shape} does not fit the {layout.dim}-state layout"
+            )
+        self.layout = layout
+        self.noise = noise or KfNoise()
+        self.strong_tracking = strong_tracking
+        self.rho, self.beta, self.max_fading = rho, beta, max_fading
+        self.fading = 1.0
+        self.n_samples = 0
+        self._V: dict[str, FloatArray] = {}
+        self._Qsum = np.zeros_like(self.P)
+        self._t_s = 0.0
+
+    # the nominal state by its old names
+    @property
+    def p(self) -> FloatArray:
+        return self.x.p_n
+
+    @property
+    def v(self) -> FloatArray:
+        return self.x.v_n
+
+    @property
+    def R(self) -> FloatArray:
+        return self.x.R_n_b
+
+    @property
+    def ba(self) -> FloatArray:
+        return self.x.accel_bias
+
+    @property
+    def bg(self) -> FloatArray:
+        return self.x.gyro_bias
+
+    @property
+    def n(self) -> int:
+        return self.layout.dim
+
+    def predict(
+        self, accel: FloatArray, gyro: FloatArray, t_s: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Propagate over a block of samples (N, 3) at times t_s (N,) (the first sample ends the last
+        block). Returns the per-sample p (N, 3), v (N, 3), R_n_b (N, 3, 3) (e.g. to deskew a scan)."""
+        x = self.x
+        Ps, Vs, Rs, self.P, Qs = propagate(
+            np.ascontiguousarray(accel, float), np.ascontiguousarray(gyro, float),
+            np.diff(np.asarray(t_s, float)), x.p_n, x.v_n, np.ascontiguousarray(x.R_n_b),
+            x.accel_bias, x.gyro_bias, x.g_n, self.P, self.noise.q, self.layout.offsets,
+        )  # fmt: skip
+        x.p_n, x.v_n, x.R_n_b = Ps[-1].copy(), Vs[-1].copy(), Rs[-1].copy()
+        self._Qsum = self._Qsum + Qs
+        self.n_samples += len(t_s) - 1
+        self._t_s = float(t_s[-1])
+        self._check()
+        return Ps, Vs, Rs
+
+    def _apply(self, dx: FloatArray) -> None:
+        self.x = boxplus(self.x, dx, self.layout)
+
+    def update(self, meas: Measurement, gate_prob: float | None = None) -> UpdateResult:
+        """Linearise ``meas`` at the current state, gate it (when ``gate_prob``), and correct."""
+        r, H, Rm = meas.linearize(self.x, self.layout)
+        nis = float("nan")
+        if gate_prob is not None:
+            ok, nis = gate(r, H, Rm, self.P, gate_prob)
+            if not ok:
+                return UpdateResult(False, nis, r, np.zeros(self.n))
+        prev = self._V.get(meas.kind)
+        dx, self.P, V, self.fading = kalman_update(
+            self.P, self._Qsum, np.asarray(r, float), np.ascontiguousarray(H, float),
+            np.ascontiguousarray(Rm, float), self.strong_tracking,
+            prev if prev is not None else np.zeros((len(r), len(r))), prev is not None,
+            self.rho, self.beta, self.max_fading,
+        )  # fmt: skip
+        if self.strong_tracking:
+            self._V[meas.kind] = V
+        self._apply(dx)
+        self._Qsum = np.zeros_like(self.P)
+        self._check()
+        return UpdateResult(True, nis, r, dx)
+
+    def iterated_update(
+        self,
+        linearize_fn: Callable[[InsState], tuple[FloatArray, FloatArray, FloatArray]],
+        max_iter: int = 5,
+        eps: float = 1e-6,
+        gate_prob: float | None = None,
+    ) -> UpdateResult:
+        """IEKF update (FAST-LIO2, Xu et al. 2022, eqs. 18-20): at iterate x_j with
+        delta = x_j ⊟ x_prior, ``(r, H, R) = linearize_fn(x_j)``, K = (H^T R^-1 H + P^-1)^-1 H^T R^-1
+        (state dimension: cheap for thousands of point-to-plane rows), x_j+1 = x_j ⊞ (K r - (I - K H)
+        delta); stop when |x_j+1 ⊟ x_j| < eps or after ``max_iter``; then P = (I - K H) P. The Jacobian
+        of ⊟ at the prior is taken as identity (its attitude block differs from it by O(|dtheta|))."""
+        x0 = self.x
+        P0 = self.P
+        try:
+            Pinv = np.linalg.inv(P0)
+        except np.linalg.LinAlgError:
+            raise FilterDivergence(
+                f"filter diverged at sample {self.n_samples} (t = {self._t_s:.3f} s): prior covariance singular"
+            ) from None
+        xj = x0
+        r0 = np.zeros(0)
+        nis = float("nan")
+        m = self.n
+        K = np.zeros((m, 0))
+        H = np.zeros((0, m))
+        it = 0
+        for it in range(1, max_iter + 1):
+            r, H, Rm = linearize_fn(xj)
+            if it == 1:
+                r0 = r
+                if gate_prob is not None:
+                    ok, nis = gate(r, H, Rm, P0, gate_prob)
+                    if not ok:
+                        return UpdateResult(False, nis, r, np.zeros(m), 0)
+            delta = boxminus(xj, x0, self.layout)
+            Rinv_H = np.linalg.solve(Rm, H)  # R^-1 H
+            A = H.T @ Rinv_H + Pinv
+            K = np.linalg.solve(A, Rinv_H.T)  # (H^T R^-1 H + P^-1)^-1 H^T R^-1
+            step = K @ r - (np.eye(m) - K @ H) @ delta
+            xj = boxplus(xj, step, self.layout)
+            if not np.all(np.isfinite(step)):
+                break
+            if float(np.linalg.norm(step)) < eps:
+                break
+        self.x = xj
+        I_KH = np.eye(m) - K @ H
+        self.P = I_KH @ P0
+        self.P = 0.5 * (self.P + self.P.T)
+        self._Qsum = np.zeros_like(self.P)
+        self._check()
+        return UpdateResult(True, nis, r0, boxminus(xj, x0, self.layout), it)
+
+    # the alignment's measurements by name
+    def update_position(self, p_meas: FloatArray, std: float, t_s: float) -> FloatArray:
+        self._t_s = t_s
+        return self.update(PositionMeasurement(p_meas, std)).r
+
+    def update_velocity(self, v_meas: FloatArray, std: float, t_s: float) -> FloatArray:
+        self._t_s = t_s
+        return self.update(VelocityMeasurement(v_meas, std)).r
+
+    def update_zupt(self, std: float, t_s: float) -> FloatArray:
+        return self.update_velocity(np.zeros(3), std, t_s)
+
+    def update_zaru(self, gyro_mean: FloatArray, std: float, t_s: float) -> FloatArray:
+        """Zero angular rate update (see :class:`ZeroAngularRate`): without it the gyro bias along
+        gravity is unobservable on a still base and an EKF can still grow overconfident in it."""
+        self._t_s = t_s
+        return self.update(ZeroAngularRate(gyro_mean, std)).r
+
+    def _check(self) -> None:
+        x = self.x
+        ok = bool(np.isfinite(self.P).all() and np.isfinite(x.p_n).all() and np.isfinite(x.v_n).all()
+                  and np.isfinite(x.R_n_b).all())  # fmt: skip
+        if ok:
+            self.P = 0.5 * (self.P + self.P.T)
+            ok = is_pd(self.P + np.eye(self.n) * 1e-18)
+        if not ok:
+            raise FilterDivergence(
+                f"filter diverged at sample {self.n_samples} (t = {self._t_s:.3f} s): covariance not "
+                "positive definite or state not finite; check the noise settings and the aiding"
+            )
+
+    @property
+    def bias_std(self) -> tuple[FloatArray, FloatArray]:
+        d = np.sqrt(np.diag(self.P))
+        lay = self.layout
+        return d[lay.BA], d[lay.BG]
