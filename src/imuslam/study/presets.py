@@ -6,7 +6,7 @@ from typing import Any
 
 QUICK: dict[str, Any] = {
     "name": "quick",
-    "seeds": 6,
+    "seeds": 10,
     "align": {"duration_s": 60.0},
     "claims": [
         {

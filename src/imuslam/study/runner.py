@@ -78,13 +78,10 @@ def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
             client.close()
         return
     n = workers or os.cpu_count() or 1
-    # one worker = one core: numba and BLAS in each worker run single-threaded
-    env = {
-        k: "1"
-        for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-    }
+    # one worker = one core (dask sets OMP / BLAS threads to 1 in its workers; numba's threading layer
+    # reads NUMBA_NUM_THREADS at import, before a Nanny's env would apply, so it is left alone)
     with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                      silence_logs=logging.ERROR, env=env) as cluster, Client(cluster) as client:  # fmt: skip
+                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:  # fmt: skip
         yield client
 
 
