@@ -58,12 +58,3 @@ def register(app: typer.Typer) -> None:
             f"wrote {out}/report.html, report.md, results.parquet, results.csv, study.yaml"
         )
 
-
-def _self_register() -> None:
-    """Registered when ``imuslam.cli`` imports this module (one line there)."""
-    from imuslam.cli import app
-
-    register(app)
-
-
-_self_register()

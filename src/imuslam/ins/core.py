@@ -62,6 +62,7 @@ __all__ = [
     "UpdateResult",
     "VelocityMeasurement",
     "ZeroAngularRate",
+    "BlockMeasurement",
     "boxminus",
     "boxplus",
     "boxplus_attitude",
@@ -465,52 +466,47 @@ class Measurement(Protocol):
     ) -> tuple[FloatArray, FloatArray, FloatArray]: ...
 
 
-@dataclass
-class PositionMeasurement:
-    """Position in n, m, with 1-sigma ``std`` per axis."""
+_BLOCK_STATE = {"P": "p_n", "V": "v_n", "BA": "accel_bias", "BG": "gyro_bias", "G": "g_n"}
 
-    p_n: FloatArray
+
+@dataclass
+class BlockMeasurement:
+    """A direct measurement of one 3-vector block of the state (``block``: P, V, BA, BG or G) with
+    1-sigma ``std`` per axis: r = value - x_block, H = [0 .. I .. 0]."""
+
+    value: FloatArray
     std: float
-    kind: str = "position"
+    kind: str
+    block: str
 
     def linearize(
         self, x: InsState, layout: ErrorLayout
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         H = np.zeros((3, layout.dim))
-        H[:, layout.P] = np.eye(3)
-        return np.asarray(self.p_n, float) - x.p_n, H, np.eye(3) * self.std**2
+        H[:, getattr(layout, self.block)] = np.eye(3)
+        r = np.asarray(self.value, float) - getattr(x, _BLOCK_STATE[self.block])
+        return r, H, np.eye(3) * self.std**2
 
 
-@dataclass
-class VelocityMeasurement:
-    """Velocity in n, m/s (zeros: a zero-velocity update), with 1-sigma ``std`` per axis."""
+class PositionMeasurement(BlockMeasurement):
+    """Position in n, m."""
 
-    v_n: FloatArray
-    std: float
-    kind: str = "velocity"
-
-    def linearize(
-        self, x: InsState, layout: ErrorLayout
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        H = np.zeros((3, layout.dim))
-        H[:, layout.V] = np.eye(3)
-        return np.asarray(self.v_n, float) - x.v_n, H, np.eye(3) * self.std**2
+    def __init__(self, p_n: FloatArray, std: float) -> None:
+        super().__init__(p_n, std, "position", "P")
 
 
-@dataclass
-class ZeroAngularRate:
+class VelocityMeasurement(BlockMeasurement):
+    """Velocity in n, m/s (zeros: a zero-velocity update)."""
+
+    def __init__(self, v_n: FloatArray, std: float) -> None:
+        super().__init__(v_n, std, "velocity", "V")
+
+
+class ZeroAngularRate(BlockMeasurement):
     """On a still base the mean raw rate (3,) over a block is the gyro bias (earth rate neglected)."""
 
-    gyro_mean: FloatArray
-    std: float
-    kind: str = "zaru"
-
-    def linearize(
-        self, x: InsState, layout: ErrorLayout
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        H = np.zeros((3, layout.dim))
-        H[:, layout.BG] = np.eye(3)
-        return np.asarray(self.gyro_mean, float) - x.gyro_bias, H, np.eye(3) * self.std**2
+    def __init__(self, gyro_mean: FloatArray, std: float) -> None:
+        super().__init__(gyro_mean, std, "zaru", "BG")
 
 
 @dataclass

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -108,36 +108,12 @@ def read_euroc_state(path: str | Path) -> StateTruth:
 
 
 def read_bag_poses(path: str | Path, topic: str | None = None) -> Trajectory:
-    """``geometry_msgs/PoseStamped`` (or ``nav_msgs/Odometry``) messages of a ROS 1/2 bag, by header stamp."""
-    from imuslam.io.rosbag import _open
+    """``geometry_msgs/PoseStamped`` (or ``nav_msgs/Odometry``, ``PointStamped``) messages of a ROS 1/2
+    bag, by header stamp (:meth:`imuslam.io.bag.Bag.trajectory`)."""
+    from imuslam.io.bag import Bag
 
-    p = Path(path)
-    reader = _open(p)
-    types = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry")
-    try:
-        conns = [
-            c
-            for c in reader.connections
-            if c.msgtype in types and (topic is None or c.topic == topic)
-        ]
-        listing = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections)
-        if not conns or len({c.topic for c in conns}) > 1:
-            raise InputError(
-                f"{p}: name one pose topic (PoseStamped or Odometry); the bag has: {listing}"
-            )
-        t, pos, q = [], [], []
-        for c, _, raw in reader.messages(connections=conns):
-            m: Any = reader.deserialize(raw, c.msgtype)
-            pose = m.pose.pose if c.msgtype.endswith("Odometry") else m.pose
-            t.append(m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec)
-            pos.append((pose.position.x, pose.position.y, pose.position.z))
-            o = pose.orientation
-            q.append((o.w, o.x, o.y, o.z))
-    finally:
-        reader.close()
-    return Trajectory(
-        np.asarray(t), np.asarray(pos), quat_to_matrix(np.asarray(q)), f"{p}:{conns[0].topic}"
-    )
+    with Bag(path) as bag:
+        return bag.trajectory(topic)
 
 
 def read_trajectory(
