@@ -22,9 +22,8 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from imuslam.errors import InputError
-from imuslam.ins.strapdown import NavState, integrate
-from imuslam.io.imulog import ImuLog
-from imuslam.io.trajectory import Trajectory
+from imuslam.ins.strapdown import integrate
+from imuslam.interfaces import ImuLog, NavState, Trajectory
 from imuslam.sim.imu import ImuTruth
 from imuslam.sim.trajectory import EulerTrajectory
 from imuslam.sim.world import World

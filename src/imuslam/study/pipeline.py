@@ -24,8 +24,7 @@ from imuslam.geometry import log as so3_log
 from imuslam.imu.model import ImuCalibration
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.kf import KfNoise
-from imuslam.ins.strapdown import NavState
-from imuslam.io.trajectory import Trajectory
+from imuslam.interfaces import NavState, Trajectory
 from imuslam.sim.imu import simulate_imu
 from imuslam.sim.trajectory import (
     CarLoop,
