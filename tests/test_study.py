@@ -249,3 +249,30 @@ def test_run_study_rejects_bad_input_before_running(tmp_path: Path) -> None:
         from imuslam.study.config import load_study
 
         load_study(f)
+
+
+def _front_end(seed: int) -> int:
+    if seed == 1:
+        raise EstimatorError("frame 3: no features")
+    return 1000 + seed
+
+
+def test_shared_work_reaches_the_cells(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Work declared by ``prepare`` runs once per key and reaches each cell; its failure fails those cells."""
+    seen: list[int] = []
+
+    def run(inp: estimators.CellInput) -> estimators.Estimate:
+        assert inp.shared == 1000 + inp.cell.seed
+        seen.append(inp.shared)
+        return estimators.run_ins(inp)
+
+    entry = estimators.REGISTRY["ins"]
+    monkeypatch.setitem(estimators.REGISTRY, "ins", estimators.EstimatorEntry(
+        "ins", "", entry.options, entry.scenarios, run,
+        prepare=lambda c: (f"fe-{c.seed}", _front_end, (c.seed,))))  # fmt: skip
+    res = run_study(parse_study(small_study()), tmp_path, serial=True, progress=False)
+    assert sorted(seen) == [1000, 1000]
+    bad = res.table[res.table.status == "error"]
+    assert list(bad.seed) == [1, 1] and set(bad.error) == {
+        "EstimatorError: shared step failed (EstimatorError: frame 3: no features)"
+    }

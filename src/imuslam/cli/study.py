@@ -57,4 +57,3 @@ def register(app: typer.Typer) -> None:
         console.print(
             f"wrote {out}/report.html, report.md, results.parquet, results.csv, study.yaml"
         )
-

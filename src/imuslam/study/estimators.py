@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -58,6 +59,7 @@ class CellInput:
     init: NavState
     g: float
     rng: np.random.Generator
+    shared: Any = None
 
     def sensor_rng(self, sensor: str) -> np.random.Generator:
         """The scene's generator for ``sensor`` (the same for every level of a claim)."""
@@ -76,26 +78,39 @@ class NoOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+Prepare = Callable[[Cell], tuple[str, Callable[..., Any], tuple[Any, ...]] | None]
+
+
 @dataclass(frozen=True)
 class EstimatorEntry:
+    """An estimator: its adapter ``run``, options model, the scenes it runs on, and optionally
+    ``prepare(cell) -> (key, fn, args)``: work several cells share (e.g. a VO front end over the same
+    images for every filter variant), run once per key as a task of its own; ``fn(*args)`` arrives in
+    ``CellInput.shared``. ``missing`` says why an estimator without ``run`` is not available."""
+
     name: str
     doc: str
     options: type[BaseModel]
     scenarios: tuple[str, ...]
     run: Callable[[CellInput], Estimate] | None
     missing: str = ""
+    prepare: Prepare | None = None
 
 
 REGISTRY: dict[str, EstimatorEntry] = {}
 
 
 def register(
-    name: str, options: type[BaseModel], scenarios: tuple[str, ...], doc: str
+    name: str,
+    options: type[BaseModel],
+    scenarios: tuple[str, ...],
+    doc: str,
+    prepare: Prepare | None = None,
 ) -> Callable[[Callable[[CellInput], Estimate]], Callable[[CellInput], Estimate]]:
     """Decorator: make ``run`` the adapter of estimator ``name``."""
 
     def deco(run: Callable[[CellInput], Estimate]) -> Callable[[CellInput], Estimate]:
-        REGISTRY[name] = EstimatorEntry(name, doc, options, scenarios, run)
+        REGISTRY[name] = EstimatorEntry(name, doc, options, scenarios, run, prepare=prepare)
         return run
 
     return deco

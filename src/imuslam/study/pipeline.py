@@ -72,8 +72,26 @@ def calibration_task(drift: dict[str, Any], age_h: float, seed: int) -> ImuCalib
         return f"calibration failed: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
 
 
+def shared_need(cell: Cell) -> tuple[str, Any, tuple[Any, ...]] | None:
+    """(key, fn, args) of the estimator's shared work for this cell, or None."""
+    entry = get_estimator(cell.estimator.name)
+    return entry.prepare(cell) if entry.prepare is not None else None
+
+
+def shared_task(fn: Any, *args: Any) -> Any:
+    """Run shared work; an error becomes its line (a str), recorded by each cell that needed it."""
+    try:
+        return fn(*args)
+    except Exception as exc:
+        return SharedError(f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+
+
+class SharedError(str):
+    """The error line of failed shared work."""
+
+
 def _run(
-    cell: Cell, calibration: ImuCalibration | str | None
+    cell: Cell, calibration: ImuCalibration | str | None, shared: Any = None
 ) -> tuple[dict[str, float], dict[str, float]]:
     timings: dict[str, float] = {}
     clock = [time.perf_counter()]
@@ -85,6 +103,11 @@ def _run(
 
     entry = get_estimator(cell.estimator.name)
     assert entry.run is not None
+    if shared is None and entry.prepare is not None:
+        sh = entry.prepare(cell)
+        shared = None if sh is None else shared_task(sh[1], *sh[2])
+    if isinstance(shared, SharedError):
+        raise EstimatorError(f"shared step failed ({shared})")
     options = entry.options.model_validate(cell.estimator.options)
     traj, world, rate = scene(cell.scenario.name)
     a = cell.align
@@ -124,7 +147,7 @@ def _run(
     inp = CellInput(
         cell, options, traj, world, run_log, truth, k_start, float(t[k_start]), float(t[-1]),
         NavState(truth.p_w[k_start].copy(), truth.vel_w[k_start].copy(), R0), G,
-        np.random.default_rng(cell.estimator_seed()),
+        np.random.default_rng(cell.estimator_seed()), shared,
     )  # fmt: skip
     est = entry.run(inp)
     lap("estimate")
@@ -155,18 +178,18 @@ def _run(
 
 
 def run_cell(
-    cell: Cell | dict[str, Any], calibration: ImuCalibration | str | None = None
+    cell: Cell | dict[str, Any], calibration: ImuCalibration | str | None = None, shared: Any = None
 ) -> dict[str, Any]:
     """The row of one cell: its factors, key, status ('ok' or 'error' with the error's one line),
     metrics and stage timings (s). Never raises for a failure of the cell itself.
 
     calibration: the result of :func:`calibration_task` for :func:`calibration_need` (computed here when
-    not given)."""
+    not given); shared: the result of the estimator's shared work (:func:`shared_need`), likewise."""
     c = cell if isinstance(cell, Cell) else Cell.model_validate(cell)
     row: dict[str, Any] = {"key": c.key, **c.label, "status": "ok", "error": ""}
     t0 = time.perf_counter()
     try:
-        metrics, timings = _run(c, calibration)
+        metrics, timings = _run(c, calibration, shared)
     except Exception as exc:  # a failing cell is a result, not the end of the study
         msg = str(exc).splitlines()[0] if str(exc) else ""
         row.update(status="error", error=f"{type(exc).__name__}: {msg}"[:500])

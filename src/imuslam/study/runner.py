@@ -1,8 +1,9 @@
 """Running a study: serially, on an in-process Dask ``LocalCluster``, or on an existing Dask scheduler.
 
-The task graph: one calibration task per (age of the IMU errors, gimbal seed) and one task per distinct
-cell, which takes its calibration's result (so the cells of one seed share one calibration, wherever
-they run). Every cell is deterministic (seeded from hashes, ``cells.py``), so the numbers do not depend
+The task graph: one calibration task per (age of the IMU errors, gimbal seed), one task per piece of
+work an estimator's cells share (``EstimatorEntry.prepare``, e.g. a VO front end over the same images),
+and one task per distinct cell, which takes their results (so the cells of one seed share one
+calibration, wherever they run). Every cell is deterministic (seeded from hashes, ``cells.py``), so the numbers do not depend
 on where or in which order cells run: a Dask run equals a serial one. Each finished cell is written at
 once to ``OUT/cells/<key>.json``; a study run again into the same folder takes those and runs only the
 rest (resume after an interruption, or extend a study with more seeds). A failing cell is a row with
@@ -28,7 +29,13 @@ from imuslam.io.atomic import write_atomic
 from imuslam.study.cells import Cell, expand
 from imuslam.study.config import StudyConfig
 from imuslam.study.estimators import check_study
-from imuslam.study.pipeline import calibration_need, calibration_task, run_cell
+from imuslam.study.pipeline import (
+    calibration_need,
+    calibration_task,
+    run_cell,
+    shared_need,
+    shared_task,
+)
 
 log = logging.getLogger(__name__)
 
@@ -136,11 +143,17 @@ def execute(
         bar = tqdm(total=len(pending), unit="cell", desc="study", disable=not progress)
         backend = "serial"
         cals: dict[tuple[float, int], Any] = {}
+        shared: dict[str, Any] = {}
         for c in pending:
             need = calibration_need(c)
             if need is not None and need not in cals:
                 cals[need] = calibration_task(c.drift.model_dump(), *need)
-            rows[c.key] = run_cell(c, None if need is None else cals[need])
+            sh = shared_need(c)
+            if sh is not None and sh[0] not in shared:
+                shared.clear()  # keep one at a time: cells that share work are adjacent in the study
+                shared[sh[0]] = shared_task(sh[1], *sh[2])
+            rows[c.key] = run_cell(c, None if need is None else cals[need],
+                                   None if sh is None else shared[sh[0]])  # fmt: skip
             _store(out, c, rows[c.key])
             bar.update()
         bar.close()
@@ -152,6 +165,7 @@ def execute(
         backend = f"dask {scheduler if scheduler else 'LocalCluster'} ({n_workers} workers)"
         bar = tqdm(total=len(pending), unit="cell", desc="study", disable=not progress)
         cal_futures: dict[tuple[float, int], Any] = {}
+        shared_futures: dict[str, Any] = {}
         futures = {}
         for c in pending:
             need = calibration_need(c)
@@ -160,8 +174,14 @@ def execute(
                     calibration_task, c.drift.model_dump(), *need,
                     key=f"calibration-{need[1]:x}-{need[0]:g}h-{c.key}",
                 )  # fmt: skip
+            sh = shared_need(c)
+            if sh is not None and sh[0] not in shared_futures:
+                shared_futures[sh[0]] = client.submit(
+                    shared_task, sh[1], *sh[2], key=f"shared-{sh[0]}"
+                )
             fut = client.submit(run_cell, c.model_dump(mode="json"),
-                                None if need is None else cal_futures[need], key=f"cell-{c.key}")  # fmt: skip
+                                None if need is None else cal_futures[need],
+                                None if sh is None else shared_futures[sh[0]], key=f"cell-{c.key}")  # fmt: skip
             futures[fut] = c
         for fut in as_completed(list(futures)):
             c = futures[fut]
