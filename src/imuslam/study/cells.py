@@ -53,7 +53,7 @@ class Cell(BaseModel):
     @property
     def key(self) -> str:
         """Content hash (16 hex digits)."""
-        return _digest(self.content())
+        return digest(self.content())
 
     def world_seed(self) -> int:
         return _seed(
@@ -89,12 +89,12 @@ class Cell(BaseModel):
         }
 
 
-def _digest(d: Any) -> str:
+def digest(d: Any) -> str:
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def _seed(d: Any) -> int:
-    return int(_digest(d), 16) % (2**63)
+    return int(digest(d), 16) % (2**63)
 
 
 def expand(study: StudyConfig) -> list[Cell]:

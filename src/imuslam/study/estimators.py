@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,7 +28,7 @@ from imuslam.interfaces import ImuLog, NavState, Trajectory
 from imuslam.sim.imu import ImuTruth
 from imuslam.sim.trajectory import EulerTrajectory
 from imuslam.sim.world import World
-from imuslam.study.cells import Cell
+from imuslam.study.cells import Cell, digest
 from imuslam.study.config import NAV_SCENARIOS, StudyConfig
 
 FloatArray = NDArray[np.float64]
@@ -186,5 +186,87 @@ def run_ins(inp: CellInput) -> Estimate:
 
 # Estimators built elsewhere; their adapters join when their pipelines exist.
 planned("lio", "LiDAR-inertial odometry (imuslam.lio) has no pipeline in this build")
-planned("vio", "stereo VO + EKF (imuslam.vio) has no pipeline in this build")
 planned("map2d", "2D SLAM (imuslam.slam2d) has no pipeline in this build")
+
+
+# ---------------------------------------------------------------------------------------------
+# vio: stereo VO + EKF with non-holonomic constraints and gating (seed 004), imuslam.vio
+
+
+class VioOptions(BaseModel):
+    """Which track of ``imuslam.vio.pipeline.run_vio`` to score and how the filter runs. The images are
+    rendered by the simulator (``sim/render.py``) at ``image_hz``; VO outliers (``outlier_fraction`` of the
+    measurements corrupted, the same ones for every variant of a seed) give the gate work to do."""
+
+    model_config = ConfigDict(extra="forbid")
+    track: Literal["fused", "vo", "imu"] = "fused"
+    nhc: bool = False
+    gating: bool = True
+    outlier_fraction: float = Field(0.0, ge=0, lt=1)
+    image_hz: float = Field(10.0, gt=0, le=60)
+    config: dict[str, Any] = Field(
+        default_factory=dict, description="further VioConfig fields (imuslam.vio.pipeline)"
+    )
+
+
+def _vio_scene(cell: Cell, image_hz: float) -> Any:
+    """The simulator's stereo run over the cell's drive, frames over the estimation window only."""
+    from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
+    from imuslam.study.pipeline import scene
+
+    traj, world, _ = scene(cell.scenario.name)
+    t0 = cell.align.duration_s
+    total = t0 + cell.scenario.duration_s
+    data = SimStereoRun(
+        StereoRunConfig(
+            duration_s=total, image_hz=image_hz, seed=cell.world_seed() % (2**31), t0_ns=0
+        ),
+        traj,
+        world,
+    )
+    keep = (data.t_frames_ns >= int(round(t0 * 1e9))) & (
+        data.t_frames_ns <= int(round(total * 1e9))
+    )
+    data.t_frames_ns = data.t_frames_ns[keep]
+    return data
+
+
+def _vio_front_end(cell_d: dict[str, Any], image_hz: float, vo_cfg: dict[str, Any]) -> Any:
+    """The VO front end over the cell's images (shared by every filter variant of a seed)."""
+    from imuslam.vio.frontend import VoConfig
+    from imuslam.vio.pipeline import compute_vo
+
+    cell = Cell.model_validate(cell_d)
+    return compute_vo(_vio_scene(cell, image_hz), VoConfig.model_validate(vo_cfg))
+
+
+def _vio_prepare(cell: Cell) -> tuple[str, Callable[..., Any], tuple[Any, ...]]:
+    o = VioOptions.model_validate(cell.estimator.options)
+    vo_cfg = o.config.get("vo", {})
+    key = (
+        f"vo-{cell.world_seed():x}-{cell.scenario.name}-{cell.scenario.duration_s:g}-{o.image_hz:g}-"
+        + str(abs(hash(repr(sorted(vo_cfg.items())))))
+    )
+    # only what decides the images: the scene, the window, the seed (not the IMU, not the filter)
+    base = cell.model_copy(update={"imu": "ideal", "alignment": "none", "claim": ""})
+    return key, _vio_front_end, (base.model_dump(mode="json"), o.image_hz, vo_cfg)
+
+
+@register("vio", VioOptions, ("room", "handheld"), "stereo VO + EKF (NHC, gating)", _vio_prepare)
+def run_vio_cell(inp: CellInput) -> Estimate:
+    from imuslam.vio.pipeline import VioConfig, run_vio
+
+    o = inp.options
+    assert isinstance(o, VioOptions)
+    cfg = VioConfig.model_validate(
+        {**o.config, "nhc": o.nhc, "gate_prob": 0.999 if o.gating else None,
+         "outlier_fraction": o.outlier_fraction, "outlier_seed": inp.cell.world_seed() % (2**31)}
+    )  # fmt: skip
+    data = _vio_scene(inp.cell, o.image_hz)
+    data.imu = inp.imu
+    res = run_vio(data, cfg, vo_run=inp.shared)
+    track = {"fused": res.fused, "vo": res.vo, "imu": res.imu}[o.track]
+    extra: dict[str, float] = {}
+    for kind, st in res.gating.items():
+        extra[f"gate_rejected_{kind}"] = float(st.rejected)
+    return Estimate(Trajectory(track.t_ns, track.p_w, track.R_w_b, f"vio {o.track}"), extra)
