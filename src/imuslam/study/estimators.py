@@ -28,7 +28,7 @@ from imuslam.interfaces import ImuLog, NavState, Trajectory
 from imuslam.sim.imu import ImuTruth
 from imuslam.sim.trajectory import EulerTrajectory
 from imuslam.sim.world import World
-from imuslam.study.cells import Cell, digest
+from imuslam.study.cells import Cell
 from imuslam.study.config import NAV_SCENARIOS, StudyConfig
 
 FloatArray = NDArray[np.float64]
