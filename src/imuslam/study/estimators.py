@@ -184,11 +184,6 @@ def run_ins(inp: CellInput) -> Estimate:
     return Estimate(Trajectory(log.t_ns[idx], P[idx], R[idx], "ins"))
 
 
-# Estimators built elsewhere; their adapters join when their pipelines exist.
-planned("lio", "LiDAR-inertial odometry (imuslam.lio) has no pipeline in this build")
-planned("map2d", "2D SLAM (imuslam.slam2d) has no pipeline in this build")
-
-
 # ---------------------------------------------------------------------------------------------
 # vio: stereo VO + EKF with non-holonomic constraints and gating (seed 004), imuslam.vio
 
@@ -270,3 +265,75 @@ def run_vio_cell(inp: CellInput) -> Estimate:
     for kind, st in res.gating.items():
         extra[f"gate_rejected_{kind}"] = float(st.rejected)
     return Estimate(Trajectory(track.t_ns, track.p_w, track.R_w_b, f"vio {o.track}"), extra)
+
+
+# ---------------------------------------------------------------------------------------------
+# map2d: 2D SLAM with 2D LiDAR, wheel odometry and the IMU (seed 000), imuslam.slam2d
+
+
+class Map2dOptions(BaseModel):
+    """``imuslam.slam2d.slam.run_slam2d`` on the simulated robot (``sim/robot2d.py``: RPLIDAR-like scans
+    at 10 Hz, wheel encoders) with the cell's IMU; the map scored against the true walls
+    (``eval/mapquality.py``)."""
+
+    model_config = ConfigDict(extra="forbid")
+    use_imu: bool = True
+    use_odometry: bool = True
+    loop_closure: bool = True
+    config: dict[str, Any] = Field(
+        default_factory=dict, description="further Slam2dConfig fields (imuslam.slam2d.slam)"
+    )
+
+
+def run_map2d_cell(inp: CellInput) -> Estimate:
+    from imuslam.eval.mapquality import map_quality, occupied_centres
+    from imuslam.sim.robot2d import planar, simulate_robot2d, with_imu
+    from imuslam.slam2d.slam import Slam2dConfig, render_map, run_slam2d
+
+    o = inp.options
+    assert isinstance(o, Map2dOptions)
+    cfg = Slam2dConfig.model_validate(
+        {**o.config, "use_imu": o.use_imu, "use_odometry": o.use_odometry}
+    )
+    cfg.loop.enabled = o.loop_closure
+    # the robot's scans and wheels over the whole drive (the same for every level of a seed), then the
+    # estimation window with the cell's IMU
+    sim = simulate_robot2d(
+        inp.traj, inp.t_end_s, inp.sensor_rng("robot2d"), world=inp.world, t0_ns=0
+    )
+    k0 = int(np.searchsorted(sim.log.t_ns, int(round(inp.t_start_s * 1e9))))
+    log_ = with_imu(sim.log.slice(k0, len(sim.log)), inp.imu)
+    res = run_slam2d(log_, cfg)
+    truth = planar(inp.traj, log_.t_ns * 1e-9)
+
+    def occupied(poses_w: FloatArray) -> FloatArray:
+        g = render_map(log_, poses_w, cfg)
+        return occupied_centres(g.prob, g.known(), g.x0, g.y0, g.params.resolution)
+
+    q = map_quality(res.pose_xy_yaw, truth, occupied, inp.world, sim.scan_height)
+    P = res.pose_xy_yaw
+    c, s_ = np.cos(P[:, 2]), np.sin(P[:, 2])
+    R = np.zeros((len(P), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s_, s_, c, 1.0
+    p = np.column_stack([P[:, :2], np.full(len(P), inp.traj.state(np.zeros(1)).p_w[0, 2])])
+    extra = {"map_far_pct": 100 * q.frac_far, "map_wall_thickness_cm": 100 * q.wall_thickness_m,
+             "loop_error_m": q.loop_error_m, "loop_error_deg": q.loop_error_deg}  # fmt: skip
+    return Estimate(Trajectory(res.t_ns, p, R, "map2d"), extra)
+
+
+def _available(*modules: str) -> bool:
+    import importlib.util
+
+    try:
+        return all(importlib.util.find_spec(m) is not None for m in modules)
+    except ModuleNotFoundError:
+        return False
+
+
+if _available("imuslam.slam2d.slam", "imuslam.sim.robot2d", "imuslam.eval.mapquality"):
+    register("map2d", Map2dOptions, ("room", "corridor", "square"), "2D SLAM (scans, wheels, IMU)")(
+        run_map2d_cell
+    )
+else:
+    planned("map2d", "2D SLAM (imuslam.slam2d) has no pipeline in this build")
+planned("lio", "LiDAR-inertial odometry (imuslam.lio) has no pipeline in this build")
