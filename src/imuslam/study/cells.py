@@ -102,7 +102,7 @@ def expand(study: StudyConfig) -> list[Cell]:
     cells = []
     for c in study.claims:
         for sc, imu, al, est, seed in product(
-            c.scenarios, c.imu, c.alignment, c.estimators, study.seeds
+            c.scenarios, c.imu, c.alignment, c.estimators, c.seeds or study.seeds
         ):
             cells.append(
                 Cell(

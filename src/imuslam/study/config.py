@@ -97,7 +97,15 @@ class ClaimSpec(_Strict):
     )
     metric: str = "ape_rmse_m"
     lower_is_better: bool = True
+    seeds: list[int] | None = Field(
+        None, description="this claim's seeds (a count or a list); default: the study's"
+    )
     eval_align: Literal["se3", "sim3", "yaw", "first", "none"] = "se3"
+
+    @field_validator("seeds", mode="before")
+    @classmethod
+    def _seed_count(cls, v: Any) -> Any:
+        return list(range(v)) if isinstance(v, int) else v
 
     def levels(self) -> list[str]:
         if self.compare == "scenario":
