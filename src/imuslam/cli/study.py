@@ -30,6 +30,9 @@ def register(app: typer.Typer) -> None:
         quick: bool = typer.Option(False, "--quick", help="the built-in quick study (a few cells)"),
     ) -> None:
         """Run a study: cells on Dask, results.parquet/.csv, report.html per claim."""
+        import logging
+
+        logging.getLogger("numexpr").setLevel(logging.WARNING)
         from imuslam.errors import InputError
         from imuslam.study.config import load_study, parse_study
         from imuslam.study.presets import QUICK
