@@ -86,7 +86,9 @@ class EstimatorEntry:
     """An estimator: its adapter ``run``, options model, the scenes it runs on, and optionally
     ``prepare(cell) -> (key, fn, args)``: work several cells share (e.g. a VO front end over the same
     images for every filter variant), run once per key as a task of its own; ``fn(*args)`` arrives in
-    ``CellInput.shared``. ``missing`` says why an estimator without ``run`` is not available."""
+    ``CellInput.shared``. ``missing`` says why an estimator without ``run`` is not available.
+    ``own_alignment``: the estimator aligns itself (the cell's alignment method is its option, read from
+    ``inp.cell.alignment``); the study's fix-aided alignment window is then not run."""
 
     name: str
     doc: str
@@ -95,6 +97,7 @@ class EstimatorEntry:
     run: Callable[[CellInput], Estimate] | None
     missing: str = ""
     prepare: Prepare | None = None
+    own_alignment: bool = False
 
 
 REGISTRY: dict[str, EstimatorEntry] = {}
@@ -106,11 +109,13 @@ def register(
     scenarios: tuple[str, ...],
     doc: str,
     prepare: Prepare | None = None,
+    own_alignment: bool = False,
 ) -> Callable[[Callable[[CellInput], Estimate]], Callable[[CellInput], Estimate]]:
     """Decorator: make ``run`` the adapter of estimator ``name``."""
 
     def deco(run: Callable[[CellInput], Estimate]) -> Callable[[CellInput], Estimate]:
-        REGISTRY[name] = EstimatorEntry(name, doc, options, scenarios, run, prepare=prepare)
+        REGISTRY[name] = EstimatorEntry(name, doc, options, scenarios, run, prepare=prepare,
+                                        own_alignment=own_alignment)  # fmt: skip
         return run
 
     return deco

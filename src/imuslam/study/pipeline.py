@@ -130,7 +130,7 @@ def _run(
     fixes = traj.state(t_fix).p_w + rng_a.normal(size=(len(t_fix), 3)) * a.fix_std_m
     t = log.t_s
     k0 = int(np.searchsorted(t, a.duration_s))
-    if cell.alignment == "none":
+    if cell.alignment == "none" or entry.own_alignment:
         k_start, R0 = k0, so3_exp(att_err) @ truth.R_w_i[k0]
     else:
         init = NavState(truth.p_w[0], truth.vel_w[0], so3_exp(att_err) @ truth.R_w_i[0])
