@@ -549,6 +549,35 @@ def _check_log(log_: ImuLog) -> None:
                     )
 
 
+#: SI per unit: a calibrated scale K (SI per raw unit) of a log in one of these is near its value.
+_UNIT_SI = {"m/s^2": 1.0, "g": 9.80665, "rad/s": 1.0, "deg/s": np.pi / 180.0}
+
+
+def _check_units(K: FloatArray, sensor: str, unit: str, option: str, source: str) -> None:
+    """InputError when the fitted scale says the log is not in its declared unit: a gyro in deg/s
+    declared rad/s fits K = 0.0175 (pi/180), which would otherwise be reported as a scale error of
+    98 %. Low-cost MEMS scale errors are a few percent; [0.7, 1.4] x the unit's factor is accepted."""
+    if unit not in _UNIT_SI:
+        return  # raw counts: any scale
+    k = float(np.mean(K))
+    ratio = k / _UNIT_SI[unit]
+    if 0.7 <= ratio <= 1.4:
+        return
+    si, candidates = (
+        ("m/s^2", ("m/s^2", "g")) if sensor == "accelerometer" else ("rad/s", ("rad/s", "deg/s"))
+    )
+    like = [u for u in candidates if u != unit and 0.7 <= k / _UNIT_SI[u] <= 1.4]
+    hint = (
+        f"the data look like {like[0]} (give {option} {like[0]})"
+        if like
+        else (f"the data look like raw counts (give {option} counts)")
+    )
+    raise InputError(
+        f"{source}: the {sensor} scale came out {k:.4g} {si} per {unit}, {ratio:.3g} x the expected "
+        f"{_UNIT_SI[unit]:.4g}: the {sensor} is not in {unit}; {hint}"
+    )
+
+
 def _verdict(
     std_a: FloatArray, std_g: FloatArray, theta_a: FloatArray, theta_g: FloatArray, n_poses: int
 ) -> list[str]:
@@ -805,6 +834,8 @@ def calibrate(
     )[0]
     t_gyro = time.perf_counter()
 
+    _check_units(accel_model.K, "accelerometer", log_.accel_unit, "--accel-unit", log_.source)
+    _check_units(gyro_model.K, "gyro", log_.gyro_unit, "--gyro-unit", log_.source)
     std_a = np.sqrt(np.diag(cov_a))
     std_g = np.sqrt(np.diag(cov_g_full))[:9]
     poor = _verdict(std_a, std_g, theta_a, theta_g[:9], len(iv))
