@@ -20,9 +20,10 @@ def test_calibrate_xsens_writes_everything(shared_data: Path, tmp_path: Path) ->
     r = runner.invoke(
         app,
         ["calibrate", str(d / "xsens_acc.mat"), str(d / "xsens_gyro.mat"), "--g", "9.81744",
-         "--t-init", "50", "--bias-sign", "minus", "--out", str(out)],
+         "--t-init", "50", "--bias-sign", "minus", "--method", "tedaldi", "--out", str(out)],
     )  # fmt: skip
     assert r.exit_code == 0, r.output
+    assert "held out" in (out / "report.html").read_text()  # the cross-validation section
     for f in (
         "calibration.yaml",
         "acc.calib",
