@@ -25,7 +25,7 @@ def test_monte_carlo_errors_consistent_with_covariance() -> None:
     +-3 of those sigmas (99.7 %), widened by the 3 % a residual-estimated variance adds to the gyro NEES
     (69 degrees of freedom: 69 / 67).
     """
-    nees_a, nees_g = [], []
+    nees_a, nees_g, std_a, std_g = [], [], [], []
     for seed in range(N_RUNS):
         rng = np.random.default_rng(seed)
         sim = simulate_multipose(sphere_plan_deg(40, rng), rng)
@@ -36,11 +36,19 @@ def test_monte_carlo_errors_consistent_with_covariance() -> None:
         eg = c.gyro_params - TRUTH.gyro_params
         nees_a.append(ea @ np.linalg.solve(c.cov_accel, ea))
         nees_g.append(eg @ np.linalg.solve(c.cov_gyro, eg))
+        std_a.append(res.std_accel)
+        std_g.append(res.std_gyro)
         # Accuracy for BWT901CL-class noise (docs/calibration.md): angles and scales to ~1e-3, bias
         # to ~5e-3 m/s^2; 6 sigma of the reported std so a single run cannot fail by chance.
         assert np.all(np.abs(ea) < 6 * res.std_accel)
         assert np.all(np.abs(eg) < 6 * res.std_gyro)
     band = 3 * np.sqrt(2 * 9 / N_RUNS)
+    ma, mg = np.median(std_a, axis=0), np.median(std_g, axis=0)
+    print(f"mean NEES accel {np.mean(nees_a):.1f}, gyro {np.mean(nees_g):.1f} (band 9 +- {band:.1f}); "
+          f"median 1-sigma: accel angles {1e3 * ma[:3].min():.2f}-{1e3 * ma[:3].max():.2f} mrad, scales "
+          f"{ma[3:6].min():.1e}-{ma[3:6].max():.1e}, biases {ma[6:].min():.1e}-{ma[6:].max():.1e} m/s^2; "
+          f"gyro angles {1e3 * mg[:6].min():.2f}-{1e3 * mg[:6].max():.2f} mrad, scales "
+          f"{mg[6:].min():.1e}-{mg[6:].max():.1e}")  # fmt: skip
     assert abs(np.mean(nees_a) - 9) < band
     assert abs(np.mean(nees_g) - 9 * 69 / 67) < band
 
