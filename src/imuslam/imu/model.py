@@ -9,9 +9,10 @@ frame, so the accelerometer's T is upper triangular (3 angles) and the gyro's T 
          [ a_xz,   1,    -a_zx],
          [-a_xy,   a_yx,  1   ]]
 
-Parameter vectors (the order of the seed's eqs. 10 and 13):
-accelerometer ``[a_yz, a_zy, a_zx, s_x, s_y, s_z, b_x, b_y, b_z]``;
-gyroscope ``[g_yz, g_zy, g_xz, g_zx, g_xy, g_yx, s_x, s_y, s_z]`` (its bias is estimated apart).
+Parameter vectors: accelerometer ``[a_yz, a_zy, a_zx, s_x, s_y, s_z, b_x, b_y, b_z]``;
+gyroscope ``[g_yz, g_zy, g_zx, g_xz, g_xy, g_yx, s_x, s_y, s_z]`` (its bias is estimated apart), the order
+of :func:`misalignment_angles` and of the estimator's parameter vector. Seed 000's eq. 13 lists the gyro
+angles as yz, zy, xz, zx, xy, yx; the names here follow the values, so ``g_xz`` is always ``T[1, 0]``.
 """
 
 from __future__ import annotations
@@ -28,12 +29,13 @@ from numpy.typing import ArrayLike, NDArray
 from imuslam.errors import InputError
 from imuslam.interfaces.imu import ImuLog
 from imuslam.io.atomic import write_atomic
+from imuslam.io.text import read_text
 
 FloatArray = NDArray[np.float64]
 BiasSign = Literal["plus", "minus"]
 
 ACCEL_PARAM_NAMES = ("a_yz", "a_zy", "a_zx", "s_ax", "s_ay", "s_az", "b_ax", "b_ay", "b_az")
-GYRO_PARAM_NAMES = ("g_yz", "g_zy", "g_xz", "g_zx", "g_xy", "g_yx", "s_gx", "s_gy", "s_gz")
+GYRO_PARAM_NAMES = ("g_yz", "g_zy", "g_zx", "g_xz", "g_xy", "g_yx", "s_gx", "s_gy", "s_gz")
 GYRO_BIAS_NAMES = ("b_gx", "b_gy", "b_gz")
 
 
@@ -139,9 +141,7 @@ class TriadModel:
         """Read an imu_tk ``.calib`` file (21 numbers: T row-major, K row-major, B) as a ``minus`` model."""
         p = Path(path)
         try:
-            vals = np.array(p.read_text().split(), dtype=float)
-        except OSError as exc:
-            raise InputError(f"{p}: cannot read: {exc}") from exc
+            vals = np.array(read_text(p).split(), dtype=float)
         except ValueError as exc:
             raise InputError(f"{p}: not an imu_tk .calib file (non-numeric token): {exc}") from exc
         if vals.size != 21:
@@ -161,6 +161,9 @@ class ImuCalibration:
     cov_accel: (9, 9) covariance of the accelerometer parameters (order ``ACCEL_PARAM_NAMES``).
     cov_gyro: (9, 9) covariance of the gyro parameters (order ``GYRO_PARAM_NAMES``).
     cov_gyro_bias: (3, 3) covariance of the gyro bias, raw units squared.
+    gyro_g_sensitivity: (3, 3) G, the gyro's response to specific force, rad/s per m/s^2 (None: none):
+        ``omega = T K (x_S ± b) - G f`` with ``f`` the calibrated specific force of the same sample. A MEMS
+        gyro's bias moves with the orientation in gravity (the xsens log: about 0.1 deg/s per g).
     accel_unit / gyro_unit: units of the raw input the model applies to; the output is m/s^2, rad/s.
     """
 
@@ -178,14 +181,27 @@ class ImuCalibration:
     )
     source: str = ""
     notes: dict[str, Any] = field(default_factory=dict)
+    gyro_g_sensitivity: FloatArray | None = None
 
     def correct_accel(self, accel_s: ArrayLike) -> FloatArray:
         """accel_s: (N, 3) raw accelerometer samples -> (N, 3) body-frame specific force, m/s^2."""
         return self.accel.apply(accel_s)
 
-    def correct_gyro(self, gyro_s: ArrayLike) -> FloatArray:
-        """gyro_s: (N, 3) raw gyro samples -> (N, 3) body-frame angular rate, rad/s."""
-        return self.gyro.apply(gyro_s)
+    def correct_gyro(self, gyro_s: ArrayLike, accel_s: ArrayLike | None = None) -> FloatArray:
+        """gyro_s: (N, 3) raw gyro samples -> (N, 3) body-frame angular rate, rad/s.
+
+        accel_s: (N, 3) raw accelerometer samples of the same instants; needed when the calibration has a
+        g-sensitivity term.
+        """
+        w = self.gyro.apply(gyro_s)
+        if self.gyro_g_sensitivity is None:
+            return w
+        if accel_s is None:
+            raise InputError(
+                "this calibration has a gyro g-sensitivity: correcting the gyro needs the accelerometer "
+                "samples of the same instants"
+            )
+        return w - self.correct_accel(accel_s) @ self.gyro_g_sensitivity.T
 
     def correct(self, log: ImuLog) -> ImuLog:
         """The corrected log in SI units (m/s^2, rad/s), body frame."""
@@ -197,13 +213,35 @@ class ImuCalibration:
         out = ImuLog(
             log.t_ns.copy(),
             self.correct_accel(log.accel),
-            self.correct_gyro(log.gyro),
+            self.correct_gyro(log.gyro, log.accel),
             "m/s^2",
             "rad/s",
             log.source,
             list(log.warnings),
         )
         return out
+
+    def check_magnitudes(self, corrected: ImuLog, max_rate_rad_s: float = 35.0) -> None:
+        """InputError when a corrected log cannot be what the calibration was made for: the median
+        |accel| of any log of a robot on earth is near g (still, driving or walking), and no MEMS gyro
+        measures over 2000 deg/s (35 rad/s). Either failing means the log's units differ from the
+        calibration's (``units.accel_in`` / ``gyro_in``)."""
+        if len(corrected) == 0:
+            return
+        na = float(np.median(np.linalg.norm(corrected.accel, axis=1)))
+        if not 0.5 * self.g <= na <= 2.0 * self.g:
+            raise InputError(
+                f"{corrected.source}: corrected, the accelerations have a median magnitude of {na:.4g} "
+                f"m/s^2 where gravity is {self.g:g}: the log is not in the calibration's accelerometer "
+                f"unit ({self.accel_unit}); check --accel-unit and the calibration's units.accel_in"
+            )
+        ng = float(np.quantile(np.linalg.norm(corrected.gyro, axis=1), 0.99))
+        if not ng <= max_rate_rad_s:
+            raise InputError(
+                f"{corrected.source}: corrected, 1 % of the angular rates exceed {ng:.4g} rad/s (over "
+                f"{np.rad2deg(max_rate_rad_s):.0f} deg/s): the log is not in the calibration's gyro unit "
+                f"({self.gyro_unit}); check --gyro-unit and the calibration's units.gyro_in"
+            )
 
     @property
     def accel_params(self) -> FloatArray:
@@ -242,6 +280,7 @@ class ImuCalibration:
             "gyro_params": self.gyro_params.tolist(),
             "cov_gyro": cov(self.cov_gyro),
             "cov_gyro_bias": cov(self.cov_gyro_bias),
+            "gyro_g_sensitivity": cov(self.gyro_g_sensitivity),
             "notes": self.notes,
         }
 
@@ -254,9 +293,7 @@ class ImuCalibration:
         """Read a calibration written by :meth:`save_yaml`; a bad field is an InputError naming it."""
         p = Path(path)
         try:
-            d = yaml.safe_load(p.read_text())
-        except OSError as exc:
-            raise InputError(f"{p}: cannot read: {exc}") from exc
+            d = yaml.safe_load(read_text(p))
         except yaml.YAMLError as exc:
             raise InputError(f"{p}: not valid YAML: {exc}") from exc
         if not isinstance(d, dict) or "accel" not in d or "gyro" not in d:
@@ -268,29 +305,59 @@ class ImuCalibration:
             v = d.get(key)
             if v is None:
                 return None
-            c = np.asarray(v, dtype=float)
+            try:
+                c = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                raise InputError(
+                    f"{p}: field '{key}' must be a {n}x{n} matrix of numbers"
+                ) from None
             if c.shape != (n, n):
                 raise InputError(f"{p}: field '{key}' must be {n}x{n}, got {c.shape}")
             return c
 
-        units = d.get("units") or {}
+        def mapping(key: str, value: Any) -> dict[str, Any]:
+            if not isinstance(value, dict):
+                raise InputError(
+                    f"{p}: field '{key}' must be a mapping, got {type(value).__name__} {value!r:.40}"
+                )
+            return value
+
+        units = mapping("units", {} if d.get("units") is None else d["units"])
+        unit_in: dict[str, str] = {}
+        for key, allowed, default in (
+            ("accel_in", ("m/s^2", "g", "counts"), "m/s^2"),
+            ("gyro_in", ("rad/s", "deg/s", "counts"), "rad/s"),
+        ):
+            u = units.get(key, default)
+            if u not in allowed:
+                raise InputError(
+                    f"{p}: field 'units.{key}' is {u!r}; expected one of {', '.join(allowed)}"
+                )
+            unit_in[key] = u
+        g = d.get("g", 9.80665)
+        if isinstance(g, bool) or not isinstance(g, int | float) or not 9.7 <= g <= 9.9:
+            raise InputError(
+                f"{p}: field 'g' is {g!r}; expected a gravity magnitude in [9.7, 9.9] m/s^2"
+            )
         return cls(
-            accel=TriadModel.from_dict(d["accel"], f"{p}: field 'accel'"),
-            gyro=TriadModel.from_dict(d["gyro"], f"{p}: field 'gyro'"),
+            accel=TriadModel.from_dict(mapping("accel", d["accel"]), f"{p}: field 'accel'"),
+            gyro=TriadModel.from_dict(mapping("gyro", d["gyro"]), f"{p}: field 'gyro'"),
             cov_accel=cov("cov_accel", 9),
             cov_gyro=cov("cov_gyro", 9),
             cov_gyro_bias=cov("cov_gyro_bias", 3),
-            accel_unit=str(units.get("accel_in", "m/s^2")),
-            gyro_unit=str(units.get("gyro_in", "rad/s")),
-            g=float(d.get("g", 9.80665)),
+            accel_unit=unit_in["accel_in"],
+            gyro_unit=unit_in["gyro_in"],
+            g=float(g),
             sensor_id=str(d.get("sensor_id", "")),
             date=str(d.get("date", "")),
             source=str(d.get("source", "")),
-            notes=dict(d.get("notes") or {}),
+            notes=mapping("notes", {} if d.get("notes") is None else d["notes"]),
+            gyro_g_sensitivity=cov("gyro_g_sensitivity", 3),
         )
 
     def export_imutk(self, acc_path: str | Path, gyro_path: str | Path) -> None:
-        """Write imu_tk ``.calib`` files for the accelerometer and the gyroscope."""
+        """Write imu_tk ``.calib`` files for the accelerometer and the gyroscope (imu_tk's model has no
+        g-sensitivity term: it is left out)."""
         self.accel.save_imutk(acc_path)
         self.gyro.save_imutk(gyro_path)
 

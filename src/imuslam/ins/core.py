@@ -62,6 +62,7 @@ __all__ = [
     "UpdateResult",
     "VelocityMeasurement",
     "ZeroAngularRate",
+    "BlockMeasurement",
     "boxminus",
     "boxplus",
     "boxplus_attitude",
@@ -465,52 +466,47 @@ class Measurement(Protocol):
     ) -> tuple[FloatArray, FloatArray, FloatArray]: ...
 
 
-@dataclass
-class PositionMeasurement:
-    """Position in n, m, with 1-sigma ``std`` per axis."""
+_BLOCK_STATE = {"P": "p_n", "V": "v_n", "BA": "accel_bias", "BG": "gyro_bias", "G": "g_n"}
 
-    p_n: FloatArray
+
+@dataclass
+class BlockMeasurement:
+    """A direct measurement of one 3-vector block of the state (``block``: P, V, BA, BG or G) with
+    1-sigma ``std`` per axis: r = value - x_block, H = [0 .. I .. 0]."""
+
+    value: FloatArray
     std: float
-    kind: str = "position"
+    kind: str
+    block: str
 
     def linearize(
         self, x: InsState, layout: ErrorLayout
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         H = np.zeros((3, layout.dim))
-        H[:, layout.P] = np.eye(3)
-        return np.asarray(self.p_n, float) - x.p_n, H, np.eye(3) * self.std**2
+        H[:, getattr(layout, self.block)] = np.eye(3)
+        r = np.asarray(self.value, float) - getattr(x, _BLOCK_STATE[self.block])
+        return r, H, np.eye(3) * self.std**2
 
 
-@dataclass
-class VelocityMeasurement:
-    """Velocity in n, m/s (zeros: a zero-velocity update), with 1-sigma ``std`` per axis."""
+class PositionMeasurement(BlockMeasurement):
+    """Position in n, m."""
 
-    v_n: FloatArray
-    std: float
-    kind: str = "velocity"
-
-    def linearize(
-        self, x: InsState, layout: ErrorLayout
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        H = np.zeros((3, layout.dim))
-        H[:, layout.V] = np.eye(3)
-        return np.asarray(self.v_n, float) - x.v_n, H, np.eye(3) * self.std**2
+    def __init__(self, p_n: FloatArray, std: float) -> None:
+        super().__init__(p_n, std, "position", "P")
 
 
-@dataclass
-class ZeroAngularRate:
+class VelocityMeasurement(BlockMeasurement):
+    """Velocity in n, m/s (zeros: a zero-velocity update)."""
+
+    def __init__(self, v_n: FloatArray, std: float) -> None:
+        super().__init__(v_n, std, "velocity", "V")
+
+
+class ZeroAngularRate(BlockMeasurement):
     """On a still base the mean raw rate (3,) over a block is the gyro bias (earth rate neglected)."""
 
-    gyro_mean: FloatArray
-    std: float
-    kind: str = "zaru"
-
-    def linearize(
-        self, x: InsState, layout: ErrorLayout
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        H = np.zeros((3, layout.dim))
-        H[:, layout.BG] = np.eye(3)
-        return np.asarray(self.gyro_mean, float) - x.gyro_bias, H, np.eye(3) * self.std**2
+    def __init__(self, gyro_mean: FloatArray, std: float) -> None:
+        super().__init__(gyro_mean, std, "zaru", "BG")
 
 
 @dataclass
@@ -742,7 +738,9 @@ class Eskf:
         delta = x_j ⊟ x_prior, ``(r, H, R) = linearize_fn(x_j)``, K = (H^T R^-1 H + P^-1)^-1 H^T R^-1
         (state dimension: cheap for thousands of point-to-plane rows), x_j+1 = x_j ⊞ (K r - (I - K H)
         delta); stop when |x_j+1 ⊟ x_j| < eps or after ``max_iter``; then P = (I - K H) P. The Jacobian
-        of ⊟ at the prior is taken as identity (its attitude block differs from it by O(|dtheta|))."""
+        of ⊟ at the prior is taken as identity (its attitude block differs from it by O(|dtheta|)).
+        ``linearize_fn`` may return R as a 1-D array of variances (a diagonal R), which keeps the cost
+        linear in the number of rows; gating needs the full matrix."""
         x0 = self.x
         P0 = self.P
         try:
@@ -755,8 +753,7 @@ class Eskf:
         r0 = np.zeros(0)
         nis = float("nan")
         m = self.n
-        K = np.zeros((m, 0))
-        H = np.zeros((0, m))
+        KH: FloatArray = np.zeros((m, m))
         it = 0
         for it in range(1, max_iter + 1):
             r, H, Rm = linearize_fn(xj)
@@ -767,18 +764,20 @@ class Eskf:
                     if not ok:
                         return UpdateResult(False, nis, r, np.zeros(m), 0)
             delta = boxminus(xj, x0, self.layout)
-            Rinv_H = np.linalg.solve(Rm, H)  # R^-1 H
-            A = H.T @ Rinv_H + Pinv
-            K = np.linalg.solve(A, Rinv_H.T)  # (H^T R^-1 H + P^-1)^-1 H^T R^-1
-            step = K @ r - (np.eye(m) - K @ H) @ delta
+            # R^-1 H; a 1-D R is the diagonal (independent rows: thousands of point-to-plane residuals)
+            Rinv_H = H / Rm[:, None] if np.ndim(Rm) == 1 else np.linalg.solve(Rm, H)
+            HtRH = H.T @ Rinv_H
+            A = HtRH + Pinv
+            # K = A^-1 H^T R^-1 never formed (m x k): only K H and K r are needed
+            KH = np.asarray(np.linalg.solve(A, HtRH), dtype=np.float64)
+            step = np.linalg.solve(A, Rinv_H.T @ r) - (np.eye(m) - KH) @ delta
             xj = boxplus(xj, step, self.layout)
             if not np.all(np.isfinite(step)):
                 break
             if float(np.linalg.norm(step)) < eps:
                 break
         self.x = xj
-        I_KH = np.eye(m) - K @ H
-        self.P = I_KH @ P0
+        self.P = (np.eye(m) - KH) @ P0
         self.P = 0.5 * (self.P + self.P.T)
         self._Qsum = np.zeros_like(self.P)
         self._check()
