@@ -341,4 +341,94 @@ if _available("imuslam.slam2d.slam", "imuslam.sim.robot2d", "imuslam.eval.mapqua
     )
 else:
     planned("map2d", "2D SLAM (imuslam.slam2d) has no pipeline in this build")
-planned("lio", "LiDAR-inertial odometry (imuslam.lio) has no pipeline in this build")
+
+
+# ---------------------------------------------------------------------------------------------
+# lio: LiDAR-inertial odometry with its own INS alignment (seed 001), imuslam.lio
+
+LIDAR_P_B_L = {"street": (0.0, 0.0, 0.2), "corridor": (0.0, 0.0, 0.6)}  # the LiDAR above the IMU, m
+
+
+class LioOptions(BaseModel):
+    """``imuslam.lio.pipeline.LioPipeline`` on a simulated VLP-16 (``columns`` per turn at 10 Hz) with
+    the cell's IMU. The cell's alignment method is the LIO's own (``LioConfig.align``: over the first
+    ``align_seconds`` of the run, aided by the LiDAR-only poses), as in seed 001's system."""
+
+    model_config = ConfigDict(extra="forbid")
+    state: Literal["reduced", "full"] = "full"
+    use_imu: bool = True
+    align_seconds: float = Field(5.0, gt=0)
+    columns: int = Field(
+        900, ge=90, description="LiDAR columns per turn (1800: a VLP-16 at 0.2 deg)"
+    )
+    config: dict[str, Any] = Field(
+        default_factory=dict, description="further LioConfig fields (imuslam.lio.config)"
+    )
+
+
+def _lio_scans(cell_d: dict[str, Any], columns: int) -> list[Any]:
+    """The LiDAR scans over the cell's estimation window (shared by every IMU and alignment level)."""
+    from imuslam.sim.lidar import Lidar3dConfig, simulate_lidar3d_scan
+    from imuslam.study.pipeline import scene
+
+    cell = Cell.model_validate(cell_d)
+    traj, world, _ = scene(cell.scenario.name)
+    p_b_l = np.asarray(LIDAR_P_B_L[cell.scenario.name])
+
+    def pose_w_l(t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        st = traj.state(t)
+        return st.R_w_b, st.p_w + st.R_w_b @ p_b_l
+
+    cfg = Lidar3dConfig(columns=columns)
+    rng = cell.world_rng("lidar3d")
+    t0, t1 = cell.align.duration_s, cell.align.duration_s + cell.scenario.duration_s
+    ks = np.arange(int(np.ceil(t0 * cfg.rate_hz - 1e-9)), int(np.floor(t1 * cfg.rate_hz + 1e-9)))
+    return [simulate_lidar3d_scan(world, pose_w_l, k / cfg.rate_hz, cfg, rng) for k in ks[:-1]]
+
+
+def _lio_prepare(cell: Cell) -> tuple[str, Callable[..., Any], tuple[Any, ...]]:
+    o = LioOptions.model_validate(cell.estimator.options)
+    base = cell.model_copy(update={"imu": "ideal", "alignment": "none", "claim": ""})
+    return "lidar-" + digest([base.world_seed(), o.columns]), _lio_scans, (
+        base.model_dump(mode="json"), o.columns)  # fmt: skip
+
+
+@dataclass
+class _LidarRun:
+    name: str
+    scans: list[Any]
+    log: ImuLog
+
+    def lidar_scans(self) -> Any:
+        return iter(self.scans)
+
+    def imu(self) -> ImuLog:
+        return self.log
+
+    def __len__(self) -> int:
+        return len(self.scans)
+
+
+def run_lio_cell(inp: CellInput) -> Estimate:
+    from imuslam.lio.config import LioConfig
+    from imuslam.lio.pipeline import LioPipeline
+
+    o = inp.options
+    assert isinstance(o, LioOptions)
+    c = dict(o.config)
+    c["extrinsic"] = {**c.get("extrinsic", {}), "p_i_l": LIDAR_P_B_L[inp.cell.scenario.name]}
+    c["filter"] = {**c.get("filter", {}), "state": o.state}
+    c.update(align=inp.cell.alignment, align_seconds=o.align_seconds, use_imu=o.use_imu)
+    cfg = LioConfig.model_validate(c)
+    res = LioPipeline(_LidarRun("sim", inp.shared, inp.imu), cfg, imu=inp.imu, progress=False).run()
+    tr = res.trajectory
+    return Estimate(
+        Trajectory(tr.t_ns, tr.p_w, tr.R_w_b, "lio"), {"lio_scans_per_s": res.scans_per_s}
+    )
+
+
+if _available("imuslam.lio.pipeline", "imuslam.lio.estimator"):
+    register("lio", LioOptions, ("street", "corridor"), "LiDAR-inertial odometry", _lio_prepare,
+             own_alignment=True)(run_lio_cell)  # fmt: skip
+else:
+    planned("lio", "LiDAR-inertial odometry (imuslam.lio) has no pipeline in this build")
