@@ -21,7 +21,9 @@ from imuslam.study.presets import QUICK
 from imuslam.study.runner import run_study
 
 
-def timed(workers: int | None, serial: bool = False) -> tuple[float, int, tuple[float, float, float]]:
+def timed(
+    workers: int | None, serial: bool = False
+) -> tuple[float, int, tuple[float, float, float]]:
     study = parse_study(QUICK, "--quick")
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()
@@ -32,17 +34,31 @@ def timed(workers: int | None, serial: bool = False) -> tuple[float, int, tuple[
 
 def main() -> None:
     repeats = int(sys.argv[1]) if len(sys.argv) > 1 else 1
-    table = Table(title=f"imuslam study --quick, wall time (best of {repeats}); {os.cpu_count()} cores")
-    for c in ("backend", "cells", "wall [s]", "speed-up vs 1 worker", "load average (1, 5, 15 min) after"):
+    table = Table(
+        title=f"imuslam study --quick, wall time (best of {repeats}); {os.cpu_count()} cores"
+    )
+    for c in (
+        "backend",
+        "cells",
+        "wall [s]",
+        "speed-up vs 1 worker",
+        "load average (1, 5, 15 min) after",
+    ):
         table.add_column(c, justify="right")
     timed(None, serial=True)  # warm the numba cache on disk, so no run pays the compilation
     runs: dict[str, tuple[float, int, tuple[float, float, float]]] = {}
-    for name, workers, serial in (("1 worker", 1, False), ("2 workers", 2, False), ("serial, in-process", None, True)):
+    for name, workers, serial in (
+        ("1 worker", 1, False),
+        ("2 workers", 2, False),
+        ("serial, in-process", None, True),
+    ):
         best = min((timed(workers, serial) for _ in range(repeats)), key=lambda r: r[0])
         runs[name] = best
     base = runs["1 worker"][0]
     for name, (dt, n, load) in runs.items():
-        table.add_row(name, str(n), f"{dt:.1f}", f"{base / dt:.2f}x", ", ".join(f"{x:.1f}" for x in load))
+        table.add_row(
+            name, str(n), f"{dt:.1f}", f"{base / dt:.2f}x", ", ".join(f"{x:.1f}" for x in load)
+        )
     Console(width=160).print(table)
 
 

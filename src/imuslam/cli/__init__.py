@@ -42,6 +42,8 @@ for _m in (_calibrate, _correct, _allan, _align, _evaluate, _simulate, _online, 
 __import__("imuslam.cli.score", fromlist=["register"]).register(app)
 __import__("imuslam.cli.study", fromlist=["register"]).register(app)
 __import__("imuslam.cli.vio", fromlist=["register"]).register(app)
+__import__("imuslam.cli.map2d", fromlist=["register"]).register(app)
+__import__("imuslam.cli.lio", fromlist=["register"]).register(app)
 
 
 def main() -> None:
