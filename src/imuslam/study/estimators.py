@@ -28,7 +28,7 @@ from imuslam.interfaces import ImuLog, NavState, Trajectory
 from imuslam.sim.imu import ImuTruth
 from imuslam.sim.trajectory import EulerTrajectory
 from imuslam.sim.world import World
-from imuslam.study.cells import Cell
+from imuslam.study.cells import Cell, digest
 from imuslam.study.config import NAV_SCENARIOS, StudyConfig
 
 FloatArray = NDArray[np.float64]
@@ -243,12 +243,9 @@ def _vio_front_end(cell_d: dict[str, Any], image_hz: float, vo_cfg: dict[str, An
 def _vio_prepare(cell: Cell) -> tuple[str, Callable[..., Any], tuple[Any, ...]]:
     o = VioOptions.model_validate(cell.estimator.options)
     vo_cfg = o.config.get("vo", {})
-    key = (
-        f"vo-{cell.world_seed():x}-{cell.scenario.name}-{cell.scenario.duration_s:g}-{o.image_hz:g}-"
-        + str(abs(hash(repr(sorted(vo_cfg.items())))))
-    )
     # only what decides the images: the scene, the window, the seed (not the IMU, not the filter)
     base = cell.model_copy(update={"imu": "ideal", "alignment": "none", "claim": ""})
+    key = "vo-" + digest([base.world_seed(), o.image_hz, vo_cfg])
     return key, _vio_front_end, (base.model_dump(mode="json"), o.image_hz, vo_cfg)
 
 
@@ -309,11 +306,13 @@ def run_map2d_cell(inp: CellInput) -> Estimate:
     k0 = int(np.searchsorted(sim.log.t_ns, int(round(inp.t_start_s * 1e9))))
     log_ = with_imu(sim.log.slice(k0, len(sim.log)), inp.imu)
     res = run_slam2d(log_, cfg)
-    truth = planar(inp.traj, log_.t_ns * 1e-9)
+    truth = planar(inp.traj, log_.t_ns.astype(np.float64) * 1e-9)
 
     def occupied(poses_w: FloatArray) -> FloatArray:
         g = render_map(log_, poses_w, cfg)
-        return occupied_centres(g.prob, g.known(), g.x0, g.y0, g.params.resolution)
+        return occupied_centres(
+            g.prob.astype(np.float64), g.known(), g.x0, g.y0, g.params.resolution
+        )
 
     q = map_quality(res.pose_xy_yaw, truth, occupied, inp.world, sim.scan_height)
     P = res.pose_xy_yaw
