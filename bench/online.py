@@ -12,7 +12,6 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from imuslam.imu.calibrate import CalibrationConfig
 from imuslam.imu.online import OnlineCalibrator, OnlineConfig
 from imuslam.sim.multipose import GimbalImuStream, sphere_plan_deg
 
@@ -20,8 +19,8 @@ from imuslam.sim.multipose import GimbalImuStream, sphere_plan_deg
 def main() -> None:
     rng = np.random.default_rng(0)
     stream = GimbalImuStream(rng)
-    cfg = OnlineConfig(calibration=CalibrationConfig(t_init_s=20.0))
-    cal = OnlineCalibrator(sphere_plan_deg(24), stream.command, cfg)
+    cfg = OnlineConfig()  # seed 000: T_init 50 s
+    cal = OnlineCalibrator(sphere_plan_deg(40), stream.command, cfg)
     cal.start_session(0)
     t_step = 0.0
     n_step = 0

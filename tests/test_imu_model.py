@@ -91,3 +91,32 @@ def test_numba_rk4_kernel_matches_reference() -> None:
     for s, (a, b) in enumerate(segs):
         q = rk4_integrate_gyro(w[a : b + 1] @ M.T, np.diff(t[a : b + 1]))
         np.testing.assert_allclose(R[s], quat_to_matrix(q), atol=1e-12)
+
+
+# Tedaldi 2014 eq. 3, written out here independently of the code: the matrix entry each angle occupies
+# and its sign. T = [[1, -yz, zy], [xz, 1, -zx], [-xy, yx, 1]].
+_TEDALDI_ENTRY = {
+    "g_yz": ((0, 1), -1.0),
+    "g_zy": ((0, 2), 1.0),
+    "g_xz": ((1, 0), 1.0),
+    "g_zx": ((1, 2), -1.0),
+    "g_xy": ((2, 0), -1.0),
+    "g_yx": ((2, 1), 1.0),
+}
+
+
+@pytest.mark.parametrize("name", sorted(_TEDALDI_ENTRY))
+def test_gyro_parameter_names_match_the_matrix_entries(name: str, tmp_path: Path) -> None:
+    """A gyro T with one non-zero angle (0.01 rad) is reported under that angle's name in calibration.yaml,
+    every other angle zero."""
+    import yaml
+
+    (i, j), sign = _TEDALDI_ENTRY[name]
+    T = np.eye(3)
+    T[i, j] = sign * 0.01
+    c = ImuCalibration(TriadModel(), TriadModel(T, np.ones(3), np.zeros(3)))
+    c.save_yaml(tmp_path / "calibration.yaml")
+    d = yaml.safe_load((tmp_path / "calibration.yaml").read_text())
+    reported = dict(zip(d["gyro_param_names"], d["gyro_params"], strict=True))
+    for other in _TEDALDI_ENTRY:
+        assert reported[other] == pytest.approx(0.01 if other == name else 0.0, abs=1e-15), other

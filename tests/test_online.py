@@ -6,21 +6,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imuslam.imu.calibrate import CalibrationConfig
 from imuslam.imu.history import CalibrationHistory
 from imuslam.imu.online import OnlineConfig, StillDetector
 from imuslam.imu.online_sim import T0_NS, Drift, run_simulated_robot
 from imuslam.imu.static import windowed_variance_norm
 from imuslam.sim.multipose import sphere_plan_deg
 
-CFG = OnlineConfig(calibration=CalibrationConfig(t_init_s=20.0))
+CFG = OnlineConfig()  # seed 000: T_init 50 s
 CHI2_9_999 = 27.88  # 99.9 % quantile of chi-square with 9 degrees of freedom
 
 
 def _run(drift: Drift, seed: int, tmp_path: Path | None = None):  # type: ignore[no-untyped-def]
     rng = np.random.default_rng(seed)
     hist = CalibrationHistory(tmp_path) if tmp_path else None
-    return run_simulated_robot(sphere_plan_deg(24, rng), 3600.0, drift, rng, CFG, hist)
+    return run_simulated_robot(sphere_plan_deg(40, rng), 3600.0, drift, rng, CFG, hist)
 
 
 def test_no_trigger_below_threshold() -> None:
@@ -124,7 +123,7 @@ def test_without_gimbal_gyro_bias_refreshed_from_still_moments() -> None:
                            TriadModel(SEED000_GYRO.T, SEED000_GYRO.K, SEED000_GYRO.b))  # fmt: skip
     from imuslam.imu.online import OnlineCalibrator
 
-    cal = OnlineCalibrator(sphere_plan_deg(24), None, CFG, current=start)
+    cal = OnlineCalibrator(sphere_plan_deg(40), None, CFG, current=start)
     stream.skip(3600.0)
     t, a, w = stream.read(600)
     for i in range(len(t)):
@@ -136,3 +135,103 @@ def test_without_gimbal_gyro_bias_refreshed_from_still_moments() -> None:
     assert cal.current is not None
     np.testing.assert_allclose(cal.current.gyro.b, true_b, atol=5 * 7e-5 * 1.04)
     np.testing.assert_array_equal(cal.current.accel.K, start.accel.K)
+
+
+class _ServoBoard:
+    """I2C bus of a PCA9685 whose channels 0 and 1 drive the simulated gimbal: the OFF count written to a
+    channel is a pulse width, hence a joint angle (the servo's linear map); writing channel 1's last
+    register moves the gimbal. Records when each move ends on the IMU's clock."""
+
+    def __init__(self, stream, servos, freq_hz: float = 50.0) -> None:  # type: ignore[no-untyped-def]
+        from imuslam.hw.gimbal import LED0_ON_L, MODE1
+
+        self.stream, self.servos, self.freq = stream, servos, freq_hz
+        self.led0 = LED0_ON_L
+        self.regs: dict[int, int] = {MODE1: 0x11}
+        self.target = [0.0, 0.0]
+        self.arrivals_ns: list[int] = []
+
+    def read_byte_data(self, addr: int, reg: int) -> int:
+        return self.regs.get(reg, 0)
+
+    def write_byte_data(self, addr: int, reg: int, val: int) -> None:
+        self.regs[reg] = val
+        ch, r = divmod(reg - self.led0, 4)
+        if reg < self.led0 or ch > 1 or r != 3:
+            return
+        off = self.regs[reg - 1] | ((val & 0x0F) << 8)
+        pulse_us = off / 4096 * 1e6 / self.freq
+        s = self.servos[ch]
+        self.target[ch] = s.min_deg + (pulse_us - s.min_pulse_us) / (
+            s.max_pulse_us - s.min_pulse_us
+        ) * (s.max_deg - s.min_deg)
+        if ch == 1:
+            T = self.stream.command(np.array(self.target))
+            self.arrivals_ns.append(self.stream.t0_ns + int(round((self.stream.t_s + T) * 1e9)))
+
+
+class _WitMotionPort:
+    """A serial port with a BWT901CL behind it: each read returns the next few samples of the simulated
+    IMU on the gimbal as WitMotion packets; ``now_ns`` is the host clock at that read (epoch time)."""
+
+    def __init__(self, stream, per_read: int = 5) -> None:  # type: ignore[no-untyped-def]
+        self.stream, self.per_read = stream, per_read
+        self.is_open = True
+        self.in_waiting = 22 * per_read
+        self.now_ns = stream.t0_ns
+        self.written = b""
+
+    def read(self, n: int) -> bytes:
+        from imuslam.hw.witmotion import encode_imu
+
+        t, a, w = self.stream.read(self.per_read)
+        self.now_ns = int(t[-1])
+        return b"".join(encode_imu(a[i], w[i]) for i in range(len(t)))
+
+    def write(self, b: bytes) -> None:
+        self.written += b
+
+    def close(self) -> None:
+        self.is_open = False
+
+
+def test_hardware_path_waits_for_the_gimbal_before_t_init() -> None:
+    """The robot's code path (WitMotion reader on a serial port, PCA9685 gimbal on an I2C bus, the loop of
+    ``imuslam online``) against a simulated gimbal and IMU behind fake serial and I2C devices, on an epoch
+    clock, with seed 000's defaults (40 poses, T_init 50 s). The servos power up far from the first pose:
+    the session's samples start only once the gimbal has arrived there, and the gyro bias from T_init is
+    the true one within 4 sigma of the reported covariance."""
+    from imuslam.hw.gimbal import Pca9685Gimbal, ServoSpec
+    from imuslam.hw.session import run_online
+    from imuslam.hw.witmotion import WitMotionImu
+    from imuslam.imu.online import OnlineCalibrator
+    from imuslam.sim.imu_errors import SEED000_GYRO
+    from imuslam.sim.multipose import GimbalImuStream
+
+    rng = np.random.default_rng(4)
+    servos = (ServoSpec(0, speed_dps=90.0), ServoSpec(1, min_deg=-180, max_deg=180, speed_dps=90.0))
+    # min-jerk moves peak at 1.875x their mean rate: the servo's 90 deg/s is its mean rate
+    stream = GimbalImuStream(rng, joint_speed_dps=90.0 * 1.875, resolution_deg=1e-9, t0_ns=T0_NS)
+    stream.angles = np.array([70.0, 150.0])  # where the servos stand at power-up
+    board = _ServoBoard(stream, servos)
+    port = _WitMotionPort(stream)
+    imu = WitMotionImu("/dev/fake", serial_port=port, clock_ns=lambda: port.now_ns)
+    gimbal = Pca9685Gimbal(*servos, bus=board)
+    plan = sphere_plan_deg(40)
+
+    def done(c: OnlineCalibrator) -> bool:
+        return c.phase == "monitor" or stream.t_s > 900.0
+
+    cal = run_online(imu, gimbal, plan, OnlineConfig(), None, 100.0, stop=done)
+    assert cal.current is not None and cal.phase == "monitor"
+    first = cal.events[0]
+    assert first.kind == "session_start" and first.t_ns >= T0_NS
+    log = cal.session_log()
+    assert log.t_ns[0] >= board.arrivals_ns[0]  # T_init begins once the gimbal is at the first pose
+    # ... and no later than the driver's worst case for a first move (360 deg at 90 deg/s, + 0.3 s)
+    assert log.t_ns[0] - first.t_ns <= 4.3e9 + 1e7
+    assert cal.last_result is not None and len(cal.last_result.intervals) >= 38
+    assert cal.current.cov_gyro_bias is not None
+    sd = np.sqrt(np.diag(cal.current.cov_gyro_bias))
+    err = cal.current.gyro.b - SEED000_GYRO.b
+    assert np.all(np.abs(err) < 4 * sd), (err, sd)

@@ -11,8 +11,8 @@ def test_optimised_order_lowers_every_gyro_std_measured() -> None:
     """Predicted: the accelerometer's stds are unchanged (same poses) and every gyro std is lower.
     Measured: 10 paired simulated calibrations (same noise seeds) of both plans; the mean ratio of the
     reported gyro stds is below 1 for every parameter (the reported std of one run scatters by about
-    sqrt(2 / 69) = 17 %, so the mean of 10 paired ratios is known to ~5 %; the predicted gains are 2-30 %,
-    the test asks only for < 1.02)."""
+    sqrt(2 / 69) = 17 %, so the mean of 10 paired ratios is known to ~5 %: each parameter's mean ratio must
+    be below 1 + 2 x 5 %, and their average, known to ~2 %, below 0.95)."""
     model = PlanModel.seed000()
     standard = sphere_plan_deg(40)
     sa0, sg0 = model.predicted_std(standard)
@@ -29,7 +29,7 @@ def test_optimised_order_lowers_every_gyro_std_measured() -> None:
             stds.append(calibrate(simulate_multipose(plan, rng).log, CalibrationConfig()).std_gyro)
         ratios.append(stds[1] / stds[0])
     mean_ratio = np.mean(ratios, axis=0)
-    assert np.all(mean_ratio < 1.02) and np.mean(mean_ratio) < 0.95
+    assert np.all(mean_ratio < 1.10) and np.mean(mean_ratio) < 0.95
     # the model predicts what the calibrator reports (within the 17 % scatter of one run, on average)
     assert np.all(np.abs(stds[0] / sg0 - 1) < 0.3)
 

@@ -11,6 +11,8 @@ from hypothesis import strategies as st
 from imuslam.hw.witmotion import (
     ACC_SCALE,
     GYRO_SCALE,
+    HEADER,
+    KNOWN_TYPES,
     UNLOCK,
     ImuAssembler,
     WitMotionParser,
@@ -115,18 +117,77 @@ def test_commands() -> None:
     assert len(p) == 11 and p[0] == 0x55 and checksum(p) == p[10]
 
 
-@settings(max_examples=300, deadline=None)
-@given(st.lists(st.binary(min_size=0, max_size=64), max_size=20))
-def test_fuzz_never_crashes_nor_accepts_a_bad_checksum(chunks: list[bytes]) -> None:
+_NOT_HEADER = st.integers(0, 255).filter(lambda b: b != HEADER)
+_TYPES = [t for t in KNOWN_TYPES if t != HEADER]
+
+
+@st.composite
+def _frames_with_known_checksums(draw: st.DrawFn) -> tuple[list[bytes], list[bytes], int]:
+    """Chunks of a stream of packets, each written here byte by byte with a right or a deliberately wrong
+    checksum, separated by garbage. No byte other than a packet's first is 0x55, so a reference needs no
+    parser: the packets to accept are exactly the good ones in order, the corrupt ones are counted.
+    Returns the chunks, the good packets and the number of bad ones."""
+    stream = bytearray()
+    good: list[bytes] = []
+    n_bad = 0
+    for _ in range(draw(st.integers(0, 25))):
+        stream += bytes(draw(st.lists(_NOT_HEADER, max_size=14)))
+        body = bytearray([HEADER, draw(st.sampled_from(_TYPES))])
+        body += bytes(draw(st.lists(_NOT_HEADER, min_size=8, max_size=8)))
+        right = sum(body) & 0xFF
+        if draw(st.booleans()):
+            cs = (right + draw(st.integers(1, 255))) & 0xFF
+            if cs == HEADER:
+                cs = (cs + 1) & 0xFF if (cs + 1) & 0xFF != right else (cs + 2) & 0xFF
+            stream += body + bytes([cs])
+            n_bad += 1
+        else:
+            if right == HEADER:  # keep the checksum byte from looking like a header
+                body[2] = (body[2] + 1) & 0xFF if body[2] != HEADER - 1 else (body[2] + 2) & 0xFF
+                right = sum(body) & 0xFF
+            stream += body + bytes([right])
+            good.append(bytes(body + bytes([right])))
+    stream += bytes(22)  # trailing non-header bytes: the last packet is complete and decided
+    cuts = sorted(draw(st.lists(st.integers(0, len(stream)), max_size=8)))
+    chunks = [bytes(stream[a:b]) for a, b in zip([0, *cuts], [*cuts, len(stream)], strict=True)]
+    return chunks, good, n_bad
+
+
+@settings(max_examples=300)
+@given(_frames_with_known_checksums())
+def test_fuzz_accepts_exactly_the_good_checksums(
+    case: tuple[list[bytes], list[bytes], int],
+) -> None:
+    chunks, good, n_bad = case
     parser = WitMotionParser()
+    got_t, got_v = [], []
+    for c in chunks:
+        p = parser.feed(c)
+        assert p.values.shape == (len(p.ptype), 4)
+        got_t += [int(x) for x in p.ptype]
+        got_v += [tuple(int(x) for x in v) for v in p.values]
+    assert got_t == [g[1] for g in good]
+    assert got_v == [tuple(int(x) for x in np.frombuffer(g[2:10], "<i2")) for g in good]
+    assert parser.n_packets == len(good)
+    assert parser.n_bad_checksum == n_bad
+
+
+@settings(max_examples=300)
+@given(st.lists(st.binary(min_size=0, max_size=64), max_size=20))
+def test_fuzz_never_crashes_and_every_accepted_packet_sums_right(chunks: list[bytes]) -> None:
+    """Arbitrary bytes: no exception, and each accepted packet is a run of 11 bytes of the input whose
+    checksum (summed here, not by the code) is right."""
+    parser = WitMotionParser()
+    data = b"".join(chunks)
+    pos = 0
     for c in chunks:
         p = parser.feed(c)
         assert p.values.shape == (len(p.ptype), 4)
         for t, v in zip(p.ptype, p.values, strict=True):
-            assert (
-                checksum(encode(int(t), tuple(int(x) for x in v)))
-                == encode(int(t), tuple(int(x) for x in v))[10]
-            )
+            pk = bytes([HEADER, int(t)]) + np.asarray(v, "<i2").tobytes()
+            k = data.find(pk, pos)
+            assert k >= 0 and k + 10 < len(data) and data[k + 10] == sum(pk) % 256
+            pos = k + 11
         imu_samples(p)
 
 

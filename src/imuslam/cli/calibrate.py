@@ -10,6 +10,7 @@ import typer
 from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log, table
 from imuslam.config import dump_config, load_config
 from imuslam.imu.calibrate import CalibrationConfig, CalibrationResult, calibrate
+from imuslam.imu.crossval import CrossValidation, cross_validate
 from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
 from imuslam.imu.report import write_report
 from imuslam.interfaces.imu import ImuLog
@@ -55,15 +56,36 @@ def print_result(
         console.print(f"[yellow]warning:[/] {w}")
 
 
+def print_cv(res: CalibrationResult, cv: CrossValidation) -> None:
+    """The cross-validated score beside the fit residual."""
+    console.print(
+        table(
+            f"{cv.k_folds}-fold cross-validation over {len(cv.poses)} static poses ({cv.method})",
+            ["quantity", "fit", "held out RMS", "held out worst", "unit"],
+            [
+                ["gravity norm error", f"{res.accel_rms:.5f}", f"{cv.norm_rms:.5f}",
+                 f"{cv.norm_worst:.5f}", "m/s^2"],
+                ["gravity direction error", f"{res.gyro_rms_deg:.3f}",
+                 f"{cv.direction_rms_deg:.3f}", f"{cv.direction_worst_deg:.3f}", "deg"],
+            ],
+        )
+    )  # fmt: skip
+
+
 def write_outputs(
-    res: CalibrationResult, log: ImuLog, out: Path, plots: bool = True, **truth: np.ndarray | None
+    res: CalibrationResult,
+    log: ImuLog,
+    out: Path,
+    cv: CrossValidation | None = None,
+    plots: bool = True,
+    **truth: np.ndarray | None,
 ) -> None:
     c = res.calibration
     c.save_yaml(out / "calibration.yaml")
     c.export_imutk(out / "acc.calib", out / "gyro.calib")
     dump_config(res.config, out / "config.yaml")
     if plots:
-        write_report(res, log, out, truth.get("truth_accel"), truth.get("truth_gyro"))
+        write_report(res, log, out, truth.get("truth_accel"), truth.get("truth_gyro"), cv=cv)
 
 
 def register(app: typer.Typer) -> None:
@@ -93,6 +115,12 @@ def register(app: typer.Typer) -> None:
             None, help="CSV column mapping: t=..,ax=..,ay=..,az=..,gx=..,gy=..,gz=.."
         ),
         config: Path | None = typer.Option(None, help="YAML with CalibrationConfig fields"),
+        method: str | None = typer.Option(
+            None, help="joint (default): accelerometer and gyro fitted together; tedaldi: imu_tk's"
+        ),
+        cv_folds: int = typer.Option(
+            5, "--cv-folds", help="folds of the cross-validation over static poses (0: none)"
+        ),
         out: Path = typer.Option(Path("calib_out"), "--out", help="results folder"),
         plots: bool = typer.Option(
             True, "--plots/--no-plots", help="write the PNG plots and report.html (about 1 s)"
@@ -102,13 +130,21 @@ def register(app: typer.Typer) -> None:
         cfg = load_config(config, CalibrationConfig) if config else CalibrationConfig()
         upd = {
             k: v
-            for k, v in {"g": g, "t_init_s": t_init, "bias_sign": bias_sign}.items()
+            for k, v in {
+                "g": g,
+                "t_init_s": t_init,
+                "bias_sign": bias_sign,
+                "method": method,
+            }.items()
             if v is not None
         }
         cfg = CalibrationConfig.model_validate({**cfg.model_dump(), **upd})
         log = load_log(acc, gyro, fmt, topic, accel_unit, gyro_unit, columns)
         res = calibrate(log, cfg)
         print_result(res)
-        write_outputs(res, log, out, plots)
+        cv = cross_validate(log, cfg, res.intervals, cv_folds) if cv_folds else None
+        if cv is not None:
+            print_cv(res, cv)
+        write_outputs(res, log, out, cv, plots)
         extra = ", plots, report.html" if plots else ""
         console.print(f"wrote {out}/calibration.yaml, acc.calib, gyro.calib, config.yaml{extra}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -11,12 +12,16 @@ from imuslam.cli.common import console, friendly_errors, table
 from imuslam.errors import InputError
 from imuslam.imu.calibrate import CalibrationConfig
 from imuslam.imu.history import CalibrationHistory
-from imuslam.imu.online import OnlineCalibrator, OnlineConfig
+from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
+from imuslam.imu.online import OnlineConfig
 from imuslam.imu.online_sim import Drift, run_simulated_robot
 from imuslam.imu.poseplan import PlanModel, optimise_order
 from imuslam.interfaces.imu import ImuLog
 from imuslam.io.rosbag import write_imu_bag
 from imuslam.sim.multipose import sphere_plan_deg
+
+SEED_POSES = 40  # seed 000's pose count
+SEED_T_INIT_S = 50.0  # seed 000's initial still period, s
 
 
 def _print_history(hist: CalibrationHistory) -> None:
@@ -41,6 +46,28 @@ def _print_history(hist: CalibrationHistory) -> None:
     )
 
 
+def _print_predicted(model: PlanModel, plan: np.ndarray) -> None:
+    """Predicted 1-sigma of a shorter plan against seed 000's 40 poses (lattice order)."""
+    sa, sg = model.predicted_std(plan)
+    sa40, sg40 = model.predicted_std(sphere_plan_deg(SEED_POSES))
+    rows = [
+        [n, f"{s:.2e}", f"{s40:.2e}", f"{s / s40:.2f}"]
+        for n, s, s40 in zip(
+            ACCEL_PARAM_NAMES + GYRO_PARAM_NAMES,
+            np.concatenate([sa, sg]),
+            np.concatenate([sa40, sg40]),
+            strict=True,
+        )
+    ]
+    console.print(
+        table(
+            f"Predicted 1-sigma with {len(plan)} poses (seed 000 uses {SEED_POSES})",
+            ["parameter", f"{len(plan)} poses", f"{SEED_POSES} poses", "ratio"],
+            rows,
+        )
+    )
+
+
 def register(app: typer.Typer) -> None:
     @app.command("online")
     @friendly_errors
@@ -55,8 +82,13 @@ def register(app: typer.Typer) -> None:
         drift_gyro: float = typer.Option(
             0.001, help="--sim: gyro bias drift per axis, rad/s per hour"
         ),
-        poses: int = typer.Option(24, help="gimbal poses per session"),
-        t_init: float = typer.Option(20.0, "--t-init", help="initial still period of a session, s"),
+        poses: int = typer.Option(
+            SEED_POSES,
+            help="gimbal poses per session (seed 000: 40); with fewer the predicted 1-sigma is printed",
+        ),
+        t_init: float = typer.Option(
+            SEED_T_INIT_S, "--t-init", help="initial still period of a session, s (seed 000: 50)"
+        ),
         imu_port: str | None = typer.Option(
             None, help="serial port of a WitMotion IMU, e.g. /dev/ttyUSB0"
         ),
@@ -71,7 +103,23 @@ def register(app: typer.Typer) -> None:
         cfg = OnlineConfig(calibration=CalibrationConfig(t_init_s=t_init))
         hist = CalibrationHistory(out / "history")
         rng = np.random.default_rng(seed)
-        plan = optimise_order(PlanModel.seed000(), sphere_plan_deg(poses), iterations=1000)
+        model = PlanModel.seed000()
+        if not sim:
+            if imu_port is None:
+                raise InputError("give --sim, or --imu-port for a WitMotion IMU on the robot")
+            if gimbal != "pca9685":
+                raise InputError(f"--gimbal: '{gimbal}'; supported: pca9685")
+            from imuslam.hw.gimbal import Pca9685Gimbal, ServoSpec
+
+            g = Pca9685Gimbal(ServoSpec(0), ServoSpec(1, min_deg=-180, max_deg=180))
+            model = replace(model, resolution_deg=g.resolution_deg)
+            console.print(
+                f"gimbal: PCA9685 hobby servos, {g.resolution_deg:.2f} deg per PWM count "
+                "(seed 000's gimbal: 0.088 deg); plans are predicted at the reachable angles"
+            )
+        plan = optimise_order(model, sphere_plan_deg(poses), iterations=1000)
+        if poses < SEED_POSES:
+            _print_predicted(model, plan)
         if sim:
             drift = Drift(np.array([0.0, 0.0, drift_accel]), np.full(3, drift_gyro))
             run = run_simulated_robot(plan, duration_h * 3600.0, drift, rng, cfg, hist)
@@ -80,21 +128,13 @@ def register(app: typer.Typer) -> None:
                     console.print(f"{e.t_ns * 1e-9:8.1f} s  {e.kind:<13} {e.detail}")
             _print_history(hist)
             return
-        if imu_port is None:
-            raise InputError("give --sim, or --imu-port for a WitMotion IMU on the robot")
-        from imuslam.hw.gimbal import Pca9685Gimbal, ServoSpec
+        from imuslam.hw.session import run_online
         from imuslam.hw.witmotion import WitMotionImu
+        from imuslam.imu.online import Event
 
-        if gimbal != "pca9685":
-            raise InputError(f"--gimbal: '{gimbal}'; supported: pca9685")
-        g = Pca9685Gimbal(ServoSpec(0), ServoSpec(1, min_deg=-180, max_deg=180))
+        assert imu_port is not None  # checked before the plan is built
         imu = WitMotionImu(imu_port)
         imu.configure(rate)
-
-        def command(angles: np.ndarray) -> float:
-            wait = g.settle_time_s((float(angles[0]), float(angles[1])))
-            g.move_to((float(angles[0]), float(angles[1])))
-            return wait
 
         buf_t: list[int] = []
         buf: list[np.ndarray] = []
@@ -103,20 +143,11 @@ def register(app: typer.Typer) -> None:
             buf_t.append(t)
             buf.append(np.concatenate([a, w]))
 
-        cal = OnlineCalibrator(
-            plan, command, cfg, current=hist.latest(), history=hist, rate_hz=rate, on_corrected=keep
-        )
-        if cal.current is None:
-            cal.start_session(0)
-        seen = 0
+        def show(e: Event) -> None:
+            console.print(f"{e.kind}: {e.detail}")
+
         try:
-            for t, a, w in imu.samples(rate):
-                cal.step(t, a, w)
-                for e in cal.events[seen:]:
-                    console.print(f"{e.kind}: {e.detail}")
-                    if e.kind in ("drift", "schedule"):
-                        cal.start_session(t)
-                seen = len(cal.events)
+            run_online(imu, g, plan, cfg, hist, rate, on_event=show, on_corrected=keep)
         except KeyboardInterrupt:
             pass
         finally:

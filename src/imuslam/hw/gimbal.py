@@ -4,6 +4,13 @@ Why the PCA9685: one cheap, common board drives both servos with hardware-timed 
 Raspberry Pi's I2C bus, so servo pulses do not jitter with the Pi's CPU load (software PWM on GPIO does).
 Register map and prescale formula from the NXP PCA9685 datasheet (rev. 4), sections 7.3.1 and 7.3.5:
 ``prescale = round(25 MHz / (4096 * f)) - 1``; LEDn_ON/OFF at ``0x06 + 4 n``.
+
+Resolution. The PCA9685's 12-bit counter spans the whole 20 ms PWM period at 50 Hz, 4.88 us per count,
+while a hobby servo's 500-2500 us pulse spans only 180 deg: one count is 0.44 deg (0.88 deg for a joint
+mapped over 360 deg). Seed 000's gimbal resolves 0.088 deg (4096 steps per turn), 5-10x finer. The
+calibration does not use the gimbal angles (only that the IMU is still at each pose), so this coarser
+step changes which poses are reached, not the result; :attr:`Pca9685Gimbal.resolution_deg` gives it to
+the pose planner (``PlanModel.resolution_deg``), which predicts a plan's covariance at the reachable angles.
 """
 
 from __future__ import annotations
@@ -52,6 +59,13 @@ class ServoSpec:
     max_deg: float = 90.0
     speed_dps: float = 300.0
 
+    def resolution_deg(self, freq_hz: float = 50.0) -> float:
+        """Angle of one PCA9685 count (1 / 4096 of the PWM period) for this servo, deg."""
+        us_per_count = 1e6 / freq_hz / 4096.0
+        return (
+            us_per_count * (self.max_deg - self.min_deg) / (self.max_pulse_us - self.min_pulse_us)
+        )
+
     def pulse_us(self, angle_deg: float) -> float:
         a = float(np.clip(angle_deg, self.min_deg, self.max_deg))
         return self.min_pulse_us + (a - self.min_deg) / (self.max_deg - self.min_deg) * (
@@ -78,7 +92,8 @@ class Pca9685Gimbal:
         self.bus, self.address, self.freq_hz = bus, address, freq_hz
         self.servos = (roll, pitch)
         self.limits_deg = ((roll.min_deg, roll.max_deg), (pitch.min_deg, pitch.max_deg))
-        self._angles = (0.0, 0.0)
+        # where the servos stand at power-up is unknown until the first command
+        self._angles: tuple[float, float] | None = None
         old = self.bus.read_byte_data(address, MODE1)
         self.bus.write_byte_data(
             address, MODE1, (old & ~RESTART) | SLEEP
@@ -108,14 +123,24 @@ class Pca9685Gimbal:
             self._set(servo.channel, self.counts(servo.pulse_us(a)))
         self._angles = (float(angles_deg[0]), float(angles_deg[1]))
 
+    @property
+    def resolution_deg(self) -> float:
+        """The coarser joint's angle per PWM count, deg (about 0.44 for a 180 deg servo at 50 Hz)."""
+        return max(s.resolution_deg(self.freq_hz) for s in self.servos)
+
     def angles_deg(self) -> tuple[float, float]:
-        return self._angles
+        return self._angles if self._angles is not None else (0.0, 0.0)
 
     def settle_time_s(self, target_deg: tuple[float, float]) -> float:
-        d = max(
-            abs(t - a) / s.speed_dps
-            for t, a, s in zip(target_deg, self._angles, self.servos, strict=True)
-        )
+        """Time to reach ``target_deg`` from the last commanded angles; before any command, from the far
+        end of each joint's range (the servos' position at power-up is unknown)."""
+        if self._angles is None:
+            d = max((s.max_deg - s.min_deg) / s.speed_dps for s in self.servos)
+        else:
+            d = max(
+                abs(t - a) / s.speed_dps
+                for t, a, s in zip(target_deg, self._angles, self.servos, strict=True)
+            )
         return d + 0.3  # mechanical settling after the move
 
 

@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import numba
 import numpy as np
@@ -269,10 +270,22 @@ class WitMotionImu:
     and 115200 baud a chunk spans a few samples, so stamps are re-spread uniformly over the chunk.
     """
 
-    def __init__(self, port: str, baud: int = 115200, timeout_s: float = 0.05) -> None:
-        import serial
+    def __init__(
+        self,
+        port: str,
+        baud: int = 115200,
+        timeout_s: float = 0.05,
+        serial_port: Any = None,
+        clock_ns: Callable[[], int] = time.time_ns,
+    ) -> None:
+        """Open ``port``; or use ``serial_port``, any object with pyserial's ``read``, ``write``,
+        ``in_waiting``, ``is_open`` and ``close`` (a test's fake). ``clock_ns`` stamps the received chunks."""
+        if serial_port is None:
+            import serial
 
-        self.serial = serial.Serial(port, baud, timeout=timeout_s)
+            serial_port = serial.Serial(port, baud, timeout=timeout_s)
+        self.serial = serial_port
+        self.clock_ns = clock_ns
         self.parser = WitMotionParser()
         self.assembler = ImuAssembler()
 
@@ -290,7 +303,7 @@ class WitMotionImu:
         period = int(1e9 / rate_hz)
         while self.serial.is_open:
             chunk = self.serial.read(max(self.serial.in_waiting, 11))
-            t_rx = time.time_ns()
+            t_rx = self.clock_ns()
             if not chunk:
                 continue
             s = self.assembler.push(self.parser.feed(chunk))

@@ -26,6 +26,7 @@ from pydantic import BaseModel, Field, field_validator
 from scipy.optimize import least_squares
 
 from imuslam.errors import InputError
+from imuslam.imu.joint import joint_refine
 from imuslam.imu.model import (
     ACCEL_PARAM_NAMES,
     GYRO_PARAM_NAMES,
@@ -71,6 +72,26 @@ class CalibrationConfig(BaseModel):
     estimate_gyro_bias: bool = Field(
         False,
         description="refine the gyro bias in the fit instead of keeping the still-period mean",
+    )
+    method: Literal["joint", "tedaldi"] = Field(
+        "joint",
+        description="joint: accelerometer and gyroscope refined together by weighted least squares over "
+        "every pose's gravity norm and every rotation's predicted gravity direction (imu/joint.py); "
+        "tedaldi: imu_tk's two steps (accelerometer from the norm, then the gyro with it held fixed)",
+    )
+    gyro_g_sensitivity: bool = Field(
+        True,
+        description="joint method: estimate the gyro's g-sensitivity G (omega = T K (w ± b) - G f, rad/s per "
+        "m/s^2) and the gyro bias from the rate at every static pose, not only the still start",
+    )
+    weigh_by_length: bool = Field(
+        True,
+        description="joint method: weigh each pose by the square root of its length (white noise)",
+    )
+    accel_bias_drift: bool = Field(
+        False,
+        description="joint method: let the accelerometer bias drift linearly over the session in the fit "
+        "(a nuisance; the calibration keeps the bias at the middle of the session)",
     )
     min_intervals: int = Field(12, ge=9, description="fewest static intervals a threshold may give")
     gyro_margin_s: float = Field(
@@ -216,7 +237,21 @@ def _solve_accel(
     x_scale = np.concatenate(
         [np.full(3, 1e-3), np.abs(theta0[3:6]), np.abs(theta0[3:6]) ** -1 * 1e-2]
     )
-    res = least_squares(fun, theta0, jac=jac, method="lm", x_scale=x_scale, xtol=1e-12, ftol=1e-12)
+    res = least_squares(
+        fun, theta0, jac=jac, method="lm", x_scale=x_scale, xtol=1e-12, ftol=1e-12, max_nfev=2000
+    )
+    if not res.success:
+        # Poses clustered in a few directions leave the norm fit a valley along which LM can walk to
+        # the degenerate solution (scales to zero, bias to infinity). Retry inside a physical box:
+        # misalignments within 0.3 rad, scales within a factor 2, offsets within 0.5 g of the guess.
+        half_b = 0.5 * g / np.abs(theta0[3:6])
+        lo = np.concatenate([np.full(3, -0.3), 0.5 * theta0[3:6], theta0[6:9] - half_b])
+        hi = np.concatenate([np.full(3, 0.3), 2.0 * theta0[3:6], theta0[6:9] + half_b])
+        lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
+        res = least_squares(
+            fun, theta0, jac=jac, method="trf", bounds=(lo, hi), x_scale=x_scale, xtol=1e-12,
+            ftol=1e-12, max_nfev=2000,
+        )  # fmt: skip
     r, J = accel_residual_jacobian(res.x, samples, g, sign)
     return res.x, r, J, bool(res.success and np.all(np.isfinite(res.x))), str(res.message)
 
@@ -240,9 +275,15 @@ def _qdot(
 
 @numba.njit(cache=True, parallel=True)
 def _rk4_segments(
-    w: FloatArray, t_s: FloatArray, segs: IntArray, Ms: FloatArray
+    w: FloatArray,
+    t_s: FloatArray,
+    segs: IntArray,
+    Ms: FloatArray,
+    offs: FloatArray,
+    Gs: FloatArray,
+    f: FloatArray,
 ) -> FloatArray:  # pragma: no cover - compiled
-    """Integrated rotations R_start_end (P, S, 3, 3) of ``M_p @ w`` over each segment [a, b] of samples.
+    """Integrated rotations R_start_end (P, S, 3, 3) of ``M_p (w - o_p) - G_p f`` over each segment [a, b].
 
     RK4 on the quaternion with the rate at the step midpoint taken as the mean of its ends
     (Tedaldi 2014, eq. 14); the slow reference is ``imuslam.geometry.rk4_integrate_gyro``.
@@ -254,15 +295,51 @@ def _rk4_segments(
         p = ps // S
         s = ps % S
         M = Ms[p]
+        G = Gs[p]
+        o0, o1, o2 = offs[p, 0], offs[p, 1], offs[p, 2]
         a, b = segs[s, 0], segs[s, 1]
         qw, qx, qy, qz = 1.0, 0.0, 0.0, 0.0
-        x0 = M[0, 0] * w[a, 0] + M[0, 1] * w[a, 1] + M[0, 2] * w[a, 2]
-        y0 = M[1, 0] * w[a, 0] + M[1, 1] * w[a, 1] + M[1, 2] * w[a, 2]
-        z0 = M[2, 0] * w[a, 0] + M[2, 1] * w[a, 1] + M[2, 2] * w[a, 2]
+        v0, v1, v2 = w[a, 0] - o0, w[a, 1] - o1, w[a, 2] - o2
+        f0, f1, f2 = f[a, 0], f[a, 1], f[a, 2]
+        x0 = (
+            M[0, 0] * v0
+            + M[0, 1] * v1
+            + M[0, 2] * v2
+            - (G[0, 0] * f0 + G[0, 1] * f1 + G[0, 2] * f2)
+        )
+        y0 = (
+            M[1, 0] * v0
+            + M[1, 1] * v1
+            + M[1, 2] * v2
+            - (G[1, 0] * f0 + G[1, 1] * f1 + G[1, 2] * f2)
+        )
+        z0 = (
+            M[2, 0] * v0
+            + M[2, 1] * v1
+            + M[2, 2] * v2
+            - (G[2, 0] * f0 + G[2, 1] * f1 + G[2, 2] * f2)
+        )
         for k in range(a, b):
-            x1 = M[0, 0] * w[k + 1, 0] + M[0, 1] * w[k + 1, 1] + M[0, 2] * w[k + 1, 2]
-            y1 = M[1, 0] * w[k + 1, 0] + M[1, 1] * w[k + 1, 1] + M[1, 2] * w[k + 1, 2]
-            z1 = M[2, 0] * w[k + 1, 0] + M[2, 1] * w[k + 1, 1] + M[2, 2] * w[k + 1, 2]
+            v0, v1, v2 = w[k + 1, 0] - o0, w[k + 1, 1] - o1, w[k + 1, 2] - o2
+            f0, f1, f2 = f[k + 1, 0], f[k + 1, 1], f[k + 1, 2]
+            x1 = (
+                M[0, 0] * v0
+                + M[0, 1] * v1
+                + M[0, 2] * v2
+                - (G[0, 0] * f0 + G[0, 1] * f1 + G[0, 2] * f2)
+            )
+            y1 = (
+                M[1, 0] * v0
+                + M[1, 1] * v1
+                + M[1, 2] * v2
+                - (G[1, 0] * f0 + G[1, 1] * f1 + G[1, 2] * f2)
+            )
+            z1 = (
+                M[2, 0] * v0
+                + M[2, 1] * v1
+                + M[2, 2] * v2
+                - (G[2, 0] * f0 + G[2, 1] * f1 + G[2, 2] * f2)
+            )
             h = t_s[k + 1] - t_s[k]
             xm, ym, zm = 0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.5 * (z0 + z1)
             a1 = _qdot(qw, qx, qy, qz, x0, y0, z0)
@@ -306,14 +383,29 @@ def _rk4_segments(
 
 
 def integrate_segments(
-    w: FloatArray, t_s: FloatArray, segs: IntArray, Ms: FloatArray
+    w: FloatArray,
+    t_s: FloatArray,
+    segs: IntArray,
+    Ms: FloatArray,
+    offsets: FloatArray | None = None,
+    Gs: FloatArray | None = None,
+    f: FloatArray | None = None,
 ) -> FloatArray:
-    """Rotations R_start_end (P, S, 3, 3) of the rates ``Ms[p] @ w`` over the segments (S, 2) of samples."""
+    """Rotations R_start_end (P, S, 3, 3) of the rates ``Ms[p] @ (w - offsets[p]) - Gs[p] @ f`` over the
+    segments (S, 2) of samples; ``offsets`` (P, 3) default to zero, ``Gs`` (P, 3, 3) with the specific
+    force ``f`` (N, 3) to none (the g-sensitivity term)."""
+    P = Ms.shape[0]
+    offs = np.zeros((P, 3)) if offsets is None else offsets
+    if Gs is None or f is None:
+        Gs, f = np.zeros((P, 3, 3)), np.zeros_like(np.asarray(w, dtype=np.float64))
     return _rk4_segments(
         np.ascontiguousarray(w, dtype=np.float64),
         np.ascontiguousarray(t_s, dtype=np.float64),
         np.ascontiguousarray(segs, dtype=np.int64),
         np.ascontiguousarray(Ms, dtype=np.float64),
+        np.ascontiguousarray(offs, dtype=np.float64).reshape(P, 3),
+        np.ascontiguousarray(Gs, dtype=np.float64).reshape(P, 3, 3),
+        np.ascontiguousarray(f, dtype=np.float64),
     )
 
 
@@ -335,11 +427,8 @@ def _gyro_residuals(
     Ms = np.stack([_gyro_M(th) for th in theta_stack])
     if theta_stack.shape[1] == 12:
         # bias refinement: rates M (w - db); integrate each parameter set with its own shifted samples
-        out = np.empty((P, 3 * len(segs)))
-        for p in range(P):
-            R = integrate_segments(w - theta_stack[p, 9:12], t_s, segs, Ms[p : p + 1])[0]
-            out[p] = (np.einsum("sji,sj->si", R, u0) - u1).ravel()
-        return out
+        R = integrate_segments(w, t_s, segs, Ms, theta_stack[:, 9:12])
+        return (np.einsum("psji,sj->psi", R, u0) - u1[None]).reshape(P, -1)
     R = integrate_segments(w, t_s, segs, Ms)
     return (np.einsum("psji,sj->psi", R, u0) - u1[None]).reshape(P, -1)
 
@@ -483,11 +572,18 @@ def _cov(J: FloatArray, r: FloatArray, dof: int) -> FloatArray:
         return np.full((J.shape[1], J.shape[1]), np.inf)
 
 
-def calibrate(log_: ImuLog, config: CalibrationConfig | None = None) -> CalibrationResult:
+def calibrate(
+    log_: ImuLog,
+    config: CalibrationConfig | None = None,
+    intervals: IntArray | None = None,
+    pair_ok: NDArray[np.bool_] | None = None,
+) -> CalibrationResult:
     """Calibrate accelerometer and gyroscope from a multi-position log.
 
     log_: raw IMU log (any units): a still period of ``config.t_init_s`` first, then static poses with
         rotations between them.
+    intervals: (K, 2) static intervals to use instead of the threshold sweep (cross-validation);
+    pair_ok: (K-1,) which consecutive pairs of them the gyro fit may use (default all).
     Raises InputError when the data cannot give a calibration (too short, no rotations, saturation,
     too few static intervals), never returns an identity calibration.
     """
@@ -518,8 +614,17 @@ def calibrate(log_: ImuLog, config: CalibrationConfig | None = None) -> Calibrat
         None
     )
     max_found = 0
-    for k in cfg.k_values:
-        d = detect(acc, det, n0, k, nmin)
+    if intervals is not None:
+        fixed = np.asarray(intervals, dtype=np.int64).reshape(-1, 2)
+        k_list: list[float] = [float("nan")]
+    else:
+        k_list = list(cfg.k_values)
+    for k in k_list:
+        d = (
+            StaticDetection(k, float("nan"), fixed, fixed)
+            if intervals is not None
+            else detect(acc, det, n0, k, nmin)
+        )
         n_iv = len(d.valid)
         max_found = max(max_found, n_iv)
         if n_iv < cfg.min_intervals:
@@ -571,12 +676,18 @@ def calibrate(log_: ImuLog, config: CalibrationConfig | None = None) -> Calibrat
     # Gravity directions from the calibrated means of each interval (imu_tk: the whole interval).
     means_c = np.stack([accel_model.apply(acc[s : e + 1].mean(axis=0)[None])[0] for s, e in iv])
     u = means_c / np.linalg.norm(means_c, axis=1, keepdims=True)
-    u0, u1 = u[:-1], u[1:]
     # From the end of one interval to the start of the next (imu_tk's segments) ...
     segs = np.stack([iv[:-1, 1], iv[1:, 0]], axis=1)
     gyro_bias = log_.gyro[: n_init + 1].mean(axis=0)
     w = log_.gyro - gyro_bias
     segs = _extend_to_motion(segs, iv, w, n_init, int(round(cfg.gyro_margin_s * rate)))
+    pairs = np.stack([np.arange(len(iv) - 1), np.arange(1, len(iv))], axis=1)
+    if pair_ok is not None:
+        keep = np.asarray(pair_ok, dtype=bool)
+        segs, pairs = segs[keep], pairs[keep]
+        if len(segs) < 6:
+            raise InputError(f"{log_.source}: only {len(segs)} rotations between kept poses")
+    u0, u1 = u[pairs[:, 0]], u[pairs[:, 1]]
     spread = np.linalg.svd(u - u.mean(axis=0), compute_uv=False)
     if spread[1] < 0.1:
         raise InputError(
@@ -620,7 +731,7 @@ def calibrate(log_: ImuLog, config: CalibrationConfig | None = None) -> Calibrat
         T, K, off = _accel_model(th_a, sign)
         m = ((raw_means + off) * K) @ T.T
         uu = m / np.linalg.norm(m, axis=1, keepdims=True)
-        return (np.einsum("sji,sj->si", R_fit, uu[:-1]) - uu[1:]).ravel()
+        return (np.einsum("sji,sj->si", R_fit, uu[pairs[:, 0]]) - uu[pairs[:, 1]]).ravel()
 
     r0 = resid_for_accel(theta_a)
     h_a = np.sqrt(np.maximum(np.diag(cov_a), 1e-30))
@@ -652,13 +763,45 @@ def calibrate(log_: ImuLog, config: CalibrationConfig | None = None) -> Calibrat
         cov_g_full = cov_g_full + A @ extra @ A.T
     except np.linalg.LinAlgError:
         cov_g_full = np.full_like(cov_g_full, np.inf)
+    db = theta_g[9:12] if cfg.estimate_gyro_bias else np.zeros(3)
+    G: FloatArray | None = None
+    f_c = np.zeros((1, 3))
+    if cfg.method == "joint":
+        use_g = cfg.gyro_g_sensitivity
+        f_c = accel_model.apply(acc) if use_g else np.zeros((1, 3))
+        gyro_means = np.stack([w[s : e + 1].mean(axis=0) for s, e in iv])
+        jf = joint_refine(
+            raw_means, gyro_means, w, f_c, t_s, segs, pairs, theta_a, theta_g[:9], cfg.g, sign,
+            cfg.estimate_gyro_bias, use_g, integrate_segments,
+            pose_t=t_s[(iv[:, 0] + iv[:, 1]) // 2] if cfg.accel_bias_drift else None,
+            pose_n=(iv[:, 1] - iv[:, 0] + 1).astype(float) if cfg.weigh_by_length else None,
+        )  # fmt: skip
+        theta_a, theta_g, db = jf.theta_a, jf.theta_g, jf.db
+        G = jf.G if use_g else None
+        bias_total = gyro_bias + db
+        cov_a = jf.cov[:9, :9]
+        cov_g_full = jf.cov[9:18, 9:18]
+        if cfg.estimate_gyro_bias or use_g:
+            cov_bias = jf.cov[18:21, 18:21]
+        log.debug("joint fit noise levels: %s", jf.sigmas)
+        accel_model = TriadModel(
+            misalignment_matrix(*theta_a[:3]), theta_a[3:6], theta_a[6:9], cfg.bias_sign
+        )
+        means_c = accel_model.apply(raw_means)
+        u = means_c / np.linalg.norm(means_c, axis=1, keepdims=True)
+        u0, u1 = u[pairs[:, 0]], u[pairs[:, 1]]
+        idx = (iv[:, 0][:, None] + np.arange(nmin)[None, :]).ravel()
+        r_a = cfg.g - np.linalg.norm(accel_model.apply(acc[idx]), axis=1)
     gyro_b = -bias_total if cfg.bias_sign == "plus" else bias_total
     gyro_model = TriadModel(misalignment_matrix(*theta_g[:6]), theta_g[6:9], gyro_b, cfg.bias_sign)
     R_after = integrate_segments(
-        w - (theta_g[9:12] if cfg.estimate_gyro_bias else 0.0),
+        w,
         t_s,
         segs,
         _gyro_M(theta_g[:9])[None],
+        db[None],
+        None if G is None else G[None],
+        None if G is None else f_c,
     )[0]
     t_gyro = time.perf_counter()
 
@@ -679,7 +822,13 @@ def calibrate(log_: ImuLog, config: CalibrationConfig | None = None) -> Calibrat
         gyro_unit=log_.gyro_unit,
         g=cfg.g,
         source=log_.source,
-        notes={"k": d.k, "n_intervals": int(len(iv)), "warnings": list(warnings)},
+        notes={
+            "k": d.k,
+            "n_intervals": int(len(iv)),
+            "method": cfg.method,
+            "warnings": list(warnings),
+        },
+        gyro_g_sensitivity=G,
     )
     rms = float(np.sqrt(np.mean(r_a**2)))
     return CalibrationResult(

@@ -9,9 +9,10 @@ frame, so the accelerometer's T is upper triangular (3 angles) and the gyro's T 
          [ a_xz,   1,    -a_zx],
          [-a_xy,   a_yx,  1   ]]
 
-Parameter vectors (the order of the seed's eqs. 10 and 13):
-accelerometer ``[a_yz, a_zy, a_zx, s_x, s_y, s_z, b_x, b_y, b_z]``;
-gyroscope ``[g_yz, g_zy, g_xz, g_zx, g_xy, g_yx, s_x, s_y, s_z]`` (its bias is estimated apart).
+Parameter vectors: accelerometer ``[a_yz, a_zy, a_zx, s_x, s_y, s_z, b_x, b_y, b_z]``;
+gyroscope ``[g_yz, g_zy, g_zx, g_xz, g_xy, g_yx, s_x, s_y, s_z]`` (its bias is estimated apart), the order
+of :func:`misalignment_angles` and of the estimator's parameter vector. Seed 000's eq. 13 lists the gyro
+angles as yz, zy, xz, zx, xy, yx; the names here follow the values, so ``g_xz`` is always ``T[1, 0]``.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ FloatArray = NDArray[np.float64]
 BiasSign = Literal["plus", "minus"]
 
 ACCEL_PARAM_NAMES = ("a_yz", "a_zy", "a_zx", "s_ax", "s_ay", "s_az", "b_ax", "b_ay", "b_az")
-GYRO_PARAM_NAMES = ("g_yz", "g_zy", "g_xz", "g_zx", "g_xy", "g_yx", "s_gx", "s_gy", "s_gz")
+GYRO_PARAM_NAMES = ("g_yz", "g_zy", "g_zx", "g_xz", "g_xy", "g_yx", "s_gx", "s_gy", "s_gz")
 GYRO_BIAS_NAMES = ("b_gx", "b_gy", "b_gz")
 
 
@@ -161,6 +162,9 @@ class ImuCalibration:
     cov_accel: (9, 9) covariance of the accelerometer parameters (order ``ACCEL_PARAM_NAMES``).
     cov_gyro: (9, 9) covariance of the gyro parameters (order ``GYRO_PARAM_NAMES``).
     cov_gyro_bias: (3, 3) covariance of the gyro bias, raw units squared.
+    gyro_g_sensitivity: (3, 3) G, the gyro's response to specific force, rad/s per m/s^2 (None: none):
+        ``omega = T K (x_S ± b) - G f`` with ``f`` the calibrated specific force of the same sample. A MEMS
+        gyro's bias moves with the orientation in gravity (the xsens log: about 0.1 deg/s per g).
     accel_unit / gyro_unit: units of the raw input the model applies to; the output is m/s^2, rad/s.
     """
 
@@ -178,14 +182,27 @@ class ImuCalibration:
     )
     source: str = ""
     notes: dict[str, Any] = field(default_factory=dict)
+    gyro_g_sensitivity: FloatArray | None = None
 
     def correct_accel(self, accel_s: ArrayLike) -> FloatArray:
         """accel_s: (N, 3) raw accelerometer samples -> (N, 3) body-frame specific force, m/s^2."""
         return self.accel.apply(accel_s)
 
-    def correct_gyro(self, gyro_s: ArrayLike) -> FloatArray:
-        """gyro_s: (N, 3) raw gyro samples -> (N, 3) body-frame angular rate, rad/s."""
-        return self.gyro.apply(gyro_s)
+    def correct_gyro(self, gyro_s: ArrayLike, accel_s: ArrayLike | None = None) -> FloatArray:
+        """gyro_s: (N, 3) raw gyro samples -> (N, 3) body-frame angular rate, rad/s.
+
+        accel_s: (N, 3) raw accelerometer samples of the same instants; needed when the calibration has a
+        g-sensitivity term.
+        """
+        w = self.gyro.apply(gyro_s)
+        if self.gyro_g_sensitivity is None:
+            return w
+        if accel_s is None:
+            raise InputError(
+                "this calibration has a gyro g-sensitivity: correcting the gyro needs the accelerometer "
+                "samples of the same instants"
+            )
+        return w - self.correct_accel(accel_s) @ self.gyro_g_sensitivity.T
 
     def correct(self, log: ImuLog) -> ImuLog:
         """The corrected log in SI units (m/s^2, rad/s), body frame."""
@@ -197,7 +214,7 @@ class ImuCalibration:
         out = ImuLog(
             log.t_ns.copy(),
             self.correct_accel(log.accel),
-            self.correct_gyro(log.gyro),
+            self.correct_gyro(log.gyro, log.accel),
             "m/s^2",
             "rad/s",
             log.source,
@@ -242,6 +259,7 @@ class ImuCalibration:
             "gyro_params": self.gyro_params.tolist(),
             "cov_gyro": cov(self.cov_gyro),
             "cov_gyro_bias": cov(self.cov_gyro_bias),
+            "gyro_g_sensitivity": cov(self.gyro_g_sensitivity),
             "notes": self.notes,
         }
 
@@ -287,10 +305,12 @@ class ImuCalibration:
             date=str(d.get("date", "")),
             source=str(d.get("source", "")),
             notes=dict(d.get("notes") or {}),
+            gyro_g_sensitivity=cov("gyro_g_sensitivity", 3),
         )
 
     def export_imutk(self, acc_path: str | Path, gyro_path: str | Path) -> None:
-        """Write imu_tk ``.calib`` files for the accelerometer and the gyroscope."""
+        """Write imu_tk ``.calib`` files for the accelerometer and the gyroscope (imu_tk's model has no
+        g-sensitivity term: it is left out)."""
         self.accel.save_imutk(acc_path)
         self.gyro.save_imutk(gyro_path)
 

@@ -27,6 +27,7 @@ from imuslam.imu.calibrate import (
     accel_residual_jacobian,
     calibrate,
 )
+from imuslam.imu.crossval import cross_validate
 from imuslam.imu.history import CalibrationHistory
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
@@ -59,6 +60,11 @@ class OnlineConfig(BaseModel):
     )
     schedule_h: float | None = Field(
         None, gt=0, description="also recalibrate after this many hours"
+    )
+    cv_folds: int = Field(
+        5,
+        ge=0,
+        description="folds of the cross-validation recorded with each version in the history (0: none)",
     )
 
 
@@ -185,11 +191,18 @@ class OnlineCalibrator:
         self._mon_sq = np.zeros(6)
         self._mon_n = 0
         self._t_calibrated: int | None = None
+        self._pending_start = False
         self.drift_stats: list[dict[str, float]] = []
 
     # --------------------------------------------------------------------------------------- session
-    def start_session(self, t_ns: int) -> None:
-        """Begin a gimbal session now: go to the first pose and hold still for T_init."""
+    def start_session(self, t_ns: int | None = None) -> None:
+        """Begin a gimbal session at ``t_ns`` (the sensor's clock): go to the first pose and hold still for
+        T_init once the gimbal has arrived. ``None`` starts it at the next sample's time stamp, for a caller
+        that has no sample yet (the arrival time is then on the samples' clock, whatever its epoch)."""
+        if t_ns is None:
+            self._pending_start = True
+            return
+        self._pending_start = False
         self.phase = "init"
         self._buf = _Buffer()
         self._pose = 0
@@ -244,6 +257,26 @@ class OnlineCalibrator:
             self.events.append(Event("rejected", t_ns, {"reason": "no better than the current calibration",
                                                          "new_rms": new_rms, "old_rms": old_rms}))  # fmt: skip
             return
+        # The cross-validated score (held-out poses and pairs) goes with the version into the history.
+        if self.cfg.cv_folds:
+            try:
+                cv = cross_validate(
+                    self._buf.log(*self.units),
+                    self.cfg.calibration,
+                    res.intervals,
+                    self.cfg.cv_folds,
+                )
+                new.notes["cross_validation"] = {
+                    "method": cv.method,
+                    "folds": cv.k_folds,
+                    "poses": len(cv.poses),
+                    "norm_rms_mps2": cv.norm_rms,
+                    "norm_worst_mps2": cv.norm_worst,
+                    "direction_rms_deg": cv.direction_rms_deg,
+                    "direction_worst_deg": cv.direction_worst_deg,
+                }
+            except InputError as exc:  # too few poses for the folds: say so in the version's notes
+                new.notes["cross_validation"] = {"not_run": str(exc)}
         self.current = new
         self.last_result = res
         self._t_calibrated = t_ns
@@ -257,8 +290,14 @@ class OnlineCalibrator:
             self.on_calibration(new, res)
 
     # ----------------------------------------------------------------------------------------- step
+    def session_log(self) -> ImuLog:
+        """The samples of the current (or last) session, from the gimbal's arrival at the first pose."""
+        return self._buf.log(*self.units)
+
     def step(self, t_ns: int, accel: FloatArray, gyro: FloatArray) -> None:
         """One raw sample (accel (3,), gyro (3,) in the calibration's input units)."""
+        if self._pending_start:
+            self.start_session(t_ns)
         if self._last_t is not None and t_ns - self._last_t > 5e8:  # a gap: the window restarts
             self.detector.reset()
             self._end_still(self._last_t)
@@ -289,9 +328,11 @@ class OnlineCalibrator:
             self._monitor(t_ns, accel, gyro, s)
         if self.on_corrected is not None and self.current is not None:
             c = self.current
-            self.on_corrected(
-                t_ns, c.accel.M @ (accel + c.accel.offset), c.gyro.M @ (gyro + c.gyro.offset)
-            )
+            a_c = c.accel.M @ (accel + c.accel.offset)
+            w_c = c.gyro.M @ (gyro + c.gyro.offset)
+            if c.gyro_g_sensitivity is not None:
+                w_c = w_c - c.gyro_g_sensitivity @ a_c
+            self.on_corrected(t_ns, a_c, w_c)
 
     # -------------------------------------------------------------------------------------- monitor
     def _monitor(self, t_ns: int, accel: FloatArray, gyro: FloatArray, s: float) -> None:
@@ -326,7 +367,7 @@ class OnlineCalibrator:
         cal = self.current
         g = cal.g
         a_c = cal.correct_accel(mean[None, :3])[0]
-        w_c = cal.correct_gyro(mean[None, 3:])[0]
+        w_c = cal.correct_gyro(mean[None, 3:], mean[None, :3])[0]
         e = float(np.linalg.norm(a_c) - g)
         # 1-sigma of the norm error: white noise over n samples plus the calibration's own uncertainty
         # along this direction (J cov J^T, J the gravity-norm Jacobian of imu/calibrate.py).
@@ -346,22 +387,33 @@ class OnlineCalibrator:
         if abs(e) - k * sig_e > self.cfg.max_norm_error or gyro_drift:
             self.events.append(Event("drift", t_ns, dict(stat)))
             if self.command is None and gyro_drift:
-                self._refresh_gyro_bias(t_ns, mean[3:], n, std[3:])
+                self._refresh_gyro_bias(t_ns, mean[3:], n, std[3:], mean[:3])
 
     def _refresh_gyro_bias(
-        self, t_ns: int, gyro_mean_raw: FloatArray, n: int, gyro_std_raw: FloatArray
+        self,
+        t_ns: int,
+        gyro_mean_raw: FloatArray,
+        n: int,
+        gyro_std_raw: FloatArray,
+        accel_mean_raw: FloatArray | None = None,
     ) -> None:
         """Without a gimbal, a still moment still tells the gyro bias: the raw mean rate is -b (plus
         convention) or +b (minus); a new version with only that bias changed is published. The
         accelerometer's scale and misalignment need the gimbal's poses and stay as they are."""
         assert self.current is not None
         old = self.current
-        b = -gyro_mean_raw if old.gyro.bias_sign == "plus" else gyro_mean_raw
+        w_still = gyro_mean_raw
+        if old.gyro_g_sensitivity is not None and accel_mean_raw is not None:
+            # still, the calibrated rate M (w ± b) - G f is zero: the raw rate due to f is M^-1 G f
+            f = old.correct_accel(accel_mean_raw[None])[0]
+            w_still = gyro_mean_raw - np.linalg.solve(old.gyro.M, old.gyro_g_sensitivity @ f)
+        b = -w_still if old.gyro.bias_sign == "plus" else w_still
         new = ImuCalibration(
             old.accel, TriadModel(old.gyro.T, old.gyro.K, b, old.gyro.bias_sign), old.cov_accel, old.cov_gyro,
             np.diag(gyro_std_raw**2 / n), old.accel_unit, old.gyro_unit, old.g, old.sensor_id,
             dt.datetime.fromtimestamp(t_ns * 1e-9, dt.UTC).isoformat(timespec="seconds"),
             f"gyro bias from a still moment of {n} samples", {**old.notes, "refresh": "gyro bias"},
+            old.gyro_g_sensitivity,
         )  # fmt: skip
         self.current = new
         version = self.history.add(new) if self.history is not None else None

@@ -26,7 +26,13 @@ from imuslam.sim.imu_errors import (
     SEED000_ACCEL,
     SEED000_GYRO,
 )
-from imuslam.sim.multipose import gimbal_kinematics, gimbal_up_i, min_jerk, move_duration_s
+from imuslam.sim.multipose import (
+    GIMBAL_RESOLUTION_DEG,
+    gimbal_kinematics,
+    gimbal_up_i,
+    min_jerk,
+    move_duration_s,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -43,6 +49,16 @@ class PlanModel:
     sigma_g: float = BWT901CL_GYRO_DENSITY * 10.0  # per sample at 100 Hz, rad/s
     joint_speed_dps: float = 90.0
     min_move_s: float = 1.0
+    # angle step of the gimbal's joints, deg: seed 000's gimbal 360 / 4096 = 0.088; a hobby servo on a
+    # PCA9685 about 0.44 (hw/gimbal.py, ``Pca9685Gimbal.resolution_deg``). Plans are predicted at the
+    # angles the gimbal can reach (:meth:`reachable`).
+    resolution_deg: float = GIMBAL_RESOLUTION_DEG
+
+    def reachable(self, angles_deg: FloatArray) -> FloatArray:
+        """The joint angles (P, 2) the gimbal actually reaches for commanded ``angles_deg`` (P, 2)."""
+        return np.asarray(
+            np.round(np.asarray(angles_deg, float) / self.resolution_deg) * self.resolution_deg
+        )
 
     @classmethod
     def seed000(cls) -> PlanModel:
@@ -51,7 +67,7 @@ class PlanModel:
 
     def accel_info(self, angles_deg: FloatArray) -> FloatArray:
         """Information (P, 9, 9) of each pose for the accelerometer parameters."""
-        f = self.g * gimbal_up_i(angles_deg)
+        f = self.g * gimbal_up_i(self.reachable(angles_deg))
         raw = self.nominal.accel.invert(f)
         sign = 1.0 if self.nominal.accel.bias_sign == "plus" else -1.0
         _, J = accel_residual_jacobian(self.nominal.accel_params, raw, self.g, sign)
@@ -71,7 +87,8 @@ class PlanModel:
         tha = self.nominal.accel_params
         step_a = np.concatenate([np.full(3, 1e-6), np.abs(tha[3:6]) * 1e-6, np.full(3, 1e-6)])
         sign = 1.0 if self.nominal.accel.bias_sign == "plus" else -1.0
-        for i, tgt in enumerate(np.asarray(targets_deg, float)):
+        start_deg = self.reachable(start_deg)
+        for i, tgt in enumerate(self.reachable(targets_deg)):
             d = tgt - start_deg
             T = move_duration_s(d, self.joint_speed_dps, self.min_move_s)
             t = np.arange(0.0, T + 1e-9, 1.0 / self.rate_hz)

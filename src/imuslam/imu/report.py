@@ -4,19 +4,19 @@ from __future__ import annotations
 
 import html
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
+from imuslam.imu.calibrate import CalibrationResult
+from imuslam.imu.crossval import CrossValidation
+from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
+from imuslam.interfaces.imu import ImuLog
+from imuslam.io.atomic import write_atomic
+from imuslam.io.figures import save_figure
 
-from imuslam.imu.calibrate import CalibrationResult  # noqa: E402
-from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES  # noqa: E402
-from imuslam.interfaces.imu import ImuLog  # noqa: E402
-from imuslam.io.atomic import write_atomic  # noqa: E402
-from imuslam.io.figures import save_figure  # noqa: E402
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 def plot_static_detection(res: CalibrationResult, log: ImuLog) -> Figure:
@@ -25,7 +25,10 @@ def plot_static_detection(res: CalibrationResult, log: ImuLog) -> Figure:
     static = np.zeros(len(t), dtype=bool)
     for s, e in res.intervals:
         static[s:e] = True
-    fig, axes = plt.subplots(4, 1, figsize=(11, 8), sharex=True)
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 8))
+    axes = fig.subplots(4, 1, sharex=True)
     for j, ax in enumerate(axes[:3]):
         ax.plot(t, log.accel[:, j], lw=0.6, color="C0")
         lo, hi = np.min(log.accel[:, j]), np.max(log.accel[:, j])
@@ -43,7 +46,10 @@ def plot_static_detection(res: CalibrationResult, log: ImuLog) -> Figure:
 
 def plot_residuals(res: CalibrationResult) -> Figure:
     """Gravity-norm error per interval and gravity-direction error per pair, before and after."""
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(11, 6))
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 6))
+    a1, a2 = fig.subplots(2, 1)
     k = np.arange(len(res.accel_residual_after))
     a1.bar(k - 0.2, res.accel_residual_before, 0.4, label="initial guess")
     a1.bar(k + 0.2, res.accel_residual_after, 0.4, label="calibrated")
@@ -60,7 +66,10 @@ def plot_residuals(res: CalibrationResult) -> Figure:
 
 def plot_sweep(res: CalibrationResult) -> Figure:
     """Residual per sample and interval count against the threshold multiple k."""
-    fig, ax = plt.subplots(figsize=(7, 4))
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7, 4))
+    ax = fig.subplots()
     ks = [r.k for r in res.sweep]
     rr = [
         r.residual_per_sample if np.isfinite(r.residual_per_sample) else np.nan for r in res.sweep
@@ -95,6 +104,7 @@ def write_report(
     out_dir: str | Path,
     truth_accel: np.ndarray | None = None,
     truth_gyro: np.ndarray | None = None,
+    cv: CrossValidation | None = None,
 ) -> list[Path]:
     """PNG plots and ``report.html`` in ``out_dir``; returns the files written."""
     out = Path(out_dir)
@@ -115,6 +125,25 @@ def write_report(
         f"<td>{'yes' if r.ok else html.escape(r.message)}</td></tr>"
         for r in res.sweep
     )
+    cv_html = (
+        "<p>not run</p>"
+        if cv is None
+        else f"""<p>{cv.k_folds}-fold over the {len(cv.poses)} static poses found by the score's fixed
+detector (pose i in fold i mod {cv.k_folds}): each fold refits the calibration ({html.escape(cv.method)})
+without its poses and scores them, and every pair of poses with a held-out end.</p>
+<table><tr><th>quantity</th><th>fit (all poses)</th><th>held out: RMS</th><th>held out: worst</th></tr>
+<tr><td>gravity norm error [m/s^2]</td><td>{res.accel_rms:.5f} (per sample)</td>
+<td>{cv.norm_rms:.5f}</td><td>{cv.norm_worst:.5f}</td></tr>
+<tr><td>gravity direction error [deg]</td><td>{res.gyro_rms_deg:.3f}</td>
+<td>{cv.direction_rms_deg:.3f}</td><td>{cv.direction_worst_deg:.3f}</td></tr></table>"""
+    )
+    g_sens = (
+        ""
+        if c.gyro_g_sensitivity is None
+        else "<p>Gyro g-sensitivity G [deg/s per g]: "
+        + html.escape(np.array2string(np.rad2deg(c.gyro_g_sensitivity) * c.g, precision=4))
+        + "</p>"
+    )
     warn = "".join(f"<li>{html.escape(w)}</li>" for w in res.warnings) or "<li>none</li>"
     doc = f"""<!doctype html><html><head><meta charset="utf-8"><title>IMU calibration</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}} table{{border-collapse:collapse}}
@@ -125,11 +154,13 @@ accel {html.escape(c.accel_unit)}, gyro {html.escape(c.gyro_unit)}; g = {c.g} m/
 <p>Model: x_O = T diag(K) (x_S {"+" if c.accel.bias_sign == "plus" else "-"} b) (Tedaldi et al., ICRA 2014).
 Threshold k = {res.k:g}, {len(res.intervals)} static intervals. Per-sample RMS of |a| - g:
 {res.accel_rms:.5f} m/s^2. Gravity-direction RMS error per pair: {res.gyro_rms_deg:.3f} deg.
-Time {1e3 * res.timings_s.get("total", float("nan")):.0f} ms.</p>
+Method {html.escape(res.config.method)}. Time {1e3 * res.timings_s.get("total", float("nan")):.0f} ms.</p>
 <h2>Warnings</h2><ul>{warn}</ul>
 <h2>Accelerometer</h2><table>{head_t}{_param_rows(ACCEL_PARAM_NAMES, c.accel_params, res.std_accel, truth_accel)}</table>
 <h2>Gyroscope</h2><table>{head_t}{_param_rows(GYRO_PARAM_NAMES, c.gyro_params, res.std_gyro, truth_gyro)}</table>
 <p>Gyro bias: {np.array2string(c.gyro.b, precision=6)} (raw units)</p>
+{g_sens}
+<h2>Cross-validation: poses the calibration did not see</h2>{cv_html}
 <h2>Threshold sweep</h2><table><tr><th>k</th><th>intervals</th><th>residual / sample</th><th>solved</th></tr>{sweep}</table>
 <h2>Static detection</h2><img src="static_detection.png" width="100%">
 <h2>Residuals before and after</h2><img src="residuals.png" width="100%">

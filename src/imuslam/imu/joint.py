@@ -1,0 +1,326 @@
+"""Joint maximum-likelihood refinement of the accelerometer and gyroscope calibration.
+
+Tedaldi 2014 solves the accelerometer from the gravity norm alone, then the gyroscope with the
+accelerometer held fixed. But the gravity *directions* the gyro fit compares depend on the
+accelerometer's misalignment and scales, which the norm barely constrains when the poses are few or
+clustered; the rotations the gyro measures between poses carry that information. Here both triads (and
+optionally a gyro bias correction) are estimated in one weighted least squares over
+
+- the gravity norm of every static pose: ``r_i = (|T_a K_a (a_i ± b_a)| - g) / sigma_n``,
+- the gravity direction predicted across every rotation: ``r_s = (R_s^T u_i - u_j) / sigma_d`` with
+  ``u = h / |h|`` the calibrated direction of each pose and ``R_s`` the calibrated gyro integrated
+  between the poses (Tedaldi 2014, eqs. 13-14),
+
+- optionally, the gyro rate measured at every static pose: ``r_i = (M_g (w_i - db) - G f_i) / sigma_w``,
+  which should be zero there; with ``db`` a bias correction and ``G`` the gyro's g-sensitivity (its bias
+  moving with the specific force ``f``), which then also enters the rates integrated between poses:
+  ``omega = M_g (w - db) - G f``,
+
+with the noise levels of the groups estimated from the data by variance-component estimation (Foerstner 1979;
+Koch, Parameter Estimation and Hypothesis Testing, 1999, sec. 3.6): ``sigma_k^2 = ||r_k||^2 / rho_k``,
+``rho_k`` the redundancy of group k, iterated with the least squares until the weights settle. The
+covariance of the parameters is ``(J^T W J)^-1`` at the solution with those weights.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import solve_triangular
+from scipy.optimize import least_squares
+
+from imuslam.imu.model import misalignment_matrix
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+@dataclass
+class JointFit:
+    """Result of :func:`joint_refine`.
+
+    theta_a: (9,) accelerometer parameters (order of ``ACCEL_PARAM_NAMES``, bias in the fit's sign).
+    theta_g: (9,) gyro misalignments and scales (order of ``GYRO_PARAM_NAMES``).
+    db: (3,) correction added to the gyro bias (raw units; zero when not estimated).
+    G: (3, 3) gyro g-sensitivity, rad/s per m/s^2 (zero when not estimated).
+    cov: (P, P) covariance of ``[theta_a, theta_g, db?, G?]`` (the optional blocks when estimated).
+    sigmas: noise of each residual group (norm m/s^2, direction component, static rate rad/s).
+    """
+
+    theta_a: FloatArray
+    theta_g: FloatArray
+    db: FloatArray
+    G: FloatArray
+    cov: FloatArray
+    sigmas: dict[str, float]
+    norm_residual: FloatArray  # (K,) |h| - g, m/s^2
+    dir_residual: FloatArray  # (S, 3) R^T u_i - u_j
+    iterations: int
+
+
+def _accel_h(theta_a: FloatArray, means: FloatArray, sign: float) -> FloatArray:
+    T = misalignment_matrix(theta_a[0], theta_a[1], theta_a[2])
+    return ((means + sign * theta_a[6:9]) * theta_a[3:6]) @ T.T
+
+
+def _gyro_M(theta_g: FloatArray) -> FloatArray:
+    return misalignment_matrix(*theta_g[:6]) * theta_g[6:9][None, :]
+
+
+def _inv_normal(J: FloatArray) -> FloatArray:
+    """``(J^T J)^-1`` by Cholesky (pseudo-inverse if J is rank deficient)."""
+    N = J.T @ J
+    try:
+        L = np.linalg.cholesky(N)
+    except np.linalg.LinAlgError:
+        return np.asarray(np.linalg.pinv(N), dtype=np.float64)
+    Li = solve_triangular(L, np.eye(len(N)), lower=True)
+    return np.asarray(Li.T @ Li, dtype=np.float64)
+
+
+def _hat_diagonal(J: FloatArray) -> FloatArray:
+    """Diagonal of the hat matrix ``J (J^T J)^-1 J^T`` (each residual's share of the parameters)."""
+    try:
+        L = np.linalg.cholesky(J.T @ J)
+    except np.linalg.LinAlgError:
+        return np.asarray(np.einsum("ij,jk,ik->i", J, np.linalg.pinv(J.T @ J), J))
+    Z = solve_triangular(L, J.T, lower=True)
+    return np.asarray(np.sum(Z * Z, axis=0))
+
+
+def joint_refine(
+    means: FloatArray,
+    gyro_means: FloatArray,
+    w: FloatArray,
+    f: FloatArray,
+    t_s: FloatArray,
+    segs: IntArray,
+    pairs: IntArray,
+    theta_a0: FloatArray,
+    theta_g0: FloatArray,
+    g: float,
+    sign: float,
+    estimate_bias: bool,
+    estimate_g_sensitivity: bool,
+    integrate: Callable[..., FloatArray],
+    accel_free: NDArray[np.bool_] | None = None,
+    pose_t: FloatArray | None = None,
+    pose_n: FloatArray | None = None,
+    max_vce: int = 5,
+) -> JointFit:
+    """Refine ``theta_a0`` (9,) and ``theta_g0`` (9,) jointly (see the module doc).
+
+    means: (K, 3) raw accelerometer mean of each static pose; gyro_means: (K, 3) raw gyro mean of each
+        pose minus the still-period bias.
+    w: (N, 3) gyro samples minus the still-period bias, raw units; f: (N, 3) calibrated specific force
+        (m/s^2, from the starting accelerometer model; only the g-sensitivity term uses it); t_s: (N,) s.
+    segs: (S, 2) sample ranges integrated between poses ``pairs`` (S, 2) (indices into ``means``).
+    integrate: ``imuslam.imu.calibrate.integrate_segments`` (passed in to keep this module below it).
+    accel_free: (9,) which accelerometer parameters the fit moves (default all); the others stay at
+        ``theta_a0`` and get no covariance here (zero rows and columns).
+    pose_t: (K,) time of each pose, s: when given, the accelerometer bias drifts linearly,
+        ``b(t) = b + beta (t - t_mid)`` (beta a nuisance), and ``theta_a`` holds the bias at ``t_mid``.
+    pose_n: (K,) samples averaged in each pose: its accelerometer and static-rate residuals are weighted
+        by ``sqrt(n_i / mean(n))`` (white noise); default equal weights.
+    """
+    use_static = estimate_bias or estimate_g_sensitivity
+    n_b = 3 if use_static else 0
+    n_G = 9 if estimate_g_sensitivity else 0
+    n_d = 3 if pose_t is not None else 0
+    dt_pose = (
+        np.zeros(len(means)) if pose_t is None else pose_t - 0.5 * (pose_t.min() + pose_t.max())
+    )
+    K, S = len(means), len(segs)
+    n_th = 18 + n_b + n_G + n_d  # calibration parameters; then 2 per pose for its gravity direction
+    x_full0 = np.concatenate([theta_a0, theta_g0[:9], np.zeros(n_b + n_G + n_d + 2 * K)])
+    free = np.ones(x_full0.size, dtype=bool)
+    if accel_free is not None:
+        free[:9] = accel_free
+    # Each pose's direction u_i = normalise(u0_i + B_i delta_i), B_i (3, 2) an orthonormal tangent basis.
+    h0 = _accel_h(theta_a0, means, sign)
+    u0 = h0 / np.linalg.norm(h0, axis=1, keepdims=True)
+    helper = np.where(
+        np.abs(u0[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]])
+    )
+    e1 = np.cross(u0, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(u0, e1)
+    n_gyro = 9 + n_b + n_G  # parameters whose columns need an integration
+    kg = np.abs(theta_g0[6:9])
+    scale = np.concatenate(
+        [
+            np.full(3, 1e-3),
+            np.abs(theta_a0[3:6]),
+            1e-2 / np.abs(theta_a0[3:6]),
+            np.full(6, 1e-2),
+            kg,
+            np.full(3, 1e-3) / kg if n_b else np.zeros(0),
+            np.full(n_G, 1e-4),
+            1e-5 / np.abs(theta_a0[3:6]) if n_d else np.zeros(0),
+            np.full(2 * K, 1e-3),
+        ]
+    )
+    step = scale * 1e-5
+
+    def full(z: FloatArray) -> FloatArray:
+        x = x_full0.copy()
+        x[free] = z
+        return x
+
+    x0 = x_full0[free]
+    P = x0.size
+
+    def unpack(x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        db = x[18:21] if n_b else np.zeros(3)
+        G = x[18 + n_b : 27 + n_b].reshape(3, 3) if n_G else np.zeros((3, 3))
+        return x[:9], x[9:18], db, G
+
+    def drift(x: FloatArray) -> FloatArray:
+        """(K, 3) accelerometer bias drift at each pose, raw units."""
+        if not n_d:
+            return np.zeros_like(means)
+        return dt_pose[:, None] * x[18 + n_b + n_G : n_th][None, :]
+
+    def pose_u(x: FloatArray) -> FloatArray:
+        d = x[n_th:].reshape(K, 2)
+        v = u0 + e1 * d[:, :1] + e2 * d[:, 1:]
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+    def gyro_rot(xs: FloatArray) -> FloatArray:
+        """Rotations (Q, S, 3, 3) for the gyro parts of parameter vectors xs (Q, P)."""
+        parts = [unpack(x) for x in xs]
+        Ms = np.stack([_gyro_M(p[1]) for p in parts])
+        offs = np.stack([p[2] for p in parts])
+        if n_G:
+            return integrate(w, t_s, segs, Ms, offs, np.stack([p[3] for p in parts]), f)
+        return integrate(w, t_s, segs, Ms, offs)
+
+    def raw_resid(x: FloatArray, R: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        th_a, th_g, db, G = unpack(x)
+        h = _accel_h(th_a, means + sign * drift(x), sign)
+        u = pose_u(x)
+        rn = (
+            h - g * u
+        )  # the accelerometer measures g along the pose's direction (norm and direction)
+        rd = np.einsum("sji,sj->si", R, u[pairs[:, 0]]) - u[pairs[:, 1]]
+        rw = (gyro_means - db) @ _gyro_M(th_g).T - h @ G.T if use_static else np.zeros((0, 3))
+        return rn, rd, rw
+
+    n_rows = [3 * K, 3 * S, 3 * K if use_static else 0]
+    weights = np.ones(3)
+
+    wp = np.ones((K, 1)) if pose_n is None else np.sqrt(pose_n / np.mean(pose_n))[:, None]
+
+    def stack(rn: FloatArray, rd: FloatArray, rw: FloatArray) -> FloatArray:
+        rw = rw * wp if rw.size else rw
+        return np.concatenate(
+            [(rn * wp).ravel() * weights[0], rd.ravel() * weights[1], rw.ravel() * weights[2]]
+        )
+
+    def fun_jac(z: FloatArray) -> tuple[FloatArray, FloatArray]:
+        x = full(z)
+        xs = np.repeat(x[None], 1 + n_gyro, axis=0)
+        for j in range(n_gyro):
+            xs[1 + j, 9 + j] += step[9 + j]
+        Rs = gyro_rot(xs)
+        r = stack(*raw_resid(x, Rs[0]))
+        J = np.zeros((r.size, P))
+        free_th = np.flatnonzero(free[:n_th])
+        for col, j in enumerate(free_th.tolist()):
+            xp = x.copy()
+            xp[j] += step[j]
+            # accelerometer columns need no integration; gyro column j uses rotation set j - 8
+            R = Rs[j - 8] if 9 <= j < 9 + n_gyro else Rs[0]
+            J[:, col] = (stack(*raw_resid(xp, R)) - r) / step[j]
+        # Direction columns, analytic: du/d delta = (I - u u^T) B / |v| for v = u0 + B delta.
+        d = x[n_th:].reshape(K, 2)
+        v = u0 + e1 * d[:, :1] + e2 * d[:, 1:]
+        nv = np.linalg.norm(v, axis=1)
+        u = v / nv[:, None]
+        B = np.stack([e1, e2], axis=2)  # (K, 3, 2)
+        dU = (B - u[:, :, None] * np.einsum("ki,kij->kj", u, B)[:, None, :]) / nv[:, None, None]
+        c0 = len(free_th)
+        rows_a = np.arange(K)[:, None] * 3 + np.arange(3)[None, :]  # (K, 3)
+        for m in range(2):
+            cols = c0 + 2 * np.arange(K) + m
+            # accelerometer residual h_i - g u_i, weighted per pose
+            J[rows_a, cols[:, None]] = -g * dU[:, :, m] * wp * weights[0]
+            # direction residual R_s^T u_a - u_b
+            base = 3 * K
+            rs = base + np.arange(S)[:, None] * 3 + np.arange(3)[None, :]
+            Ra = np.einsum("sji,sj->si", Rs[0], dU[pairs[:, 0], :, m])
+            np.add.at(J, (rs, np.repeat(cols[pairs[:, 0]][:, None], 3, axis=1)), Ra * weights[1])
+            np.add.at(
+                J,
+                (rs, np.repeat(cols[pairs[:, 1]][:, None], 3, axis=1)),
+                -dU[pairs[:, 1], :, m] * weights[1],
+            )
+        return r, J
+
+    def fun(z: FloatArray) -> FloatArray:
+        # LM's trial steps need the residual only: one integration instead of 1 + n_gyro
+        x = full(z)
+        return stack(*raw_resid(x, gyro_rot(x[None])[0]))
+
+    def jac(z: FloatArray) -> FloatArray:
+        return fun_jac(z)[1]
+
+    # First weights from the starting point's residuals (each group its own RMS).
+    rn0, rd0, rw0 = raw_resid(x_full0, gyro_rot(x_full0[None])[0])
+    weights[0] = 1.0 / max(float(np.sqrt(np.sum((rn0 * wp) ** 2) / K)), 1e-12)
+    weights[1] = 1.0 / max(float(np.sqrt(np.sum(rd0**2) / (2 * S))), 1e-12)
+    if use_static:
+        weights[2] = 1.0 / max(float(np.sqrt(np.mean((rw0 * wp) ** 2))), 1e-12)
+    bounds = np.cumsum([0, *n_rows])
+    dof = [3 * K, 2 * S, 3 * K]  # each direction residual has 2 degrees of freedom (unit vectors)
+    x = x0
+    n_iter = 0
+    for _ in range(max_vce):
+        n_iter += 1
+        res = least_squares(
+            fun,
+            x,
+            jac=jac,
+            method="lm",
+            x_scale=scale[free],
+            xtol=1e-12,
+            ftol=1e-12,
+        )
+        x = res.x
+        r, J = fun_jac(x)
+        # Variance-component estimation: each group's redundancy from the hat matrix's diagonal.
+        hat = _hat_diagonal(J)
+        new = weights.copy()
+        for k in range(3 if use_static else 2):
+            a, b = bounds[k], bounds[k + 1]
+            rho = max(dof[k] - float(hat[a:b].sum()), 1.0)
+            new[k] = weights[k] / np.sqrt(float(r[a:b] @ r[a:b]) / rho)
+        done = bool(np.all(np.abs(new / weights - 1.0) < 1e-2))
+        weights[:] = new
+        if done:
+            break
+    r, J = fun_jac(x)
+    cov_all = np.zeros((free.size, free.size))
+    cov_all[np.ix_(free, free)] = _inv_normal(J)
+    cov = cov_all[:n_th, :n_th]  # the directions' block is marginalised out
+    xf = full(x)
+    _, rd, _ = raw_resid(xf, gyro_rot(xf[None])[0])
+    th_a, th_g, db, G = unpack(xf)
+    rn = np.linalg.norm(_accel_h(th_a, means + sign * drift(xf), sign), axis=1) - g
+    sig = {"accel": 1.0 / weights[0], "direction": 1.0 / weights[1]}
+    if use_static:
+        sig["static_rate"] = 1.0 / weights[2]
+    return JointFit(
+        theta_a=th_a.copy(),
+        theta_g=th_g.copy(),
+        db=db.copy(),
+        G=G.copy(),
+        cov=cov,
+        sigmas=sig,
+        norm_residual=rn,
+        dir_residual=rd,
+        iterations=n_iter,
+    )
