@@ -14,6 +14,7 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/imuslam demo --out demo_out
+	$(BIN)/imuslam study --quick --out demo_out/study
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests bench

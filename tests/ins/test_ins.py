@@ -142,6 +142,7 @@ def test_euroc_biases_agree_with_ground_truth(shared_data: Path) -> None:
     raw = np.loadtxt(d / "gt0" / "data.csv", delimiter=",", comments="#")
     gt_t = raw[:, 0].astype(np.int64)
     gt = raw[(gt_t >= imu.t_ns[0]) & (gt_t <= imu.t_ns[-1])]
+    from imuslam.geometry import log as so3_log
     from imuslam.geometry import quat_to_matrix
 
     k0 = int(np.searchsorted(imu.t_ns, gt[0, 0]))
@@ -160,6 +161,10 @@ def test_euroc_biases_agree_with_ground_truth(shared_data: Path) -> None:
         assert np.all(np.abs(res.accel_bias - truth[:, 14:17])[late] < 3 * res.accel_bias_std[late])
         assert np.all(np.abs(res.gyro_bias - truth[:, 11:14])[late] < 3 * res.gyro_bias_std[late])
         assert np.all(res.accel_bias_std[-1] < 0.05) and np.all(res.gyro_bias_std[-1] < 3e-3)
+        # attitude against gt0 at the end, in the navigation frame: level (x, y) and heading (z) parts
+        err = np.rad2deg(so3_log(res.R_n_b[-1] @ quat_to_matrix(truth[-1, 4:8]).T))
+        print(f"EuRoC V1_02 {method}: level error {np.hypot(err[0], err[1]):.2f} deg, heading error "
+              f"{abs(err[2]):.2f} deg")  # fmt: skip
     # with the datasheet noise the same filter is overconfident: the check above would fail
     res_ds = run_alignment(
         log, Aiding(t_rel[1:], "position", gt[1:, 1:4], 0.002), init, "kf", datasheet, g=9.81

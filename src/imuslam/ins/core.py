@@ -754,7 +754,9 @@ class Eskf:
         delta = x_j ⊟ x_prior, ``(r, H, R) = linearize_fn(x_j)``, K = (H^T R^-1 H + P^-1)^-1 H^T R^-1
         (state dimension: cheap for thousands of point-to-plane rows), x_j+1 = x_j ⊞ (K r - (I - K H)
         delta); stop when |x_j+1 ⊟ x_j| < eps or after ``max_iter``; then P = (I - K H) P. The Jacobian
-        of ⊟ at the prior is taken as identity (its attitude block differs from it by O(|dtheta|))."""
+        of ⊟ at the prior is taken as identity (its attitude block differs from it by O(|dtheta|)).
+        ``linearize_fn`` may return R as a 1-D array of variances (a diagonal R), which keeps the cost
+        linear in the number of rows; gating needs the full matrix."""
         x0 = self.x
         P0 = self.P
         try:
@@ -767,8 +769,7 @@ class Eskf:
         r0 = np.zeros(0)
         nis = float("nan")
         m = self.n
-        K = np.zeros((m, 0))
-        H = np.zeros((0, m))
+        KH: FloatArray = np.zeros((m, m))
         it = 0
         for it in range(1, max_iter + 1):
             r, H, Rm = linearize_fn(xj)
@@ -779,18 +780,20 @@ class Eskf:
                     if not ok:
                         return UpdateResult(False, nis, r, np.zeros(m), 0)
             delta = boxminus(xj, x0, self.layout)
-            Rinv_H = np.linalg.solve(Rm, H)  # R^-1 H
-            A = H.T @ Rinv_H + Pinv
-            K = np.linalg.solve(A, Rinv_H.T)  # (H^T R^-1 H + P^-1)^-1 H^T R^-1
-            step = K @ r - (np.eye(m) - K @ H) @ delta
+            # R^-1 H; a 1-D R is the diagonal (independent rows: thousands of point-to-plane residuals)
+            Rinv_H = H / Rm[:, None] if np.ndim(Rm) == 1 else np.linalg.solve(Rm, H)
+            HtRH = H.T @ Rinv_H
+            A = HtRH + Pinv
+            # K = A^-1 H^T R^-1 never formed (m x k): only K H and K r are needed
+            KH = np.asarray(np.linalg.solve(A, HtRH), dtype=np.float64)
+            step = np.linalg.solve(A, Rinv_H.T @ r) - (np.eye(m) - KH) @ delta
             xj = boxplus(xj, step, self.layout)
             if not np.all(np.isfinite(step)):
                 break
             if float(np.linalg.norm(step)) < eps:
                 break
         self.x = xj
-        I_KH = np.eye(m) - K @ H
-        self.P = I_KH @ P0
+        self.P = (np.eye(m) - KH) @ P0
         self.P = 0.5 * (self.P + self.P.T)
         self._Qsum = np.zeros_like(self.P)
         self._check()

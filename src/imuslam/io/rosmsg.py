@@ -254,6 +254,15 @@ def scan2d_from_msg(msg: Any) -> Scan2d:
     else:
         ranges = np.asarray(msg.ranges, np.float32).copy()
         inten = np.asarray(msg.intensities, np.float32).copy()
+    if len(ranges) > 1 and msg.angle_increment != 0:
+        # a scan whose angle fields disagree with its number of ranges cannot be placed beam by beam
+        expected = (msg.angle_max - msg.angle_min) / msg.angle_increment + 1.0
+        if abs(expected - len(ranges)) > 1.01:
+            raise InputError(
+                f"LaserScan stamped {stamp_ns(msg)} ns: angle_min {msg.angle_min:.6g}, angle_max "
+                f"{msg.angle_max:.6g}, angle_increment {msg.angle_increment:.6g} give {expected:.1f} beams "
+                f"but it has {len(ranges)} ranges"
+            )
     bad = ~np.isfinite(ranges) | (ranges < msg.range_min) | (ranges > msg.range_max)
     ranges[bad] = np.inf
     if inten.shape != ranges.shape:

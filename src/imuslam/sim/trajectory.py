@@ -234,3 +234,78 @@ class CorridorDrive(_HeadingFromVelocity):
         v = np.stack([z + self.v, self.a * w * np.cos(w * t), z], axis=1)
         a = np.stack([z, -self.a * w**2 * np.sin(w * t), z], axis=1)
         return p, v, a
+
+
+def _smooth_progress(t: FloatArray, T: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Quintic smoothstep s(t) from 0 to 1 over [0, T] (zero speed and acceleration at both ends), with
+    its first two derivatives; constant outside."""
+    tau = np.clip(t / T, 0.0, 1.0)
+    inside = (t > 0) & (t < T)
+    s = 10 * tau**3 - 15 * tau**4 + 6 * tau**5
+    ds = np.where(inside, (30 * tau**2 - 60 * tau**3 + 30 * tau**4) / T, 0.0)
+    dds = np.where(inside, (60 * tau - 180 * tau**2 + 120 * tau**3) / T**2, 0.0)
+    return s, ds, dds
+
+
+class SquareLoopCcwCw(EulerTrajectory):
+    """Seed 000's validation drive: once round a rounded square inside the 8 m x 8 m room counter-
+    clockwise from point A, a turn on the spot by 180 degrees at A, then once round clockwise back to A.
+
+    The path is ``p(u) = a (cos u - c cos 3u, sin u + c sin 3u)`` (a squircle, ``c`` its squareness),
+    A = p(0); each lap follows ``u`` with a quintic smoothstep in time (the robot starts and stops at
+    rest), yaw along the direction of travel (the differential drive cannot slide). C2-smooth.
+    """
+
+    def __init__(
+        self, half_size: float = 3.0, squareness: float = 0.1, lap_s: float = 60.0,
+        turn_s: float = 8.0, height: float = 0.15,
+    ) -> None:  # fmt: skip
+        self.a, self.c, self.lap, self.turn, self.h = half_size, squareness, lap_s, turn_s, height
+
+    @property
+    def duration_s(self) -> float:
+        return 2 * self.lap + self.turn
+
+    def _curve(self, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        a, c = self.a, self.c
+        p = a * np.stack([np.cos(u) - c * np.cos(3 * u), np.sin(u) + c * np.sin(3 * u)], axis=1)
+        dp = a * np.stack(
+            [-np.sin(u) + 3 * c * np.sin(3 * u), np.cos(u) + 3 * c * np.cos(3 * u)], axis=1
+        )
+        ddp = a * np.stack(
+            [-np.cos(u) + 9 * c * np.cos(3 * u), -np.sin(u) - 9 * c * np.sin(3 * u)], axis=1
+        )
+        return p, dp, ddp
+
+    def _param(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """u(t), du/dt, d2u/dt2: 0 -> 2 pi in lap 1, held during the turn, 2 pi -> 0 in lap 2."""
+        s1, d1, dd1 = _smooth_progress(t, self.lap)
+        s2, d2, dd2 = _smooth_progress(t - self.lap - self.turn, self.lap)
+        two_pi = 2 * np.pi
+        return two_pi * (s1 - s2), two_pi * (d1 - d2), two_pi * (dd1 - dd2)
+
+    def position(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        u, du, ddu = self._param(t)
+        p, dp, ddp = self._curve(u)
+        z = np.zeros_like(t)
+        v = dp * du[:, None]
+        acc = ddp * du[:, None] ** 2 + dp * ddu[:, None]
+        return (
+            np.column_stack([p, z + self.h]),
+            np.column_stack([v, z]),
+            np.column_stack([acc, z]),
+        )
+
+    def euler(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        u, du, _ = self._param(t)
+        _, dp, ddp = self._curve(u)
+        tangent = np.arctan2(dp[:, 1], dp[:, 0])
+        dtangent_du = (dp[:, 0] * ddp[:, 1] - dp[:, 1] * ddp[:, 0]) / (
+            dp[:, 0] ** 2 + dp[:, 1] ** 2
+        )
+        # lap 2 drives the curve backwards: heading = tangent + pi; the turn blends between the two
+        sb, dsb, _ = _smooth_progress(t - self.lap, self.turn)
+        yaw = tangent + np.pi * sb
+        dyaw = dtangent_du * du + np.pi * dsb
+        z = np.zeros_like(t)
+        return np.stack([z, z, yaw], axis=1), np.stack([z, z, dyaw], axis=1)

@@ -111,3 +111,25 @@ class WheelSpeed:
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         vv, H = _vehicle_velocity(x, layout, self.gyro, self.R_b_v, self.p_b_v)
         return np.array([self.speed - vv[0]]), H[:1], np.array([[self.std**2]])
+
+
+@dataclass
+class WheelYawRate:
+    """Yaw rate of the vehicle from wheel odometry, rad/s, 1-sigma ``std``, against the mean raw gyro
+    (3,) over the same interval: the vehicle-z component of ``gyro_mean - b_g`` (observes the gyro
+    bias about the vehicle's vertical, as VO's rate does about every axis)."""
+
+    yaw_rate: float
+    std: float
+    gyro_mean: FloatArray
+    R_b_v: FloatArray = field(default_factory=lambda: np.eye(3))
+    kind: str = "wheel_yaw_rate"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        ez = self.R_b_v[:, 2]  # vehicle z in the body
+        H = np.zeros((1, layout.dim))
+        H[0, layout.BG] = -ez
+        r = self.yaw_rate - ez @ (self.gyro_mean - x.gyro_bias)
+        return np.array([r]), H, np.array([[self.std**2]])

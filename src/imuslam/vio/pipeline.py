@@ -23,7 +23,15 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from imuslam.errors import InputError
 from imuslam.geometry import exp
-from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise, Measurement, integrate_nominal
+from imuslam.ins.core import (
+    ErrorLayout,
+    Eskf,
+    InsState,
+    KfNoise,
+    Measurement,
+    gate,
+    integrate_nominal,
+)
 from imuslam.io.imulog import ImuLog
 from imuslam.io.trajectory import Trajectory
 from imuslam.vio.frontend import StereoVO, VoConfig, VoMeasurement, VoStats
@@ -72,6 +80,12 @@ class VioConfig(BaseModel):
         (0.0, 0.0, 0.0), description="vehicle origin (non-sliding point) in the body, m"
     )
     gate_prob: float | None = Field(0.999, gt=0.5, lt=1.0, description="chi-square gate; None: off")
+    vo_cov_scale: float = Field(
+        1.0,
+        gt=0,
+        description="inflation of the VO covariance (the pose covariance takes the points' "
+        "triangulation errors as independent between frames, which they are not quite)",
+    )
     vo_velocity: bool = True
     vo_rate: bool = True
     level_window_s: float = Field(
@@ -227,10 +241,13 @@ class VioFilter:
     def update(self, meas: Measurement, dof: int) -> bool:
         """Gated update through the core; returns whether it was accepted."""
         st = self.stats.setdefault(meas.kind, GateStats(dof))
-        r, H, Rm = meas.linearize(self.kf.x, self.kf.layout)
-        S = H @ self.kf.P @ H.T + Rm
-        nis = float(r @ np.linalg.solve(S, r))
-        res = self.kf.update(meas, self.cfg.gate_prob)
+        if self.cfg.gate_prob is None:  # no gate: the NIS for the statistics, then the update
+            r, H, Rm = meas.linearize(self.kf.x, self.kf.layout)
+            nis = gate(r, H, Rm, self.kf.P, 0.5)[1]
+            res = self.kf.update(meas, None)
+        else:
+            res = self.kf.update(meas, self.cfg.gate_prob)
+            nis = res.nis
         st.nis.append(nis)
         st.accepted_mask.append(res.accepted)
         if res.accepted:
@@ -458,13 +475,13 @@ def run_vio(
         filt.advance(t_mid)
         ok_v = True
         if cfg.vo_velocity:
-            ok_v = filt.update(VoVelocity(m.vel_b, m.cov[3:, 3:]), 3)
+            ok_v = filt.update(VoVelocity(m.vel_b, cfg.vo_cov_scale * m.cov[3:, 3:]), 3)
         if cfg.vo_rate:
             t0 = (m.t0_ns - t_ref) * 1e-9
             t1 = (m.t1_ns - t_ref) * 1e-9
             g_mean = filt.gyro_mean(t0, t1)
             gv = filt.noise.gyro**2 / (t1 - t0)
-            filt.update(VoRate(m.omega_b, m.cov[:3, :3], g_mean, gv), 3)
+            filt.update(VoRate(m.omega_b, cfg.vo_cov_scale * m.cov[:3, :3], g_mean, gv), 3)
         filt.mark()
         meas_all.append(m)
         corrupted.append(bad)

@@ -1,0 +1,122 @@
+"""``imuslam map2d``: 2D SLAM (scan-to-submap matching, loop closure, pose graph) of a laser log."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from imuslam.cli.common import console, friendly_errors, table
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("map2d")
+    @friendly_errors
+    def map2d_cmd(
+        log_path: Path = typer.Argument(
+            ...,
+            help="CARMEN log (.clf/.log[.gz|.bz2]), BreezySLAM .dat, a bag, or an imuslam simulate folder",
+        ),
+        out: Path = typer.Option(Path("map2d_out"), "--out", help="results folder"),
+        calib: Path | None = typer.Option(
+            None, "--calib", help="IMU calibration.yaml applied before use"
+        ),
+        gt: Path | None = typer.Option(
+            None, "--gt", help="reference: a corrected CARMEN log or a TUM trajectory"
+        ),
+        config: Path | None = typer.Option(None, "--config", help="YAML with Slam2dConfig fields"),
+        fmt: str = typer.Option("auto", "--format", help="auto, carmen, breezyslam, bag or sim"),
+        scan_topic: str | None = typer.Option(
+            None, "--scan-topic", help="bag: LaserScan / MultiEchoLaserScan topic"
+        ),
+        imu_topic: str | None = typer.Option(
+            None, "--imu-topic", help="bag: Imu topic (default: the only one)"
+        ),
+        odom_topic: str | None = typer.Option(
+            None, "--odom-topic", help="bag: Odometry topic (default: the only one)"
+        ),
+        no_odometry: bool = typer.Option(
+            False, "--no-odometry", help="do not use the wheel odometry"
+        ),
+        no_imu: bool = typer.Option(False, "--no-imu", help="do not use the IMU"),
+        no_loop: bool = typer.Option(False, "--no-loop", help="local SLAM only (no loop closure)"),
+        progress: bool = typer.Option(True, "--progress/--no-progress"),
+    ) -> None:
+        """Map a 2D laser log: trajectory.tum, map.pgm/map.yaml (map_server), map.png, config.yaml."""
+        import time
+
+        import yaml
+        from pydantic import ValidationError
+        from tqdm import tqdm
+
+        from imuslam.errors import InputError
+        from imuslam.io.atomic import atomic_path
+        from imuslam.io.laserload import load_laser_log
+        from imuslam.slam2d.output import write_outputs
+        from imuslam.slam2d.slam import Slam2dConfig, render_map, run_slam2d
+
+        try:
+            data = yaml.safe_load(config.read_text()) if config else {}
+            cfg = Slam2dConfig.model_validate(data or {})
+        except (OSError, yaml.YAMLError) as exc:
+            raise InputError(f"--config {config}: {exc}") from None
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            raise InputError(
+                f"--config {config}: {'.'.join(str(x) for x in first['loc'])}: {first['msg']}"
+            ) from None
+        cfg = cfg.model_copy(update={"use_odometry": cfg.use_odometry and not no_odometry,
+                                     "use_imu": cfg.use_imu and not no_imu})  # fmt: skip
+        if no_loop:
+            cfg.loop.enabled = False
+        log_ = load_laser_log(log_path, fmt, scan_topic, imu_topic, odom_topic)
+        if calib is not None:
+            if log_.imu is None:
+                raise InputError(f"--calib: {log_path} has no IMU to correct")
+            from imuslam.imu.model import ImuCalibration
+
+            log_.imu = ImuCalibration.load_yaml(calib).correct(log_.imu)
+        t0 = time.perf_counter()
+        with tqdm(total=len(log_), unit="scan", desc="map2d", disable=not progress) as bar:
+
+            def tick(k: int) -> None:
+                if k % 50 == 49:
+                    bar.update(50)
+
+            res = run_slam2d(log_, cfg, progress=tick)
+            bar.update(len(log_) - bar.n)
+        grid = render_map(log_, res.pose_xy_yaw, cfg)
+        wall = time.perf_counter() - t0
+        metrics = None
+        if gt is not None:
+            from imuslam.eval.slam2d_gt import score_run
+
+            metrics = score_run(gt, log_, res.t_ns, res.pose_xy_yaw)
+        with atomic_path(out) as tmp:
+            s = write_outputs(tmp, log_, res, grid, wall, metrics)
+        rows = [
+            ["scans", f"{s['scans']}", ""], ["log duration", f"{s['log_duration_s']:.1f}", "s"],
+            ["path length", f"{s['path_length_m']:.1f}", "m"], ["nodes / submaps", f"{s['nodes']} / {s['submaps']}", ""],
+            ["loop constraints", f"{s['loop_constraints']} of {s['loop_searches']} searches", ""],
+            ["mean match score", f"{s['mean_match_score']:.3f}", "probability"],
+            ["time", f"{wall:.1f}", "s"], ["faster than real time", f"{s['faster_than_real_time']:.1f}", "x"],
+        ]  # fmt: skip
+        for k, v in res.warnings.items():
+            rows.append([k, f"{v}", "count"])
+        if metrics is not None:
+            for name in ("slam", "odometry"):
+                m = metrics.get(name)
+                if m is None:
+                    continue
+                if metrics["kind"] == "kuemmerle2009_relations":
+                    rows.append([f"{name}: relation error (Kümmerle 2009)",
+                                 f"{m['trans_mean']:.3f} ± {m['trans_std']:.3f} m, {m['rot_mean_deg']:.2f} ± {m['rot_std_deg']:.2f}", "m, deg"])  # fmt: skip
+                else:
+                    rows.append([f"{name}: ATE RMSE", f"{m['ate_rmse_m']:.3f}", "m"])
+                    rows.append(
+                        [f"{name}: RPE per metre", f"{m['rpe_trans_rmse_m_per_m']:.3f}", "m"]
+                    )
+        console.print(table(f"imuslam map2d: {log_path.name}", ["quantity", "value", "unit"], rows))
+        console.print(
+            f"wrote {out}/: trajectory.tum, map.pgm, map.yaml, map.png, config.yaml, summary.json"
+        )

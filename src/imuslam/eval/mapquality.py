@@ -1,0 +1,90 @@
+"""Quality of a 2D map and trajectory against a simulated truth: SE(2) alignment (Umeyama without scale),
+ATE, loop error, and map sharpness against the true walls (the fraction of occupied cells farther than
+a distance from any surface, and the thickness of the walls)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imuslam.sim.world import World, distance_to_surfaces
+
+FloatArray = NDArray[np.float64]
+
+
+def align_se2(est_xy: FloatArray, ref_xy: FloatArray) -> FloatArray:
+    """[x, y, theta] that maps ``est_xy`` (N, 2) onto ``ref_xy`` best in least squares (Umeyama 1991,
+    no scale)."""
+    me, mr = est_xy.mean(axis=0), ref_xy.mean(axis=0)
+    H = (est_xy - me).T @ (ref_xy - mr)
+    th = np.arctan2(H[0, 1] - H[1, 0], H[0, 0] + H[1, 1])
+    c, s = np.cos(th), np.sin(th)
+    t = mr - np.array([[c, -s], [s, c]]) @ me
+    return np.array([t[0], t[1], th])
+
+
+def transform(T: FloatArray, xy_yaw: FloatArray) -> FloatArray:
+    c, s = np.cos(T[2]), np.sin(T[2])
+    xy = xy_yaw[:, :2] @ np.array([[c, s], [-s, c]]) + T[:2]
+    return np.column_stack([xy, xy_yaw[:, 2] + T[2]])
+
+
+@dataclass
+class MapQuality:
+    ate_rmse_m: float
+    ate_max_m: float
+    loop_error_m: float
+    loop_error_deg: float
+    occupied_cells: int
+    frac_far: float  # occupied cells farther than ``far_m`` from any true surface
+    wall_thickness_m: (
+        float  # mean over the room's four walls of the 5-95 % spread of occupied cells
+    )
+
+
+def occupied_centres(prob: FloatArray, known: NDArray[np.bool_], x0: float, y0: float, res: float,
+                     thresh: float = 0.65) -> FloatArray:  # fmt: skip
+    iy, ix = np.nonzero(known & (prob >= thresh))
+    return np.column_stack([x0 + (ix + 0.5) * res, y0 + (iy + 0.5) * res])
+
+
+def wall_thickness(xy: FloatArray, half: float = 4.0, band: float = 0.3) -> float:
+    """Mean over the four walls at |x| = half, |y| = half of the 5-95 % width of the occupied cells
+    within ``band`` of the wall's inner face (corners excluded)."""
+    widths = []
+    for axis in (0, 1):
+        other = 1 - axis
+        for sign in (-1.0, 1.0):
+            d = sign * xy[:, axis] - half
+            m = (np.abs(d) < band) & (np.abs(xy[:, other]) < half - band)
+            if m.sum() >= 10:
+                lo, hi = np.percentile(d[m], [5, 95])
+                widths.append(hi - lo)
+    return float(np.mean(widths)) if widths else float("nan")
+
+
+def map_quality(
+    est_xy_yaw: FloatArray, truth_xy_yaw: FloatArray, occupied_w: Callable[[FloatArray], FloatArray],
+    world: World, height: float, far_m: float = 0.05,
+) -> MapQuality:  # fmt: skip
+    """Align the estimate to the truth (SE(2), positions), then score the trajectory, and the map that
+    ``occupied_w(aligned poses)`` renders (occupied cell centres (M, 2) in the world frame, so that its
+    raster is the world's), against the world's surfaces at the scanner's height."""
+    T = align_se2(est_xy_yaw[:, :2], truth_xy_yaw[:, :2])
+    al = transform(T, est_xy_yaw)
+    e = np.hypot(*(al[:, :2] - truth_xy_yaw[:, :2]).T)
+    d_true = truth_xy_yaw[-1] - truth_xy_yaw[0]
+    d_est = est_xy_yaw[-1] - est_xy_yaw[0]
+    loop_m = float(np.hypot(*(d_est[:2] - d_true[:2])))
+    loop_deg = float(np.rad2deg(abs(np.angle(np.exp(1j * (d_est[2] - d_true[2]))))))
+    occ = occupied_w(al)
+    if len(occ):
+        dist = distance_to_surfaces(world, np.column_stack([occ, np.full(len(occ), height)]))
+        far = float(np.mean(dist > far_m))
+    else:
+        far = float("nan")
+    return MapQuality(float(np.sqrt(np.mean(e**2))), float(e.max()), loop_m, loop_deg, len(occ), far,
+                      wall_thickness(occ))  # fmt: skip

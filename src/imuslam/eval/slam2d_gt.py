@@ -1,0 +1,88 @@
+"""A 2D SLAM run scored against a reference: a CARMEN log of corrected poses (Kümmerle 2009 relations
+between consecutive corrected scans, scans associated by their readings) or a trajectory file (ATE/RPE as
+evo computes them). The raw wheel odometry is scored the same way as the baseline."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imuslam.errors import InputError
+from imuslam.eval.metrics import evaluate
+from imuslam.eval.relations import associate_by_ranges, consecutive_relations, relation_error
+from imuslam.io.laserlog import LaserLog
+from imuslam.io.trajectory import Trajectory, read_trajectory
+
+FloatArray = NDArray[np.float64]
+
+
+def planar_trajectory(t_ns: NDArray[np.int64], xy_yaw: FloatArray, source: str) -> Trajectory:
+    c, s = np.cos(xy_yaw[:, 2]), np.sin(xy_yaw[:, 2])
+    R = np.zeros((len(xy_yaw), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
+    p = np.column_stack([xy_yaw[:, :2], np.zeros(len(xy_yaw))])
+    return Trajectory(t_ns, p, R, source)
+
+
+def is_carmen(path: Path) -> bool:
+    n = path.name.lower()
+    return any(
+        n.endswith(e) for e in (".clf", ".log", ".clf.gz", ".log.gz", ".clf.bz2", ".log.bz2")
+    )
+
+
+def relations_against_corrected(
+    gt: str | Path, log_: LaserLog, estimates: dict[str, FloatArray]
+) -> dict[str, Any]:
+    """Kümmerle 2009 relation errors of each estimate (N, 3) against a corrected CARMEN log."""
+    from imuslam.io.carmen import read_carmen
+
+    ref = read_carmen(gt)
+    ri, ei = associate_by_ranges(ref.laser.ranges, log_.ranges)
+    if len(ri) < 2:
+        raise InputError(
+            f"{gt}: fewer than 2 of its scans have the readings of a scan of {log_.source}"
+        )
+    i, j = consecutive_relations(len(ri))
+    refp = ref.laser_pose_xy_yaw[ri]
+    out: dict[str, Any] = {
+        "reference": str(gt),
+        "associated_scans": len(ri),
+        "reference_scans": len(ref.laser),
+    }
+    for name, est in estimates.items():
+        out[name] = asdict(relation_error(est[ei], refp, i, j))
+    return out
+
+
+def ate_rpe(
+    gt: str | Path, t_ns: NDArray[np.int64], estimates: dict[str, FloatArray], fmt: str = "tum"
+) -> dict[str, Any]:
+    """APE (SE(3)-aligned) and RPE per metre of each planar estimate against a trajectory file."""
+    ref = read_trajectory(gt, fmt)
+    out: dict[str, Any] = {"reference": str(gt)}
+    for name, est in estimates.items():
+        res, _, _ = evaluate(
+            ref, planar_trajectory(t_ns, est, name), "se3", 1.0, "m", max_diff_s=0.02
+        )
+        out[name] = {"ate_rmse_m": res.ape_trans.rmse, "ate_max_m": res.ape_trans.max,
+                     "rpe_trans_rmse_m_per_m": res.rpe_trans.rmse, "rpe_rot_rmse_deg_per_m": res.rpe_rot_deg.rmse,
+                     "poses": res.n_pairs}  # fmt: skip
+    return out
+
+
+def score_run(
+    gt: str | Path, log_: LaserLog, t_ns: NDArray[np.int64], slam_xy_yaw: FloatArray
+) -> dict[str, Any]:
+    """Metrics of the SLAM estimate and of the raw odometry (if any) against ``gt``."""
+    est = {"slam": slam_xy_yaw}
+    if log_.odom_xy_yaw is not None:
+        est["odometry"] = log_.odom_xy_yaw
+    p = Path(gt)
+    if is_carmen(p):
+        return {"kind": "kuemmerle2009_relations", **relations_against_corrected(p, log_, est)}
+    return {"kind": "ate_rpe", **ate_rpe(p, t_ns, est)}

@@ -1,0 +1,398 @@
+"""Scan-to-grid matching: a real-time correlative search, Gauss-Newton refinement against the
+interpolated probability grid, and branch-and-bound correlative search for loop closure.
+
+- Correlative search: Olson, "Real-Time Correlative Scan Matching", ICRA 2009: score every pose of a
+  window (translations on the grid's cells, rotations at the step that moves the farthest point by about
+  one cell, ``acos(1 - r^2 / (2 d_max^2))``, Hess 2016 eq. 7), weighted by the distance to the prior
+  (Cartographer's ``translation/rotation_delta_cost_weight``).
+- Refinement: Hess 2016 eq. 4, ``argmin sum_k (1 - M_smooth(T p_k))^2`` plus the pull towards the prior
+  pose, by Gauss-Newton; M_smooth is the bilinear interpolation of the probability grid.
+- Branch and bound: Hess 2016 section V.C (algorithm 3): pre-computed grids of the maximum over
+  2^h x 2^h blocks bound the score of every translation below a node; depth-first, best child first.
+
+Point sets are (P, 2) in the body frame, m; poses are [x, y, theta] of the body in the grid's frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+F32 = NDArray[np.float32]
+U8 = NDArray[np.uint8]
+
+
+def angular_step(resolution: float, max_range: float) -> float:
+    """Rotation that moves a point at ``max_range`` by about one cell (Hess 2016, eq. 7)."""
+    d = max(max_range, 2 * resolution)
+    return float(np.arccos(1.0 - resolution**2 / (2.0 * d**2)))
+
+
+@numba.njit(cache=True)
+def correlative_search(
+    prob: F32,
+    x0: float,
+    y0: float,
+    res: float,
+    pts_b: FloatArray,
+    pose0: FloatArray,
+    lin_cells: int,
+    n_ang: int,
+    ang_step: float,
+    w_trans: float,
+    w_rot: float,
+    p_unknown: float,
+) -> tuple[FloatArray, float]:  # pragma: no cover - compiled
+    """Exhaustive search of ``pose0`` +- lin_cells cells and +- n_ang angle steps; returns the best pose
+    and its score (mean probability times exp(-w_trans |dt|^2 - w_rot dtheta^2))."""
+    H, W = prob.shape
+    P = pts_b.shape[0]
+    best = -1.0
+    bx, by, bt = pose0[0], pose0[1], pose0[2]
+    cx = np.empty(P, np.int64)
+    cy = np.empty(P, np.int64)
+    for a in range(-n_ang, n_ang + 1):
+        th = pose0[2] + a * ang_step
+        c, s = np.cos(th), np.sin(th)
+        for k in range(P):
+            px = c * pts_b[k, 0] - s * pts_b[k, 1] + pose0[0]
+            py = s * pts_b[k, 0] + c * pts_b[k, 1] + pose0[1]
+            cx[k] = int(np.floor((px - x0) / res))
+            cy[k] = int(np.floor((py - y0) / res))
+        rot_pen = w_rot * (a * ang_step) ** 2
+        for dy in range(-lin_cells, lin_cells + 1):
+            for dx in range(-lin_cells, lin_cells + 1):
+                acc = 0.0
+                for k in range(P):
+                    ix = cx[k] + dx
+                    iy = cy[k] + dy
+                    if 0 <= ix < W and 0 <= iy < H:
+                        acc += prob[iy, ix]
+                    else:
+                        acc += p_unknown
+                sc = acc / P * np.exp(-(w_trans * ((dx * res) ** 2 + (dy * res) ** 2) + rot_pen))
+                if sc > best:
+                    best = sc
+                    bx = pose0[0] + dx * res
+                    by = pose0[1] + dy * res
+                    bt = th
+    out = np.empty(3)
+    out[0], out[1], out[2] = bx, by, bt
+    return out, best
+
+
+@numba.njit(cache=True)
+def _bilinear(
+    prob: F32, u: float, v: float, p_unknown: float
+) -> tuple[float, float, float]:  # pragma: no cover
+    """Value and gradient (d/du, d/dv) at continuous cell coordinates (cell centres at i + 0.5)."""
+    H, W = prob.shape
+    u -= 0.5
+    v -= 0.5
+    i0 = int(np.floor(u))
+    j0 = int(np.floor(v))
+    fu = u - i0
+    fv = v - j0
+    if i0 < 0 or j0 < 0 or i0 + 1 >= W or j0 + 1 >= H:
+        return p_unknown, 0.0, 0.0
+    a = prob[j0, i0]
+    b = prob[j0, i0 + 1]
+    c = prob[j0 + 1, i0]
+    d = prob[j0 + 1, i0 + 1]
+    val = a * (1 - fu) * (1 - fv) + b * fu * (1 - fv) + c * (1 - fu) * fv + d * fu * fv
+    du = (b - a) * (1 - fv) + (d - c) * fv
+    dv = (c - a) * (1 - fu) + (d - b) * fu
+    return val, du, dv
+
+
+@numba.njit(cache=True)
+def refine_pose(
+    prob: F32,
+    x0: float,
+    y0: float,
+    res: float,
+    pts_b: FloatArray,
+    pose_init: FloatArray,
+    prior: FloatArray,
+    w_occ: float,
+    w_trans: float,
+    w_rot: float,
+    p_unknown: float,
+    iters: int,
+) -> tuple[FloatArray, float]:  # pragma: no cover - compiled
+    """Gauss-Newton (Levenberg-damped) on Hess 2016 eq. 4 plus the prior terms
+    ``w_trans^2 |t - t_prior|^2 + w_rot^2 (theta - theta_prior)^2``; occupied residuals weighted
+    ``w_occ / sqrt(P)`` as Cartographer's. Returns the pose and the mean probability at the points."""
+    P = pts_b.shape[0]
+    x = pose_init.copy()
+    wo = w_occ / np.sqrt(P)
+    lam = 1e-3
+
+    def cost_of(xx: FloatArray) -> float:
+        c, s = np.cos(xx[2]), np.sin(xx[2])
+        tot = 0.0
+        for k in range(P):
+            px = c * pts_b[k, 0] - s * pts_b[k, 1] + xx[0]
+            py = s * pts_b[k, 0] + c * pts_b[k, 1] + xx[1]
+            val, _, _ = _bilinear(prob, (px - x0) / res, (py - y0) / res, p_unknown)
+            tot += (wo * (1.0 - val)) ** 2
+        tot += (w_trans * (xx[0] - prior[0])) ** 2 + (w_trans * (xx[1] - prior[1])) ** 2
+        tot += (w_rot * (xx[2] - prior[2])) ** 2
+        return tot
+
+    cost = cost_of(x)
+    for _ in range(iters):
+        c, s = np.cos(x[2]), np.sin(x[2])
+        A = np.zeros((3, 3))
+        g = np.zeros(3)
+        for k in range(P):
+            bx, by = pts_b[k, 0], pts_b[k, 1]
+            px = c * bx - s * by + x[0]
+            py = s * bx + c * by + x[1]
+            val, du, dv = _bilinear(prob, (px - x0) / res, (py - y0) / res, p_unknown)
+            r = wo * (1.0 - val)
+            jx = -wo * du / res
+            jy = -wo * dv / res
+            jt = jx * (-s * bx - c * by) + jy * (c * bx - s * by)
+            J = (jx, jy, jt)
+            for i in range(3):
+                g[i] += J[i] * r
+                for j in range(3):
+                    A[i, j] += J[i] * J[j]
+        r0 = w_trans * (x[0] - prior[0])
+        r1 = w_trans * (x[1] - prior[1])
+        r2 = w_rot * (x[2] - prior[2])
+        A[0, 0] += w_trans**2
+        A[1, 1] += w_trans**2
+        A[2, 2] += w_rot**2
+        g[0] += w_trans * r0
+        g[1] += w_trans * r1
+        g[2] += w_rot * r2
+        improved = False
+        for _t in range(6):
+            Ad = A.copy()
+            for i in range(3):
+                Ad[i, i] += lam * (A[i, i] + 1e-9)
+            step = np.linalg.solve(Ad, -g)
+            xn = x + step
+            cn = cost_of(xn)
+            if cn < cost:
+                x = xn
+                lam = max(lam * 0.3, 1e-6)
+                improved = cn > cost - 1e-10
+                cost = cn
+                improved = True
+                break
+            lam *= 10.0
+        if not improved or (abs(step[0]) < 1e-5 and abs(step[1]) < 1e-5 and abs(step[2]) < 1e-6):
+            break
+    c, s = np.cos(x[2]), np.sin(x[2])
+    acc = 0.0
+    for k in range(P):
+        px = c * pts_b[k, 0] - s * pts_b[k, 1] + x[0]
+        py = s * pts_b[k, 0] + c * pts_b[k, 1] + x[1]
+        val, _, _ = _bilinear(prob, (px - x0) / res, (py - y0) / res, p_unknown)
+        acc += val
+    return x, acc / P
+
+
+def refine_pose_reference(
+    prob: F32, x0: float, y0: float, res: float, pts_b: FloatArray, pose_init: FloatArray,
+    prior: FloatArray, w_occ: float, w_trans: float, w_rot: float, p_unknown: float,
+) -> FloatArray:  # fmt: skip
+    """Slow reference of :func:`refine_pose`: scipy's least squares on the same residuals (for tests)."""
+    from scipy.interpolate import RegularGridInterpolator
+    from scipy.optimize import least_squares
+
+    H, W = prob.shape
+    yc = (np.arange(H) + 0.5) * res + y0
+    xc = (np.arange(W) + 0.5) * res + x0
+    f = RegularGridInterpolator(
+        (yc, xc), prob.astype(float), bounds_error=False, fill_value=p_unknown
+    )
+    wo = w_occ / np.sqrt(len(pts_b))
+
+    def resid(x: FloatArray) -> FloatArray:
+        c, s = np.cos(x[2]), np.sin(x[2])
+        p = pts_b @ np.array([[c, s], [-s, c]]) + x[:2]
+        occ = wo * (1.0 - f(p[:, ::-1]))
+        return np.concatenate([occ, w_trans * (x[:2] - prior[:2]), [w_rot * (x[2] - prior[2])]])
+
+    return np.asarray(least_squares(resid, pose_init, method="lm", xtol=1e-10).x)
+
+
+# ----------------------------------------------------------------------------------------------
+# Branch and bound (Hess 2016, section V)
+
+
+@numba.njit(cache=True)
+def precompute_max_grids(prob: F32, depth: int) -> U8:  # pragma: no cover - compiled
+    """Levels 0..depth (depth + 1, H + 2 pad, W + 2 pad), pad = 2^depth - 1, uint8 (probability * 255):
+    level h at padded (Y, X) is the maximum of level 0 over [Y, Y + 2^h) x [X, X + 2^h) (Hess 2016
+    eq. 14), built by doubling: each level is the maximum of four shifted copies of the one below."""
+    H, W = prob.shape
+    pad = (1 << depth) - 1
+    Hp, Wp = H + 2 * pad, W + 2 * pad
+    out = np.zeros((depth + 1, Hp, Wp), np.uint8)
+    for y in range(H):
+        for x in range(W):
+            out[0, y + pad, x + pad] = np.uint8(min(255.0, max(0.0, prob[y, x] * 255.0 + 0.5)))
+    for h in range(1, depth + 1):
+        s = 1 << (h - 1)
+        for y in range(Hp):
+            for x in range(Wp):
+                m = out[h - 1, y, x]
+                if x + s < Wp and out[h - 1, y, x + s] > m:
+                    m = out[h - 1, y, x + s]
+                if y + s < Hp:
+                    if out[h - 1, y + s, x] > m:
+                        m = out[h - 1, y + s, x]
+                    if x + s < Wp and out[h - 1, y + s, x + s] > m:
+                        m = out[h - 1, y + s, x + s]
+                out[h, y, x] = m
+    return out
+
+
+@numba.njit(cache=True)
+def _score(
+    levels: U8, h: int, cells: NDArray[np.int64], a: int, ox: int, oy: int
+) -> float:  # pragma: no cover
+    _, Hp, Wp = levels.shape
+    P = cells.shape[1]
+    acc = 0
+    for k in range(P):
+        x = cells[a, k, 0] + ox
+        y = cells[a, k, 1] + oy
+        if 0 <= x < Wp and 0 <= y < Hp:
+            acc += levels[h, y, x]
+    return acc / (255.0 * P)
+
+
+@numba.njit(cache=True)
+def branch_and_bound(
+    levels: U8, cells: NDArray[np.int64], lin_cells: int, min_score: float
+) -> tuple[int, int, int, float]:  # pragma: no cover - compiled
+    """Best (angle index, dx, dy) cells over the window [-lin_cells, lin_cells]^2 of every discretised
+    rotation ``cells`` (A, P, 2) (padded level-0 cell indices at zero offset); returns score -1 if none
+    reaches ``min_score``."""
+    depth = levels.shape[0] - 1
+    A = cells.shape[0]
+    step = 1 << depth
+    cap = 1 << 20
+    st_h = np.empty(cap, np.int64)
+    st_a = np.empty(cap, np.int64)
+    st_x = np.empty(cap, np.int64)
+    st_y = np.empty(cap, np.int64)
+    st_s = np.empty(cap, np.float64)
+    # root candidates, pushed in ascending score so the best is popped first
+    nroot = 0
+    xs = np.arange(-lin_cells, lin_cells + 1, step)
+    n1 = xs.shape[0]
+    rs = np.empty(A * n1 * n1)
+    ra = np.empty(A * n1 * n1, np.int64)
+    rx = np.empty(A * n1 * n1, np.int64)
+    ry = np.empty(A * n1 * n1, np.int64)
+    for a in range(A):
+        for i in range(n1):
+            for j in range(n1):
+                rs[nroot] = _score(levels, depth, cells, a, xs[i], xs[j])
+                ra[nroot] = a
+                rx[nroot] = xs[i]
+                ry[nroot] = xs[j]
+                nroot += 1
+    order = np.argsort(rs[:nroot])
+    top = 0
+    for q in order:
+        if rs[q] > min_score and top < cap:
+            st_h[top] = depth
+            st_a[top] = ra[q]
+            st_x[top] = rx[q]
+            st_y[top] = ry[q]
+            st_s[top] = rs[q]
+            top += 1
+    best = min_score
+    ba, bx, by = -1, 0, 0
+    cs = np.empty(4)
+    cx = np.empty(4, np.int64)
+    cy = np.empty(4, np.int64)
+    while top > 0:
+        top -= 1
+        h, a, x, y, sc = st_h[top], st_a[top], st_x[top], st_y[top], st_s[top]
+        if sc <= best:
+            continue
+        if h == 0:
+            best = sc
+            ba, bx, by = a, x, y
+            continue
+        hh = h - 1
+        s = 1 << hh
+        n = 0
+        for ddx in (0, s):
+            for ddy in (0, s):
+                nx, ny = x + ddx, y + ddy
+                if nx > lin_cells or ny > lin_cells:
+                    continue
+                cs[n] = _score(levels, hh, cells, a, nx, ny)
+                cx[n] = nx
+                cy[n] = ny
+                n += 1
+        o = np.argsort(cs[:n])
+        for q in o:
+            if cs[q] > best and top < cap:
+                st_h[top] = hh
+                st_a[top] = a
+                st_x[top] = cx[q]
+                st_y[top] = cy[q]
+                st_s[top] = cs[q]
+                top += 1
+    return ba, bx, by, best if ba >= 0 else -1.0
+
+
+@dataclass
+class SubmapIndex:
+    """A finished submap prepared for loop closure: the max grids, its origin and resolution."""
+
+    levels: U8
+    x0: float
+    y0: float
+    res: float
+    pad: int
+
+
+def make_index(prob: F32, x0: float, y0: float, res: float, depth: int) -> SubmapIndex:
+    return SubmapIndex(precompute_max_grids(prob, depth), x0, y0, res, (1 << depth) - 1)
+
+
+def bnb_match(
+    index: SubmapIndex,
+    pts_b: FloatArray,
+    pose0: FloatArray,
+    lin_window: float,
+    ang_window: float,
+    min_score: float,
+    step_range: float = np.inf,
+) -> tuple[FloatArray, float]:
+    """Branch-and-bound search around ``pose0`` (in the submap's frame): the best pose on the search
+    lattice and its score (mean probability), or score -1 when nothing reaches ``min_score``. The angular
+    step moves a point at ``min(step_range, farthest point)`` by one cell."""
+    res = index.res
+    d_max = float(np.max(np.hypot(pts_b[:, 0], pts_b[:, 1]))) if len(pts_b) else 1.0
+    d_max = min(d_max, step_range)
+    step = angular_step(res, d_max)
+    n_ang = int(np.ceil(ang_window / step))
+    th = pose0[2] + np.arange(-n_ang, n_ang + 1) * step
+    c, s = np.cos(th)[:, None], np.sin(th)[:, None]
+    px = c * pts_b[None, :, 0] - s * pts_b[None, :, 1] + pose0[0]
+    py = s * pts_b[None, :, 0] + c * pts_b[None, :, 1] + pose0[1]
+    cells = np.empty((len(th), len(pts_b), 2), np.int64)
+    cells[..., 0] = np.floor((px - index.x0) / res).astype(np.int64) + index.pad
+    cells[..., 1] = np.floor((py - index.y0) / res).astype(np.int64) + index.pad
+    lin_cells = int(np.ceil(lin_window / res))
+    a, dx, dy, score = branch_and_bound(index.levels, cells, lin_cells, min_score)
+    if a < 0:
+        return pose0.copy(), -1.0
+    return np.array([pose0[0] + dx * res, pose0[1] + dy * res, th[a]]), float(score)

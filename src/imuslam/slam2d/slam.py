@@ -1,0 +1,528 @@
+"""2D SLAM with wheel odometry and an IMU, the Cartographer way (Hess, Kohler, Rapp, Andor, "Real-Time
+Loop Closure in 2D LIDAR SLAM", ICRA 2016):
+
+local SLAM   each scan is matched against the current submap: a motion prior from the wheel odometry
+             and the IMU's yaw rate (the rate about the gravity direction; scans taken while the IMU
+             reports a tilt above ``max_tilt_deg`` are not inserted), a real-time correlative search
+             (Olson 2009), then Gauss-Newton refinement on the interpolated probability grid. Scans that
+             moved enough (the motion filter) become nodes and are inserted into the two active submaps;
+             a submap is finished after ``scans_per_submap`` nodes.
+global SLAM  nodes are matched against finished submaps by branch and bound (Hess 2016, section V);
+             accepted matches are loop constraints with a Huber loss in a pose graph of the nodes
+             (consecutive nodes tied by their local-SLAM relative pose), optimised with gtsam
+             (Levenberg-Marquardt), as the graph grows and once at the end.
+
+Poses are [x, y, theta] of the body (odometry frame) in the map frame; the first scan is at the origin.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from imuslam.errors import EstimatorError
+from imuslam.io.laserlog import LaserLog
+from imuslam.slam2d import pose2
+from imuslam.slam2d.grid import GridParams, ProbabilityGrid
+from imuslam.slam2d.matching import (
+    SubmapIndex,
+    angular_step,
+    bnb_match,
+    correlative_search,
+    make_index,
+    refine_pose,
+)
+
+FloatArray = NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+
+class MatcherConfig(BaseModel):
+    """Local scan matching (Cartographer's names where they exist)."""
+
+    model_config = ConfigDict(extra="forbid")
+    use_correlative: bool = True
+    linear_window: float = Field(0.15, ge=0, description="correlative search half-window, m")
+    angular_window_deg: float = Field(10.0, ge=0, description="correlative search half-window, deg")
+    step_range: float = Field(
+        10.0, gt=0, description="angular step: one cell at this range, m (Olson 2009)"
+    )
+    translation_delta_cost_weight: float = Field(0.1, ge=0)
+    rotation_delta_cost_weight: float = Field(0.1, ge=0)
+    occupied_space_weight: float = Field(1.0, gt=0)
+    translation_weight: float = Field(10.0, ge=0, description="pull towards the prior, per m")
+    rotation_weight: float = Field(40.0, ge=0, description="pull towards the prior, per rad")
+    max_iterations: int = Field(20, ge=1)
+
+
+class LoopConfig(BaseModel):
+    """Loop closure and pose graph."""
+
+    model_config = ConfigDict(extra="forbid")
+    enabled: bool = True
+    every_n_nodes: int = Field(5, ge=1, description="search constraints for one node in this many")
+    max_submaps_per_node: int = Field(
+        3, ge=1, description="the nearest finished submaps searched per node"
+    )
+    step_range: float = Field(15.0, gt=0, description="angular step: one cell at this range, m")
+    max_distance: float = Field(10.0, gt=0, description="only submaps this close to the node, m")
+    linear_window: float = Field(3.0, gt=0, description="branch-and-bound half-window, m")
+    angular_window_deg: float = Field(20.0, gt=0)
+    min_score: float = Field(0.6, gt=0, lt=1)
+    depth: int = Field(
+        5, ge=1, le=8, description="branch-and-bound levels (root step 2^depth cells)"
+    )
+    optimize_every_n_nodes: int = Field(60, ge=1)
+    huber_k: float = Field(5.0, gt=0, description="Huber threshold on whitened loop residuals")
+    local_sigma_m: float = Field(0.004, gt=0)
+    local_sigma_rad: float = Field(0.0015, gt=0)
+    loop_sigma_m: float = Field(0.05, gt=0)
+    loop_sigma_rad: float = Field(0.02, gt=0)
+    skip_recent_submaps: int = Field(
+        2, ge=0, description="the newest finished submaps are local SLAM's"
+    )
+
+
+class Slam2dConfig(BaseModel):
+    """Everything the 2D SLAM reads; written beside every result as config.yaml."""
+
+    model_config = ConfigDict(extra="forbid")
+    resolution: float = Field(0.05, gt=0.005, le=1.0, description="grid cell, m")
+    min_range: float = Field(0.1, ge=0)
+    max_range: float = Field(30.0, gt=0, description="readings beyond are not used, m")
+    voxel_size: float = Field(0.025, ge=0, description="scan points thinned to one per voxel, m")
+    scans_per_submap: int = Field(
+        60, ge=2, description="nodes inserted into a submap before it is finished"
+    )
+    motion_min_distance: float = Field(
+        0.1, ge=0, description="motion filter: a new node after this, m"
+    )
+    motion_min_angle_deg: float = Field(2.0, ge=0)
+    motion_max_time_s: float = Field(5.0, gt=0)
+    use_odometry: bool = True
+    use_imu: bool = True
+    max_tilt_deg: float = Field(
+        5.0, gt=0, description="scans with a larger IMU tilt are not inserted"
+    )
+    matcher: MatcherConfig = Field(default_factory=MatcherConfig)
+    loop: LoopConfig = Field(default_factory=LoopConfig)
+    map_resolution: float = Field(0.05, gt=0.005, le=1.0, description="output map cell, m")
+
+
+@dataclass
+class LoopConstraint:
+    """A node matched against a finished submap, kept as the pose-graph edge it gives: the node's pose
+    relative to the submap's anchor node (the first node inserted into it)."""
+
+    node: int  # index into the nodes
+    submap: int
+    T_submap_node: FloatArray
+    score: float
+    anchor: int
+    T_anchor_node: FloatArray
+
+
+@dataclass
+class Slam2dResult:
+    """t_ns (N,) the log's stamps; pose_xy_yaw (N, 3) optimised map-frame pose per scan; local_xy_yaw
+    (N, 3) local-SLAM poses; odom_xy_yaw (N, 3) or None; node_scans (M,) scans that became nodes."""
+
+    t_ns: NDArray[np.int64]
+    pose_xy_yaw: FloatArray
+    local_xy_yaw: FloatArray
+    odom_xy_yaw: FloatArray | None
+    node_scans: NDArray[np.int64]
+    n_submaps: int
+    loops: list[LoopConstraint]
+    loops_searched: int
+    timing_s: dict[str, float]
+    warnings: dict[str, int]
+    mean_match_score: float
+    config: Slam2dConfig
+    source: str = ""
+    rejected_tilt: int = 0
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+def scan_points(log_: LaserLog, cfg: Slam2dConfig, with_time: bool = False) -> list[FloatArray]:
+    """Per scan, the valid hit points (P, 2) in the body frame, thinned by the voxel filter; with
+    ``with_time`` (P, 3): the third column the beam's firing time after the scan's stamp, s."""
+    ang = log_.angles
+    ca, sa = np.cos(ang), np.sin(ang)
+    r = log_.ranges.astype(float)
+    ok = np.isfinite(r) & (r >= cfg.min_range) & (r <= cfg.max_range)
+    T = log_.T_b_l
+    c, s = np.cos(T[2]), np.sin(T[2])
+    lx, ly = np.where(ok, r * ca, 0.0), np.where(ok, r * sa, 0.0)
+    bx, by = c * lx - s * ly + T[0], s * lx + c * ly + T[1]
+    out: list[FloatArray] = []
+    v = cfg.voxel_size
+    for k in range(len(log_)):
+        m = ok[k]
+        p = np.column_stack([bx[k, m], by[k, m]])
+        if with_time:
+            p = np.column_stack([p, np.flatnonzero(m) * log_.time_increment])
+        if v > 0 and len(p) > 1:
+            key = np.floor(p[:, :2] / v).astype(np.int64)
+            _, first = np.unique(key[:, 0] * 1_000_003 + key[:, 1], return_index=True)
+            p = p[np.sort(first)]
+        out.append(p)
+    return out
+
+
+def imu_yaw_and_tilt(log_: LaserLog) -> tuple[FloatArray, FloatArray] | None:
+    """Integrated yaw (rad) at each scan time about the gravity direction, and the tilt of the IMU's z
+    axis from gravity (deg) at each scan (the accelerometer averaged over 1 s); None without an IMU."""
+    imu = log_.imu
+    if imu is None or len(imu) < 2:
+        return None
+    t = (imu.t_ns - log_.t_ns[0]).astype(float) * 1e-9
+    acc = imu.accel * (9.80665 if imu.accel_unit == "g" else 1.0)
+    gyr = imu.gyro * (np.pi / 180 if imu.gyro_unit == "deg/s" else 1.0)
+    dt_med = float(np.median(np.diff(t))) if len(t) > 1 else 0.01
+    w = max(1, int(round(1.0 / max(dt_med, 1e-4))))
+    kern = np.ones(w) / w
+    up = np.column_stack([np.convolve(acc[:, i], kern, mode="same") for i in range(3)])
+    up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
+    rate = np.einsum("ij,ij->i", gyr, up)  # rate about the up direction
+    yaw = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))])
+    ts = (log_.t_ns - log_.t_ns[0]).astype(float) * 1e-9
+    tilt = np.rad2deg(np.arccos(np.clip(up[:, 2], -1, 1)))
+    return np.interp(ts, t, yaw), np.interp(ts, t, tilt)
+
+
+class _Submap:
+    def __init__(self, params: GridParams, centre: FloatArray, half: float) -> None:
+        self.grid = ProbabilityGrid(params, centre, half)
+        self.anchor_node = -1
+        # the grid's cells are addressed in the local-SLAM frame: that frame is the submap's frame
+        self.T_local_submap = np.zeros(3)
+        self.n_nodes = 0
+        self.index: SubmapIndex | None = None
+        self.finished = False
+
+
+class Slam2d:
+    """The estimator: ``add_scan`` per scan; ``finish`` runs the final optimisation."""
+
+    def __init__(self, cfg: Slam2dConfig) -> None:
+        self.cfg = cfg
+        self.params = GridParams(resolution=cfg.resolution)
+        self.submaps: list[_Submap] = []
+        self.active: list[int] = []
+        self.node_scan: list[int] = []
+        self.node_local: list[FloatArray] = []
+        self.node_global: list[FloatArray] = []
+        self.node_points: list[FloatArray] = []
+        self.loops: list[LoopConstraint] = []
+        self.loops_searched = 0
+        self.last_node_t = -1e18
+        self.timing = {"local": 0.0, "loop_search": 0.0, "optimise": 0.0}
+        self.scores: list[float] = []
+        self._nodes_since_opt = 0
+        self._loops_since_opt = 0
+        self.sensor_b = np.zeros((1, 2))  # the laser's origin in the body frame
+
+    # ---------------------------------------------------------------- local SLAM
+    def match(self, pts: FloatArray, prior: FloatArray) -> tuple[FloatArray, float]:
+        """Pose of a scan in the local frame, from the prior, against the oldest active submap."""
+        if not self.active:
+            return prior, 0.0
+        g = self.submaps[self.active[0]].grid
+        if g.n_scans == 0 or len(pts) < 3:
+            return prior, 0.0
+        m = self.cfg.matcher
+        p = self.params
+        init = prior
+        if m.use_correlative and (m.linear_window > 0 or m.angular_window_deg > 0):
+            d_max = min(float(np.max(np.hypot(pts[:, 0], pts[:, 1]))), m.step_range)
+            step = angular_step(p.resolution, d_max)
+            n_ang = int(np.ceil(np.deg2rad(m.angular_window_deg) / step))
+            init, _ = correlative_search(
+                g.prob, g.x0, g.y0, p.resolution, pts, prior, int(round(m.linear_window / p.resolution)),
+                n_ang, step, m.translation_delta_cost_weight, m.rotation_delta_cost_weight, p.p_unknown,
+            )  # fmt: skip
+        # Cartographer's targets: the translation of the prediction, the rotation of the search result
+        target = np.array([prior[0], prior[1], init[2]])
+        pose, score = refine_pose(
+            g.prob, g.x0, g.y0, p.resolution, pts, init, target, m.occupied_space_weight,
+            m.translation_weight, m.rotation_weight, p.p_unknown, m.max_iterations,
+        )  # fmt: skip
+        return pose, float(score)
+
+    def wants_node(self, local: FloatArray, t_s: float) -> bool:
+        if not self.node_local:
+            return True
+        d = pose2.between(self.node_local[-1], local)
+        return bool(
+            np.hypot(d[0], d[1]) >= self.cfg.motion_min_distance
+            or abs(d[2]) >= np.deg2rad(self.cfg.motion_min_angle_deg)
+            or t_s - self.last_node_t >= self.cfg.motion_max_time_s
+        )
+
+    def add_node(self, scan: int, local: FloatArray, pts: FloatArray, t_s: float) -> None:
+        """Insert a scan into the active submaps, start/finish submaps, search loops, optimise."""
+        cfg = self.cfg
+        j = len(self.node_local)
+        if self.node_global:
+            prev = len(self.node_local) - 1
+            glob = pose2.compose(
+                self.node_global[prev], pose2.between(self.node_local[prev], local)
+            )
+        else:
+            glob = local.copy()
+        self.node_scan.append(scan)
+        self.node_local.append(local.copy())
+        self.node_global.append(glob)
+        self.node_points.append(pts)
+        self.last_node_t = t_s
+        if not self.active or self.submaps[self.active[-1]].n_nodes >= cfg.scans_per_submap // 2:
+            if len(self.active) < 2:
+                sm = _Submap(self.params, local[:2], float(min(cfg.max_range, 10.0)))
+                sm.anchor_node = j
+                self.submaps.append(sm)
+                self.active.append(len(self.submaps) - 1)
+        w = pose2.act(local, pts)
+        for s in self.active:
+            self.submaps[s].grid.insert(pose2.act(local, self.sensor_b)[0], w)
+            self.submaps[s].n_nodes += 1
+        if self.submaps[self.active[0]].n_nodes >= cfg.scans_per_submap:
+            done = self.active.pop(0)
+            sm = self.submaps[done]
+            sm.finished = True
+            if cfg.loop.enabled:
+                t0 = time.perf_counter()
+                prob, x0, y0 = sm.grid.cropped()
+                sm.grid.prob = prob
+                sm.grid.logodds = np.zeros((1, 1), np.float32)
+                sm.grid.stamp = np.zeros((1, 1), np.int32)
+                sm.grid.x0, sm.grid.y0 = x0, y0
+                sm.index = make_index(prob, x0, y0, self.params.resolution, cfg.loop.depth)
+                self.timing["loop_search"] += time.perf_counter() - t0
+        if cfg.loop.enabled:
+            if j % cfg.loop.every_n_nodes == 0:
+                self.search_loops(j)
+            self._nodes_since_opt += 1
+            if self._loops_since_opt and self._nodes_since_opt >= cfg.loop.optimize_every_n_nodes:
+                self.optimise()
+
+    # ---------------------------------------------------------------- global SLAM
+    def submap_global(self, s: int) -> FloatArray:
+        sm = self.submaps[s]
+        a = sm.anchor_node
+        return pose2.compose(
+            self.node_global[a], pose2.between(self.node_local[a], sm.T_local_submap)
+        )
+
+    def search_loops(self, j: int) -> None:
+        cfg = self.cfg.loop
+        t0 = time.perf_counter()
+        finished = [s for s, sm in enumerate(self.submaps) if sm.finished and sm.index is not None]
+        if cfg.skip_recent_submaps:
+            finished = finished[: max(0, len(finished) - cfg.skip_recent_submaps)]
+        g = self.node_global[j]
+        pts = self.node_points[j]
+        cands: list[tuple[float, int, FloatArray]] = []
+        for s in finished:
+            T_s_n = pose2.between(self.submap_global(s), g)
+            # the submap covers the surroundings of its nodes: distance to its first node
+            a = self.node_global[self.submaps[s].anchor_node]
+            d = float(np.hypot(a[0] - g[0], a[1] - g[1]))
+            if d <= cfg.max_distance:
+                cands.append((d, s, T_s_n))
+        cands.sort(key=lambda c: c[0])
+        for _, s, T_s_n in cands[: cfg.max_submaps_per_node]:
+            idx = self.submaps[s].index
+            assert idx is not None
+            self.loops_searched += 1
+            pose, score = bnb_match(
+                idx,
+                pts,
+                T_s_n,
+                cfg.linear_window,
+                np.deg2rad(cfg.angular_window_deg),
+                cfg.min_score,
+                cfg.step_range,
+            )
+            if score < 0:
+                continue
+            grid = self.submaps[s].grid
+            refined, sc2 = refine_pose(
+                grid.prob, grid.x0, grid.y0, self.params.resolution, pts, pose, pose, 1.0, 1.0, 1.0,
+                self.params.p_unknown, 20,
+            )  # fmt: skip
+            sm = self.submaps[s]
+            T_a_n = pose2.compose(
+                pose2.between(self.node_local[sm.anchor_node], sm.T_local_submap), refined
+            )
+            self.loops.append(LoopConstraint(j, s, refined, float(sc2), sm.anchor_node, T_a_n))
+            self._loops_since_opt += 1
+        self.timing["loop_search"] += time.perf_counter() - t0
+
+    def optimise(self) -> None:
+        """Levenberg-Marquardt on the pose graph (gtsam), warm-started from the current estimate."""
+        import gtsam
+
+        t0 = time.perf_counter()
+        cfg = self.cfg.loop
+        n = len(self.node_local)
+        graph = gtsam.NonlinearFactorGraph()
+        init = gtsam.Values()
+        local_noise = gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([cfg.local_sigma_m, cfg.local_sigma_m, cfg.local_sigma_rad])
+        )
+        loop_noise = gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_k),
+            gtsam.noiseModel.Diagonal.Sigmas(
+                np.array([cfg.loop_sigma_m, cfg.loop_sigma_m, cfg.loop_sigma_rad])
+            ),
+        )
+        graph.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(*self.node_global[0]),
+                                         gtsam.noiseModel.Diagonal.Sigmas(np.full(3, 1e-6))))  # fmt: skip
+        L = np.array(self.node_local)
+        rel = pose2.between(L[:-1], L[1:])
+        for i in range(n - 1):
+            graph.add(gtsam.BetweenFactorPose2(i, i + 1, gtsam.Pose2(*rel[i]), local_noise))
+        for c in self.loops:
+            graph.add(
+                gtsam.BetweenFactorPose2(
+                    c.anchor, c.node, gtsam.Pose2(*c.T_anchor_node), loop_noise
+                )
+            )
+        for i, g in enumerate(self.node_global):
+            init.insert(i, gtsam.Pose2(*g))
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(50)
+        params.setRelativeErrorTol(1e-6)
+        try:
+            res = gtsam.LevenbergMarquardtOptimizer(graph, init, params).optimize()
+        except RuntimeError as exc:  # gtsam reports an indeterminant system this way
+            raise EstimatorError(f"pose graph of {n} nodes: optimisation failed ({exc})") from None
+        out = np.array(
+            [[res.atPose2(i).x(), res.atPose2(i).y(), res.atPose2(i).theta()] for i in range(n)]
+        )
+        if not np.isfinite(out).all():
+            raise EstimatorError(f"pose graph of {n} nodes: non-finite result")
+        self.node_global = list(out)
+        self._nodes_since_opt = 0
+        self._loops_since_opt = 0
+        self.timing["optimise"] += time.perf_counter() - t0
+
+
+def run_slam2d(
+    log_: LaserLog, cfg: Slam2dConfig | None = None, progress: Callable[[int], None] | None = None
+) -> Slam2dResult:
+    """Run the 2D SLAM over every scan of ``log_``; ``progress(k)`` is called after each scan."""
+    cfg = cfg or Slam2dConfig()
+    n = len(log_)
+    pts_all = scan_points(log_, cfg, with_time=True)
+    deskew = log_.time_increment > 0
+    odo = log_.odom_xy_yaw if (cfg.use_odometry and log_.odom_xy_yaw is not None) else None
+    imu = imu_yaw_and_tilt(log_) if cfg.use_imu else None
+    t_s = (log_.t_ns - log_.t_ns[0]).astype(float) * 1e-9
+    slam = Slam2d(cfg)
+    slam.sensor_b = log_.T_b_l[None, :2].copy()
+    local = np.zeros((n, 3))
+    node_of_scan = np.zeros(n, np.int64)
+    rejected_tilt = 0
+    empty = 0
+    pose = np.zeros(3)
+    vel = np.zeros(3)  # last local step (constant-velocity model without odometry)
+    t0 = time.perf_counter()
+    for k in range(n):
+        if k > 0:
+            step = pose2.between(odo[k - 1], odo[k]) if odo is not None else vel.copy()
+            if imu is not None:
+                step[2] = pose2.wrap(imu[0][k] - imu[0][k - 1])
+            prior = pose2.compose(local[k - 1], step)
+        else:
+            prior = pose.copy()
+        pts = pts_all[k][:, :2]
+        if deskew and k > 0:
+            # motion during the scan (Cartographer unwarps with its pose extrapolator): constant velocity
+            # of the predicted step, each point moved to the pose at its firing time
+            dt = max(float(log_.t_ns[k] - log_.t_ns[k - 1]) * 1e-9, 1e-3)
+            f = pts_all[k][:, 2] / dt
+            step_k = pose2.between(local[k - 1], prior)
+            pts = pose2.act_each(step_k[None] * f[:, None], pts)
+        tilted = imu is not None and imu[1][k] > cfg.max_tilt_deg
+        if len(pts) < 3:
+            empty += 1
+            est = prior
+        elif tilted:
+            rejected_tilt += 1
+            est = prior
+        else:
+            est, score = slam.match(pts, prior)
+            if k > 0 and slam.active:
+                slam.scores.append(score)
+        if not np.isfinite(est).all():
+            raise EstimatorError(
+                f"{log_.source}: scan {k}: the scan matcher returned a non-finite pose"
+            )
+        local[k] = est
+        if k > 0:
+            vel = pose2.between(local[k - 1], est)
+        if not tilted and len(pts) >= 3 and slam.wants_node(est, t_s[k]):
+            slam.add_node(k, est, pts, t_s[k])
+        node_of_scan[k] = max(len(slam.node_local) - 1, 0)
+        if progress is not None:
+            progress(k)
+    total_local = time.perf_counter() - t0
+    if not slam.node_local:
+        raise EstimatorError(f"{log_.source}: no scan had enough valid readings to map")
+    if cfg.loop.enabled and slam.loops:
+        slam.optimise()
+    slam.timing["local"] = total_local - slam.timing["loop_search"] - slam.timing["optimise"]
+    NL = np.array(slam.node_local)
+    NG = np.array(slam.node_global)
+    # every scan: the optimised pose of its node times the local motion since that node
+    j = node_of_scan
+    glob = pose2.compose(NG[j], pose2.between(NL[j], local))
+    first_node_scan = slam.node_scan[0]
+    glob[:first_node_scan] = local[:first_node_scan]
+    warnings = dict(log_.warnings)
+    if empty:
+        warnings["scans with fewer than 3 valid readings (pose from the prior)"] = empty
+    if rejected_tilt:
+        warnings["scans rejected by the IMU tilt (pose from the prior)"] = rejected_tilt
+    return Slam2dResult(
+        log_.t_ns.copy(), glob, local, None if log_.odom_xy_yaw is None else log_.odom_xy_yaw.copy(),
+        np.array(slam.node_scan), len(slam.submaps), slam.loops, slam.loops_searched, dict(slam.timing),
+        warnings, float(np.mean(slam.scores)) if slam.scores else 0.0, cfg, log_.source, rejected_tilt,
+    )  # fmt: skip
+
+
+def render_map(
+    log_: LaserLog, poses_xy_yaw: FloatArray, cfg: Slam2dConfig, stride: int = 1
+) -> ProbabilityGrid:
+    """All scans (every ``stride``-th) inserted at the given poses into one probability grid (scans
+    unwarped with the motion between consecutive poses when the log gives beam times)."""
+    P = np.asarray(poses_xy_yaw)
+    pts_all = scan_points(log_, cfg, with_time=True)
+    for k in range(len(P)):
+        q = pts_all[k]
+        if log_.time_increment > 0 and k > 0:
+            dt = max(float(log_.t_ns[k] - log_.t_ns[k - 1]) * 1e-9, 1e-3)
+            step_k = pose2.between(P[k - 1], P[k])
+            pts_all[k] = pose2.act_each(step_k[None] * (q[:, 2] / dt)[:, None], q[:, :2])
+        else:
+            pts_all[k] = q[:, :2]
+    grid = ProbabilityGrid(GridParams(resolution=cfg.map_resolution), P[0, :2], 10.0)
+    allp = np.concatenate(
+        [pose2.act(P[k], pts_all[k]) for k in range(0, len(P), stride)] or [P[:1, :2]]
+    )
+    grid.ensure_contains(
+        np.minimum(allp.min(axis=0), P[:, :2].min(axis=0)),
+        np.maximum(allp.max(axis=0), P[:, :2].max(axis=0)),
+    )
+    for k in range(0, len(P), stride):
+        if len(pts_all[k]):
+            grid.insert(pose2.act(P[k], log_.T_b_l[None, :2])[0], pose2.act(P[k], pts_all[k]))
+    return grid
