@@ -411,9 +411,8 @@ def _rwnn_observer(
             break
         # strapdown of the corrected sensor (trapezoidal, as ins/strapdown.py)
         h = t[k + 1] - t[k]
-        a0 = R @ (accel[k] - e_a)
-        pn, vn, Rn = strapdown_step(p, v, R, accel[k] - e_a, accel[k + 1] - e_a, gyro[k] - e_g,
-                                    gyro[k + 1] - e_g, h, g_n, no_earth_rate)  # fmt: skip
+        pn, vn, Rn, a0 = strapdown_step(p, v, R, accel[k] - e_a, accel[k + 1] - e_a, gyro[k] - e_g,
+                                        gyro[k + 1] - e_g, h, g_n, no_earth_rate)  # fmt: skip
         p = pn
         # sensitivity: Y' = A(t) Y + Psi(t), A with the block-mean specific force
         RW = np.zeros(

@@ -19,7 +19,7 @@ from imuslam.cli import app
 from imuslam.study.config import parse_study
 from imuslam.study.runner import run_study
 
-SRC = Path(__file__).resolve().parents[1] / "src"
+SRC = Path(__file__).resolve().parents[2] / "src"
 
 
 def _dask_cli() -> str:
