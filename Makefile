@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test test-fast lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -14,6 +14,7 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/imuslam demo --out demo_out
+	$(BIN)/imuslam study --quick --out demo_out/study
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests bench
@@ -21,8 +22,18 @@ lint: $(STAMP)
 	$(BIN)/mypy
 	$(BIN)/lint-imports
 
+# Both cores (pytest-xdist). --dist loadscope keeps each test module on one worker, so a module-scoped
+# fixture (a VIO run, a real calibration, a 2D map) is computed once, not once per worker. Tests write only
+# under tmp_path; numba writes its caches atomically (temporary file, then rename), so two workers
+# compiling the same kernel do not collide. `make test` runs everything, slow Monte Carlo cases included.
+PYTEST_XDIST := -n auto --dist loadscope
+
 test: lint
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q $(PYTEST_XDIST)
+
+# While developing: skip the long Monte Carlo cases (@pytest.mark.slow).
+test-fast: $(STAMP)
+	$(BIN)/pytest -q $(PYTEST_XDIST) -m "not slow"
 
 bench: $(STAMP)
 	for f in bench/*.py; do $(BIN)/python $$f || exit 1; done

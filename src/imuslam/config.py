@@ -6,13 +6,14 @@ Each estimator defines its own model beside its code; this module loads and writ
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import yaml
 from pydantic import BaseModel, ValidationError
 
 from imuslam.errors import InputError
 from imuslam.io.atomic import write_atomic
+from imuslam.io.text import read_text
 
 ModelT = TypeVar("ModelT", bound=BaseModel)
 
@@ -21,15 +22,41 @@ def load_config(path: str | Path, model: type[ModelT]) -> ModelT:
     """Read ``path`` (YAML) into ``model``; a bad key or value is an InputError naming the field."""
     p = Path(path)
     try:
-        data = yaml.safe_load(p.read_text()) or {}
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read configuration: {exc}") from exc
+        data = yaml.safe_load(read_text(p)) or {}
     except yaml.YAMLError as exc:
         raise InputError(f"{p}: not valid YAML: {exc}") from exc
+    if not isinstance(data, dict):
+        raise InputError(f"{p}: a configuration is a mapping of {model.__name__} fields")
+    unknown = _unknown_keys(data, model)
+    if unknown:
+        raise InputError(
+            f"{p}: unknown key(s) {', '.join(unknown)}; {model.__name__} has "
+            f"{', '.join(model.model_fields)}"
+        )
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise InputError(f"{p}: invalid configuration:\n{exc}") from exc
+        errs = "; ".join(
+            f"field '{'.'.join(map(str, e['loc']))}': {e['msg']} (got {e.get('input')!r:.40})"
+            for e in exc.errors()
+        )
+        raise InputError(f"{p}: {errs}") from None
+
+
+def _unknown_keys(data: dict[str, Any], model: type[BaseModel], prefix: str = "") -> list[str]:
+    """Keys of ``data`` that are not fields of ``model`` (nested models checked too), dotted."""
+    out: list[str] = []
+    for k, v in data.items():
+        f = model.model_fields.get(str(k))
+        if f is None:
+            out.append(f"'{prefix}{k}'")
+        elif (
+            isinstance(v, dict)
+            and isinstance(f.annotation, type)
+            and issubclass(f.annotation, BaseModel)
+        ):
+            out += _unknown_keys(v, f.annotation, f"{prefix}{k}.")
+    return out
 
 
 def dump_config(model: BaseModel, path: str | Path) -> None:

@@ -40,7 +40,10 @@ from imuslam.cli import simulate as _simulate  # noqa: E402
 for _m in (_calibrate, _correct, _allan, _align, _evaluate, _simulate, _online, _demo):
     _m.register(app)
 __import__("imuslam.cli.score", fromlist=["register"]).register(app)
+__import__("imuslam.cli.study", fromlist=["register"]).register(app)
+__import__("imuslam.cli.vio", fromlist=["register"]).register(app)
 __import__("imuslam.cli.map2d", fromlist=["register"]).register(app)
+__import__("imuslam.cli.lio", fromlist=["register"]).register(app)
 
 
 def main() -> None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import matplotlib
@@ -14,7 +13,17 @@ import typer  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log, table, write_json  # noqa: E402
+from imuslam.cli import validate  # noqa: E402
+from imuslam.cli.common import (  # noqa: E402
+    ACCEL_UNITS,
+    FORMAT_HELP,
+    GYRO_UNITS,
+    console,
+    friendly_errors,
+    load_log,
+    table,
+    write_json,
+)
 from imuslam.errors import InputError  # noqa: E402
 from imuslam.geometry.interp import interpolate_linear, interpolate_poses  # noqa: E402
 from imuslam.ins.align import Aiding, AlignmentResult, run_alignment  # noqa: E402
@@ -25,8 +34,16 @@ from imuslam.interfaces.nav import NavState  # noqa: E402
 from imuslam.interfaces.trajectory import Trajectory  # noqa: E402
 from imuslam.io.atomic import write_atomic  # noqa: E402
 from imuslam.io.figures import save_figure  # noqa: E402
-from imuslam.io.load import detect_format, write_imu  # noqa: E402
-from imuslam.io.trajectory import StateTruth, read_euroc_state, read_trajectory  # noqa: E402
+from imuslam.io.load import FORMATS, detect_format, write_imu  # noqa: E402
+from imuslam.io.results import results_folder  # noqa: E402
+from imuslam.io.trajectory import (  # noqa: E402
+    TRAJ_FORMATS,
+    StateTruth,
+    read_euroc_state,
+    read_trajectory,
+)
+
+METHODS = ("coarse", "kf", "stkf", "rwnn")
 
 FloatArray = NDArray[np.float64]
 
@@ -100,54 +117,83 @@ def register(app: typer.Typer) -> None:
         log_path: Path = typer.Argument(
             ..., metavar="LOG", help="IMU log (SI, g or deg/s; calibrated)"
         ),
-        method: str = typer.Option("kf", help="coarse, kf, stkf or rwnn"),
+        method: str = typer.Option(
+            "kf", help="coarse, kf, stkf or rwnn", callback=validate.choice(METHODS)
+        ),
         aiding: str = typer.Option(
             "zupt",
             help="'zupt' (the IMU stands still) or a trajectory of the IMU frame (TUM, EuRoC csv, bag) "
             "whose positions aid the filter",
         ),
-        aiding_format: str = typer.Option("auto", help="auto, tum, euroc, kitti or bag"),
+        aiding_format: str = typer.Option(
+            "auto",
+            help="auto, tum, euroc, kitti or bag",
+            callback=validate.choice(("auto", *TRAJ_FORMATS)),
+        ),
         aiding_topic: str | None = typer.Option(None, help="pose topic of an aiding bag"),
         aiding_std: float = typer.Option(
-            0.01, help="aiding 1-sigma: m/s for zupt, m for positions"
+            0.01, help="aiding 1-sigma: m/s for zupt, m for positions", callback=validate.positive()
         ),
         init: str = typer.Option(
             "auto",
             help="initial state: 'coarse' (levelling on a still start), 'aiding' (the trajectory's first "
             "pose) or 'auto' (coarse for zupt, aiding for a trajectory)",
+            callback=validate.choice(("auto", "coarse", "aiding")),
         ),
         noise: str = typer.Option(
             "auto",
             help="IMU white noise: 'auto' (as the log shows it, vibration included), 'datasheet' "
             "(defaults) or a Kalibr imu.yaml (as `imuslam allan` writes)",
         ),
-        g: float = typer.Option(9.80665, "--g", help="gravity magnitude, m/s^2"),
-        t_still: float = typer.Option(5.0, help="seconds of still start used for levelling"),
-        lat_deg: float | None = typer.Option(None, help="latitude, for gyrocompassing (coarse)"),
+        g: float = typer.Option(
+            9.80665, "--g", help="gravity magnitude, m/s^2", callback=validate.gravity()
+        ),
+        t_still: float = typer.Option(
+            5.0, help="seconds of still start used for levelling", callback=validate.positive("s")
+        ),
+        lat_deg: float | None = typer.Option(
+            None,
+            help="latitude, for gyrocompassing (coarse)",
+            callback=validate.number(-90, 90, unit="deg", what="a latitude"),
+        ),
         heading_deg: float | None = typer.Option(
             None,
             help="initial yaw from another source (compass, a known pose): deg, counter-clockwise from east (ENU)",
+            callback=validate.number(-360, 360, unit="deg", what="a heading"),
         ),
         truth: Path | None = typer.Option(
             None,
             help="ground-truth state (EuRoC state csv with biases): plotted and compared",
         ),
-        fmt: str = typer.Option("auto", "--format", help=FORMAT_HELP),
+        fmt: str = typer.Option(
+            "auto", "--format", help=FORMAT_HELP, callback=validate.choice(FORMATS)
+        ),
         topic: str | None = typer.Option(None, help="IMU topic of a bag"),
-        out: Path = typer.Option(Path("align_out"), "--out", help="results folder"),
+        accel_unit: str | None = typer.Option(
+            None, help="m/s^2 or g (guessed if absent)", callback=validate.choice(ACCEL_UNITS[:2])
+        ),
+        gyro_unit: str | None = typer.Option(
+            None,
+            help="rad/s or deg/s (guessed if absent)",
+            callback=validate.choice(GYRO_UNITS[:2]),
+        ),
+        columns: str | None = typer.Option(
+            None, help="CSV column mapping: t=..,ax=..,ay=..,az=..,gx=..,gy=..,gz=.."
+        ),
+        out: Path = typer.Option(
+            Path("align_out"), "--out", help="results folder", callback=validate.out_folder()
+        ),
     ) -> None:
         """Estimate attitude and the IMU's remaining biases; write them, plots and the corrected IMU."""
-        if method not in ("coarse", "kf", "stkf", "rwnn"):
-            raise InputError(f"--method: '{method}'; expected coarse, kf, stkf or rwnn")
-        if init not in ("auto", "coarse", "aiding"):
-            raise InputError(f"--init: '{init}'; expected auto, coarse or aiding")
         if init == "aiding" and aiding == "zupt":
             raise InputError("--init aiding needs a trajectory as --aiding")
-        if not (np.isfinite(g) and 9.7 < g < 9.9):
+        if aiding != "zupt" and not Path(aiding).exists():
+            raise InputError(f"--aiding {aiding}: no such file; expected 'zupt' or a trajectory")
+        if noise not in ("auto", "datasheet") and not Path(noise).is_file():
             raise InputError(
-                f"--g: {g} m/s^2 is not a gravity magnitude on earth (expected 9.7-9.9)"
+                f"--noise {noise}: no such file; expected auto, datasheet or a Kalibr imu.yaml"
             )
-        log = load_log(log_path, None, fmt, topic, None, None, None).to_si()
+        log = load_log(log_path, None, fmt, topic, accel_unit, gyro_unit, columns).to_si()
         full = log
         if method == "coarse" or aiding == "zupt":
             k_still = max(int(np.searchsorted(log.t_s, t_still)), 10)
@@ -161,8 +207,10 @@ def register(app: typer.Typer) -> None:
                      "-" if ca.yaw_std is None else f"{np.rad2deg(ca.yaw_std):.2g}", "deg"]]  # fmt: skip
             console.print(table("Coarse alignment", ["quantity", "value", "1-sigma", "unit"], rows))
             console.print(ca.reason)
-            write_json(out / "alignment.json", {"method": "coarse", **{k: v for k, v in ca.__dict__.items() if k != "R_n_b"},
-                                                "R_n_b": ca.R_n_b.tolist()})  # fmt: skip
+            with results_folder(out) as tmp:
+                write_json(tmp / "alignment.json", {"method": "coarse", **{k: v for k, v in ca.__dict__.items() if k != "R_n_b"},
+                                                    "R_n_b": ca.R_n_b.tolist()})  # fmt: skip
+            console.print(f"wrote {out}/alignment.json")
             return
         if aiding == "zupt":
             ta = np.arange(0.1, log.t_s[-1], 0.1)
@@ -270,30 +318,27 @@ def register(app: typer.Typer) -> None:
         axes[0].set_title(
             f"{method}: estimate +- 1 sigma" + (" against truth" if tb is not None else "")
         )
-        save_figure(fig, out / "biases.png")
-        files = ["alignment.json", "estimates.csv", "biases.png"]
-        if Rt is not None:
-            fig, ax = plt.subplots(figsize=(10, 4))
-            for j, lab in enumerate(("x (roll)", "y (pitch)", "z (heading)")):
-                ax.plot(tt, att_err[:, j], label=lab)
-            ax.set_xlabel("time [s]")
-            ax.set_ylabel("attitude error in n [deg]")
-            ax.legend()
-            save_figure(fig, out / "attitude_error.png")
-            files.append("attitude_error.png")
-        write_json(out / "alignment.json", summary)
-        _write_estimates(out / "estimates.csv", res)
-        if detect_format(log_path) == "bag" and fmt in ("auto", "bag"):
-            # a bag stays a bag: a copy with the IMU topic replaced, every other message untouched
-            dst = out / ("corrected_imu" + (log_path.suffix if log_path.is_file() else ""))
-            if dst.is_dir():
-                shutil.rmtree(dst)
-            elif dst.exists():
-                dst.unlink()
-            t_topic = topic or full.source.rsplit(":", 1)[-1]
-            write_imu(res.corrected(full), dst, "bag", template=log_path, topic=t_topic)
-            files.append(f"{dst.name} (the input bag, {t_topic} corrected)")
-        else:
-            write_imu(res.corrected(full), out / "corrected_imu.csv", "euroc")
-            files.append("corrected_imu.csv (EuRoC format)")
+        with results_folder(out) as tmp:
+            save_figure(fig, tmp / "biases.png")
+            files = ["alignment.json", "estimates.csv", "biases.png"]
+            if Rt is not None:
+                fig, ax = plt.subplots(figsize=(10, 4))
+                for j, lab in enumerate(("x (roll)", "y (pitch)", "z (heading)")):
+                    ax.plot(tt, att_err[:, j], label=lab)
+                ax.set_xlabel("time [s]")
+                ax.set_ylabel("attitude error in n [deg]")
+                ax.legend()
+                save_figure(fig, tmp / "attitude_error.png")
+                files.append("attitude_error.png")
+            write_json(tmp / "alignment.json", summary)
+            _write_estimates(tmp / "estimates.csv", res)
+            if detect_format(log_path) == "bag" and fmt in ("auto", "bag"):
+                # a bag stays a bag: a copy with the IMU topic replaced, every other message untouched
+                dst = tmp / ("corrected_imu" + (log_path.suffix if log_path.is_file() else ""))
+                t_topic = topic or full.source.rsplit(":", 1)[-1]
+                write_imu(res.corrected(full), dst, "bag", template=log_path, topic=t_topic)
+                files.append(f"{dst.name} (the input bag, {t_topic} corrected)")
+            else:
+                write_imu(res.corrected(full), tmp / "corrected_imu.csv", "euroc")
+                files.append("corrected_imu.csv (EuRoC format)")
         console.print(f"wrote {out}/{', '.join(files)}")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -12,10 +13,22 @@ import numpy as np  # noqa: E402
 import typer  # noqa: E402
 import yaml  # noqa: E402
 
-from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log, table, write_json  # noqa: E402
+from imuslam.cli import validate  # noqa: E402
+from imuslam.cli.common import (  # noqa: E402
+    ACCEL_UNITS,
+    FORMAT_HELP,
+    GYRO_UNITS,
+    console,
+    friendly_errors,
+    load_log,
+    table,
+    write_json,
+)
 from imuslam.imu.allan import AllanResult, allan  # noqa: E402
 from imuslam.io.atomic import write_atomic  # noqa: E402
 from imuslam.io.figures import save_figure  # noqa: E402
+from imuslam.io.load import FORMATS  # noqa: E402
+from imuslam.io.results import results_folder  # noqa: E402
 
 
 def plot_allan(res: AllanResult) -> plt.Figure:
@@ -48,12 +61,20 @@ def register(app: typer.Typer) -> None:
         gyro: Path | None = typer.Argument(
             None, help="gyroscope file, for imu_tk text in two files"
         ),
-        fmt: str = typer.Option("auto", "--format", help=FORMAT_HELP),
+        fmt: str = typer.Option(
+            "auto", "--format", help=FORMAT_HELP, callback=validate.choice(FORMATS)
+        ),
         topic: str | None = typer.Option(None, help="IMU topic of a bag"),
-        accel_unit: str | None = typer.Option(None, help="m/s^2, g or counts"),
-        gyro_unit: str | None = typer.Option(None, help="rad/s, deg/s or counts"),
+        accel_unit: str | None = typer.Option(
+            None, help="m/s^2, g or counts", callback=validate.choice(ACCEL_UNITS)
+        ),
+        gyro_unit: str | None = typer.Option(
+            None, help="rad/s, deg/s or counts", callback=validate.choice(GYRO_UNITS)
+        ),
         columns: str | None = typer.Option(None, help="CSV column mapping"),
-        out: Path = typer.Option(Path("allan_out"), "--out", help="results folder"),
+        out: Path = typer.Option(
+            Path("allan_out"), "--out", help="results folder", callback=validate.out_folder()
+        ),
     ) -> None:
         """Overlapped Allan deviation per axis: noise density, bias instability, random walk, Kalibr yaml."""
         log = load_log(log_path, gyro, fmt, topic, accel_unit, gyro_unit, columns)
@@ -81,20 +102,51 @@ def register(app: typer.Typer) -> None:
                 rows,
             )
         )
+        kalibr = res.kalibr(topic or "/imu0")
+        written = ["allan.png", "allan.csv", "noise_terms.json"]
+        kalibr_ok: dict[str, Any] | None = None
+        if "counts" in (res.accel_unit, res.gyro_unit):
+            res.warnings.append(
+                "imu.yaml not written: the log is in raw counts and Kalibr needs m/s^2 and rad/s "
+                "(correct it with a calibration first, or give --accel-unit / --gyro-unit)"
+            )
+        elif bad := [k for k, v in kalibr.items() if isinstance(v, float) and not np.isfinite(v)]:
+            res.warnings.append(
+                f"imu.yaml not written: no finite {', '.join(bad)} (no +1/2 slope in the Allan "
+                "deviation: record a longer static log)"
+            )
+        else:
+            for sensor, terms in (
+                ("accelerometer", res.accel_terms),
+                ("gyroscope", res.gyro_terms),
+            ):
+                if all(t.random_walk is None for t in terms):
+                    res.warnings.append(
+                        f"{sensor}_random_walk in imu.yaml is an upper bound from the longest tau "
+                        f"({res.taus[-1]:.0f} s): the log is too short to show the random walk"
+                    )
+            kalibr_ok = kalibr
+            written.append("imu.yaml (Kalibr)")
         for w in res.warnings:
             console.print(f"[yellow]warning:[/] {w}")
-        save_figure(plot_allan(res), out / "allan.png")
-        write_json(
-            out / "noise_terms.json", {"source": res.source, "rate_hz": res.rate_hz, "terms": data}
-        )
-        csv = "tau_s," + ",".join(f"accel_{a},gyro_{a}" for a in "xyz") + "\n"
-        csv += "\n".join(
-            f"{t:.6g},"
-            + ",".join(f"{res.accel_adev[i, j]:.6g},{res.gyro_adev[i, j]:.6g}" for j in range(3))
-            for i, t in enumerate(res.taus)
-        )
-        write_atomic(out / "allan.csv", csv + "\n")
-        write_atomic(
-            out / "imu.yaml", yaml.safe_dump(res.kalibr(topic or "/imu0"), sort_keys=False)
-        )
-        console.print(f"wrote {out}/allan.png, allan.csv, noise_terms.json, imu.yaml (Kalibr)")
+        with results_folder(out) as tmp:
+            _write(res, data, kalibr_ok, tmp)
+        console.print(f"wrote {out}/{', '.join(written)}")
+
+
+def _write(
+    res: AllanResult, data: list[dict[str, Any]], kalibr: dict[str, Any] | None, out: Path
+) -> None:
+    save_figure(plot_allan(res), out / "allan.png")
+    write_json(
+        out / "noise_terms.json", {"source": res.source, "rate_hz": res.rate_hz, "terms": data}
+    )
+    csv = "tau_s," + ",".join(f"accel_{a},gyro_{a}" for a in "xyz") + "\n"
+    csv += "\n".join(
+        f"{t:.6g},"
+        + ",".join(f"{res.accel_adev[i, j]:.6g},{res.gyro_adev[i, j]:.6g}" for j in range(3))
+        for i, t in enumerate(res.taus)
+    )
+    write_atomic(out / "allan.csv", csv + "\n")
+    if kalibr is not None:
+        write_atomic(out / "imu.yaml", yaml.safe_dump(kalibr, sort_keys=False))

@@ -7,13 +7,24 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log, table
+from imuslam.cli import validate
+from imuslam.cli.common import (
+    ACCEL_UNITS,
+    FORMAT_HELP,
+    GYRO_UNITS,
+    console,
+    friendly_errors,
+    load_log,
+    table,
+)
 from imuslam.config import dump_config, load_config
 from imuslam.imu.calibrate import CalibrationConfig, CalibrationResult, calibrate
 from imuslam.imu.crossval import CrossValidation, cross_validate
 from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
 from imuslam.imu.report import write_report
 from imuslam.interfaces.imu import ImuLog
+from imuslam.io.load import FORMATS
+from imuslam.io.results import results_folder
 
 
 def print_result(
@@ -78,6 +89,7 @@ def write_outputs(
     out: Path,
     cv: CrossValidation | None = None,
     plots: bool = True,
+    extra_html: str = "",
     **truth: np.ndarray | None,
 ) -> None:
     c = res.calibration
@@ -85,7 +97,15 @@ def write_outputs(
     c.export_imutk(out / "acc.calib", out / "gyro.calib")
     dump_config(res.config, out / "config.yaml")
     if plots:
-        write_report(res, log, out, truth.get("truth_accel"), truth.get("truth_gyro"), cv=cv)
+        write_report(
+            res,
+            log,
+            out,
+            truth.get("truth_accel"),
+            truth.get("truth_gyro"),
+            cv=cv,
+            extra_html=extra_html,
+        )
 
 
 def register(app: typer.Typer) -> None:
@@ -98,30 +118,52 @@ def register(app: typer.Typer) -> None:
         gyro: Path | None = typer.Argument(
             None, help="gyroscope file, for imu_tk text in two files"
         ),
-        fmt: str = typer.Option("auto", "--format", help=FORMAT_HELP),
+        fmt: str = typer.Option(
+            "auto", "--format", help=FORMAT_HELP, callback=validate.choice(FORMATS)
+        ),
         topic: str | None = typer.Option(None, help="IMU topic of a bag"),
-        g: float | None = typer.Option(None, "--g", help="local gravity, m/s^2 (default 9.80665)"),
+        g: float | None = typer.Option(
+            None, "--g", help="local gravity, m/s^2 (default 9.80665)", callback=validate.gravity()
+        ),
         t_init: float | None = typer.Option(
-            None, "--t-init", help="initial still period, s (default 50)"
+            None,
+            "--t-init",
+            help="initial still period, s (default 50)",
+            callback=validate.positive("s"),
         ),
         bias_sign: str | None = typer.Option(
-            None, help="plus: T K (x + b) (default); minus: T K (x - b) (imu_tk)"
+            None,
+            help="plus: T K (x + b) (default); minus: T K (x - b) (imu_tk)",
+            callback=validate.choice(("plus", "minus")),
         ),
-        accel_unit: str | None = typer.Option(None, help="m/s^2, g or counts (guessed if absent)"),
+        accel_unit: str | None = typer.Option(
+            None,
+            help="m/s^2, g or counts (guessed if absent)",
+            callback=validate.choice(ACCEL_UNITS),
+        ),
         gyro_unit: str | None = typer.Option(
-            None, help="rad/s, deg/s or counts (guessed if absent)"
+            None,
+            help="rad/s, deg/s or counts (guessed if absent)",
+            callback=validate.choice(GYRO_UNITS),
         ),
         columns: str | None = typer.Option(
             None, help="CSV column mapping: t=..,ax=..,ay=..,az=..,gx=..,gy=..,gz=.."
         ),
         config: Path | None = typer.Option(None, help="YAML with CalibrationConfig fields"),
         method: str | None = typer.Option(
-            None, help="joint (default): accelerometer and gyro fitted together; tedaldi: imu_tk's"
+            None,
+            help="joint (default): accelerometer and gyro fitted together; tedaldi: imu_tk's",
+            callback=validate.choice(("joint", "tedaldi")),
         ),
         cv_folds: int = typer.Option(
-            5, "--cv-folds", help="folds of the cross-validation over static poses (0: none)"
+            5,
+            "--cv-folds",
+            help="folds of the cross-validation over static poses (0: none)",
+            callback=validate.integer(2, 100, also=(0,)),
         ),
-        out: Path = typer.Option(Path("calib_out"), "--out", help="results folder"),
+        out: Path = typer.Option(
+            Path("calib_out"), "--out", help="results folder", callback=validate.out_folder()
+        ),
         plots: bool = typer.Option(
             True, "--plots/--no-plots", help="write the PNG plots and report.html (about 1 s)"
         ),
@@ -145,6 +187,7 @@ def register(app: typer.Typer) -> None:
         cv = cross_validate(log, cfg, res.intervals, cv_folds) if cv_folds else None
         if cv is not None:
             print_cv(res, cv)
-        write_outputs(res, log, out, cv, plots)
+        with results_folder(out) as tmp:
+            write_outputs(res, log, tmp, cv, plots)
         extra = ", plots, report.html" if plots else ""
         console.print(f"wrote {out}/calibration.yaml, acc.calib, gyro.calib, config.yaml{extra}")

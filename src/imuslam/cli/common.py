@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import functools
 import json
+import logging
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar, cast
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
@@ -30,10 +33,29 @@ def friendly_errors(fn: F) -> F:
         try:
             return fn(*args, **kwargs)
         except ImuslamError as exc:
-            err_console.print(f"[bold red]error:[/] {exc}")
+            _print_error(str(exc))
             raise typer.Exit(exc.exit_code) from None
+        except np.linalg.LinAlgError as exc:  # a solver met a singular system the checks missed
+            logging.getLogger(__name__).debug("where the estimator failed", exc_info=exc)
+            _print_error(f"an estimator failed: {exc} (imuslam --verbose shows where)")
+            raise typer.Exit(3) from None
+        except OSError as exc:  # a file that vanished or cannot be read or written mid-run
+            where = exc.filename if exc.filename is not None else "a file"
+            _print_error(f"{where}: {exc.strerror or exc}")
+            raise typer.Exit(2) from None
 
     return wrapper  # type: ignore[return-value]
+
+
+def _print_error(msg: str) -> None:
+    # markup off: a path or value in the message must print as it is ("[1, 2]" is not a style)
+    err_console.print("[bold red]error:[/] ", end="")
+    err_console.print(msg, markup=False, highlight=False, soft_wrap=True)
+
+
+COLUMN_KEYS = ("t", "ax", "ay", "az", "gx", "gy", "gz")
+ACCEL_UNITS = ("m/s^2", "g", "counts")
+GYRO_UNITS = ("rad/s", "deg/s", "counts")
 
 
 def parse_columns(spec: str | None) -> dict[str, str | int] | None:
@@ -47,6 +69,10 @@ def parse_columns(spec: str | None) -> dict[str, str | int] | None:
                 f"--columns: '{part}' is not key=column (keys t, ax, ay, az, gx, gy, gz)"
             )
         k, v = (s.strip() for s in part.split("=", 1))
+        if k not in COLUMN_KEYS or not v:
+            raise InputError(
+                f"--columns: '{part}'; expected key=column with a key of {', '.join(COLUMN_KEYS)}"
+            )
         out[k] = int(v) if v.isdigit() else v
     return out
 
@@ -78,8 +104,25 @@ def load_log(
     )
 
 
+def _json_safe(x: Any) -> Any:
+    """NaN and infinities as null (JSON has no Infinity); numpy scalars and arrays as plain values."""
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _json_safe(x.tolist())
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
 def write_json(path: Path, data: Any) -> None:
-    write_atomic(path, json.dumps(data, indent=2, default=float) + "\n")
+    """Standard JSON (a non-finite number is written as null), atomically."""
+    text = json.dumps(_json_safe(data), indent=2, default=float, allow_nan=False)
+    write_atomic(path, text + "\n")
 
 
 def table(title: str, columns: list[str], rows: list[list[str]]) -> Table:

@@ -6,10 +6,18 @@ from pathlib import Path
 
 import typer
 
-from imuslam.cli.common import FORMAT_HELP, console, friendly_errors, load_log
-from imuslam.errors import InputError
+from imuslam.cli import validate
+from imuslam.cli.common import (
+    ACCEL_UNITS,
+    FORMAT_HELP,
+    GYRO_UNITS,
+    console,
+    friendly_errors,
+    load_log,
+)
 from imuslam.imu.model import ImuCalibration
-from imuslam.io.load import detect_format, write_imu
+from imuslam.io.load import FORMATS, detect_format, write_imu
+from imuslam.io.results import check_out_dir, results_file, results_folder
 
 
 def register(app: typer.Typer) -> None:
@@ -26,15 +34,25 @@ def register(app: typer.Typer) -> None:
             ..., "--calib", help="calibration.yaml written by 'imuslam calibrate'"
         ),
         out: Path = typer.Option(
-            ..., "--out", help="output: a file, a bag, or a folder for two text files"
+            ...,
+            "--out",
+            help="output: a file, a bag, or a folder for two text files",
+            callback=validate.out_any(),
         ),
-        fmt: str = typer.Option("auto", "--format", help=FORMAT_HELP),
+        fmt: str = typer.Option(
+            "auto", "--format", help=FORMAT_HELP, callback=validate.choice(FORMATS)
+        ),
         topic: str | None = typer.Option(None, help="IMU topic of a bag (replaced in the copy)"),
-        accel_unit: str | None = typer.Option(None, help="m/s^2, g or counts"),
-        gyro_unit: str | None = typer.Option(None, help="rad/s, deg/s or counts"),
+        accel_unit: str | None = typer.Option(
+            None, help="m/s^2, g or counts", callback=validate.choice(ACCEL_UNITS)
+        ),
+        gyro_unit: str | None = typer.Option(
+            None, help="rad/s, deg/s or counts", callback=validate.choice(GYRO_UNITS)
+        ),
         columns: str | None = typer.Option(None, help="CSV column mapping"),
     ) -> None:
         """Write the corrected IMU (m/s^2, rad/s, body frame); a bag keeps every other message untouched."""
+        check_out_dir(out, "folder" if gyro is not None else "file")
         cal = ImuCalibration.load_yaml(calib)
         log = load_log(
             log_path,
@@ -46,12 +64,19 @@ def register(app: typer.Typer) -> None:
             columns,
         )
         corrected = cal.correct(log)
+        cal.check_magnitudes(corrected)
         f = detect_format(log_path) if fmt == "auto" else fmt
         if f == "bag":
             t = topic or log.source.rsplit(":", 1)[-1]
-            if Path(out).exists():
-                raise InputError(f"{out}: exists; choose a new output bag")
-            written = write_imu(corrected, out, "bag", template=log_path, topic=t)
+            with results_file(out) as tmp:
+                write_imu(corrected, tmp, "bag", template=log_path, topic=t)
+            written = [out]
+        elif gyro is not None:
+            with results_folder(out) as tmp:
+                names = write_imu(corrected, tmp, f, two_files=True)  # type: ignore[arg-type]
+            written = [out / n.name for n in names]
         else:
-            written = write_imu(corrected, out, f, two_files=gyro is not None)  # type: ignore[arg-type]
+            with results_file(out) as tmp:
+                write_imu(corrected, tmp, f)  # type: ignore[arg-type]
+            written = [out]
         console.print(f"corrected {len(log)} samples -> {', '.join(map(str, written))}")

@@ -3,6 +3,7 @@ calibration buys an INS."""
 
 from __future__ import annotations
 
+import html
 from pathlib import Path
 
 import matplotlib
@@ -12,6 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import typer  # noqa: E402
 
+from imuslam.cli import validate
 from imuslam.cli.calibrate import print_result, write_outputs
 from imuslam.cli.common import console, friendly_errors, table, write_json
 from imuslam.eval.ins_benefit import ins_benefit
@@ -19,6 +21,7 @@ from imuslam.imu.calibrate import CalibrationConfig, calibrate
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.io.figures import save_figure
 from imuslam.io.load import write_imu
+from imuslam.io.results import results_folder
 from imuslam.sim.imu import ImuErrorSpec
 from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
 
@@ -27,39 +30,38 @@ def register(app: typer.Typer) -> None:
     @app.command("demo")
     @friendly_errors
     def demo_cmd(
-        out: Path = typer.Option(Path("demo_out"), "--out", help="results folder"),
-        poses: int = typer.Option(40, help="gimbal poses (the first is held for the still start)"),
-        seed: int = typer.Option(0, help="random seed"),
+        out: Path = typer.Option(
+            Path("demo_out"), "--out", help="results folder", callback=validate.out_folder()
+        ),
+        poses: int = typer.Option(
+            40,
+            help="gimbal poses, 12..200 (the first is held for the still start)",
+            callback=validate.integer(12, 200),
+        ),
+        seed: int = typer.Option(0, help="random seed (>= 0)", callback=validate.integer(lo=0)),
     ) -> None:
         """A simulated robot IMU with seed 000's errors, turned through gimbal poses and calibrated."""
         rng = np.random.default_rng(seed)
+        console.print(f"simulating a BWT901CL turned through {poses} gimbal poses ...")
         sim = simulate_multipose(sphere_plan_deg(poses, rng), rng)
         console.print(
             f"simulated {len(sim.log)} samples ({sim.log.t_s[-1]:.0f} s at 100 Hz): BWT901CL-class noise, "
             f"seed 000 table 2 errors, {poses} gimbal poses"
         )
+        console.print(
+            "calibrating (the first run compiles the numerical kernels, about a minute; later runs "
+            "reuse them) ..."
+        )
         res = calibrate(sim.log, CalibrationConfig(g=sim.truth.g))
         a, g = sim.truth.accel, sim.truth.gyro
         truth = ImuCalibration(TriadModel(a.T, a.K, a.b), TriadModel(g.T, g.K, g.b))
         print_result(res, truth.accel_params, truth.gyro_params)
-        write_imu(sim.log, out / "raw_imu.mcap", "bag", topic="/imu/data")
-        write_imu(
-            res.calibration.correct(sim.log), out / "corrected_imu.mcap", "bag", topic="/imu/data"
-        )
-        write_outputs(
-            res, sim.log, out, truth_accel=truth.accel_params, truth_gyro=truth.gyro_params
-        )
-        console.print(
-            f"wrote {out}/report.html, calibration.yaml, acc.calib, gyro.calib, raw and corrected MCAP bags"
-        )
+        console.print("what it buys an INS: five 90 s car runs with a Kalman filter ...")
         runs = ins_benefit(res.calibration, ImuErrorSpec.bwt901cl(), rng, g=sim.truth.g)
-        console.print(
-            table(
-                "What the calibration buys an INS: a car with RTK fixes for 60 s, then 30 s without",
-                ["IMU, start of the free run", "attitude error [deg]", "position error [m]"],
-                [[r.name, f"{r.attitude_err_deg:.2f}", f"{r.position_err_m:.2f}"] for r in runs],
-            )
-        )
+        title = "What the calibration buys an INS: a car with RTK fixes for 60 s, then 30 s without"
+        cols = ["IMU, start of the free run", "attitude error [deg]", "position error [m]"]
+        rows = [[r.name, f"{r.attitude_err_deg:.2f}", f"{r.position_err_m:.2f}"] for r in runs]
+        console.print(table(title, cols, rows))
         fig, ax = plt.subplots(figsize=(9, 5))
         for r in runs:
             ax.semilogy(r.t_s, np.maximum(r.err_m, 1e-3), label=r.name)
@@ -67,7 +69,32 @@ def register(app: typer.Typer) -> None:
         ax.set_ylabel("position error [m]")
         ax.legend()
         ax.grid(True, which="both", alpha=0.3)
-        save_figure(fig, out / "ins_benefit.png")
-        write_json(out / "ins_benefit.json", [{"variant": r.name, "attitude_err_deg": r.attitude_err_deg,
-                                               "position_err_m": r.position_err_m} for r in runs])  # fmt: skip
-        console.print(f"wrote {out}/ins_benefit.png, ins_benefit.json")
+        with results_folder(out) as tmp:
+            write_imu(sim.log, tmp / "raw_imu.mcap", "bag", topic="/imu/data")
+            write_imu(
+                res.calibration.correct(sim.log),
+                tmp / "corrected_imu.mcap",
+                "bag",
+                topic="/imu/data",
+            )
+            write_outputs(res, sim.log, tmp, extra_html=_ins_html(title, cols, rows),
+                          truth_accel=truth.accel_params, truth_gyro=truth.gyro_params)  # fmt: skip
+            save_figure(fig, tmp / "ins_benefit.png")
+            write_json(tmp / "ins_benefit.json", [{"variant": r.name, "attitude_err_deg": r.attitude_err_deg,
+                                                   "position_err_m": r.position_err_m} for r in runs])  # fmt: skip
+        console.print(
+            f"wrote {out}/report.html (calibration and INS), calibration.yaml, acc.calib, gyro.calib, "
+            "raw and corrected MCAP bags, ins_benefit.png, ins_benefit.json"
+        )
+
+
+def _ins_html(title: str, cols: list[str], rows: list[list[str]]) -> str:
+    """The INS comparison as a report section: the table and the error-growth plot."""
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in cols)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(v)}</td>" for v in r) + "</tr>" for r in rows
+    )
+    return (
+        f"<h2>{html.escape(title)}</h2><table><tr>{head}</tr>{body}</table>"
+        '<img src="ins_benefit.png" width="100%">'
+    )

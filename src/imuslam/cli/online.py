@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import typer
 
+from imuslam.cli import validate
 from imuslam.cli.common import console, friendly_errors, table
-from imuslam.errors import InputError
+from imuslam.errors import HardwareError, InputError
 from imuslam.imu.calibrate import CalibrationConfig
 from imuslam.imu.history import CalibrationHistory
 from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
@@ -68,6 +69,9 @@ def _print_predicted(model: PlanModel, plan: np.ndarray) -> None:
     )
 
 
+_NO_HW = "--imu-port needs the hardware extra ({} is missing): pip install 'imuslam[hw]'"
+
+
 def register(app: typer.Typer) -> None:
     @app.command("online")
     @friendly_errors
@@ -75,28 +79,50 @@ def register(app: typer.Typer) -> None:
         sim: bool = typer.Option(
             False, "--sim", help="run on a simulated robot, faster than real time"
         ),
-        duration_h: float = typer.Option(1.0, help="--sim: hours of operation"),
+        duration_h: float = typer.Option(
+            1.0,
+            help="--sim: hours of operation (at most 168)",
+            callback=validate.positive("h", hi=168),
+        ),
         drift_accel: float = typer.Option(
-            0.05, help="--sim: z accelerometer bias drift, m/s^2 per hour"
+            0.05,
+            help="--sim: z accelerometer bias drift, m/s^2 per hour",
+            callback=validate.number(-1, 1, unit="m/s^2 per hour"),
         ),
         drift_gyro: float = typer.Option(
-            0.001, help="--sim: gyro bias drift per axis, rad/s per hour"
+            0.001,
+            help="--sim: gyro bias drift per axis, rad/s per hour",
+            callback=validate.number(-0.1, 0.1, unit="rad/s per hour"),
         ),
         poses: int = typer.Option(
             SEED_POSES,
-            help="gimbal poses per session (seed 000: 40); with fewer the predicted 1-sigma is printed",
+            help="gimbal poses per session, 12..200 (seed 000: 40); with fewer than 40 the predicted "
+            "1-sigma is printed",
+            callback=validate.integer(12, 200),
         ),
         t_init: float = typer.Option(
-            SEED_T_INIT_S, "--t-init", help="initial still period of a session, s (seed 000: 50)"
+            SEED_T_INIT_S,
+            "--t-init",
+            help="initial still period of a session, s (seed 000: 50)",
+            callback=validate.positive("s", hi=600),
         ),
         imu_port: str | None = typer.Option(
             None, help="serial port of a WitMotion IMU, e.g. /dev/ttyUSB0"
         ),
-        gimbal: str = typer.Option("pca9685", help="gimbal driver: pca9685"),
-        rate: float = typer.Option(100.0, help="IMU output rate, Hz"),
-        seed: int = typer.Option(0, help="--sim: random seed"),
+        gimbal: str = typer.Option(
+            "pca9685", help="gimbal driver: pca9685", callback=validate.choice(("pca9685",))
+        ),
+        rate: float = typer.Option(
+            100.0, help="IMU output rate, Hz", callback=validate.positive("Hz", hi=1000)
+        ),
+        seed: int = typer.Option(
+            0, help="--sim: random seed (>= 0)", callback=validate.integer(lo=0)
+        ),
         out: Path = typer.Option(
-            Path("online_out"), "--out", help="folder of the calibration history"
+            Path("online_out"),
+            "--out",
+            help="folder of the calibration history",
+            callback=validate.out_folder(),
         ),
     ) -> None:
         """Calibrate with the gimbal, publish, watch for drift in still moments, recalibrate."""
@@ -111,7 +137,12 @@ def register(app: typer.Typer) -> None:
                 raise InputError(f"--gimbal: '{gimbal}'; supported: pca9685")
             from imuslam.hw.gimbal import Pca9685Gimbal, ServoSpec
 
-            g = Pca9685Gimbal(ServoSpec(0), ServoSpec(1, min_deg=-180, max_deg=180))
+            try:  # the drivers import smbus2 and pyserial (the hw extra) when they open a device
+                g = Pca9685Gimbal(ServoSpec(0), ServoSpec(1, min_deg=-180, max_deg=180))
+            except ImportError as exc:
+                raise InputError(_NO_HW.format(exc.name)) from None
+            except OSError as exc:
+                raise HardwareError(f"--gimbal {gimbal}: cannot open its I2C bus ({exc})") from None
             model = replace(model, resolution_deg=g.resolution_deg)
             console.print(
                 f"gimbal: PCA9685 hobby servos, {g.resolution_deg:.2f} deg per PWM count "
@@ -133,7 +164,12 @@ def register(app: typer.Typer) -> None:
         from imuslam.imu.online import Event
 
         assert imu_port is not None  # checked before the plan is built
-        imu = WitMotionImu(imu_port)
+        try:
+            imu = WitMotionImu(imu_port)
+        except ImportError as exc:
+            raise InputError(_NO_HW.format(exc.name)) from None
+        except OSError as exc:
+            raise HardwareError(f"--imu-port {imu_port}: cannot open ({exc})") from None
         imu.configure(rate)
 
         buf_t: list[int] = []

@@ -10,6 +10,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.errors import EstimatorError
 from imuslam.interfaces.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
@@ -62,6 +63,13 @@ def align(
     if method == "se3":
         return umeyama(est.p_w, ref.p_w, False)
     if method == "sim3":
+        for tr in (est, ref):
+            spread = float(np.sqrt(np.mean(np.sum((tr.p_w - tr.p_w.mean(axis=0)) ** 2, axis=1))))
+            if not spread > 1e-9 * max(1.0, float(np.abs(tr.p_w).max())):
+                raise EstimatorError(
+                    f"{tr.source}: the positions do not move (RMS spread {spread:.3g} m over {len(tr)} "
+                    "poses), so a Sim(3) scale is undefined; align with se3 instead"
+                )
         return umeyama(est.p_w, ref.p_w, True)
     if method == "yaw":
         return yaw_only(est.p_w, ref.p_w)

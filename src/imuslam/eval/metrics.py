@@ -79,7 +79,11 @@ def _path_ids(p: FloatArray, delta: float) -> IntArray:  # pragma: no cover - co
 
 def rpe_pairs(est: Trajectory, delta: float, unit: str) -> tuple[IntArray, IntArray]:
     """Index pairs (i, j) for the RPE: consecutive pairs ``delta`` frames or metres apart (evo's rule)."""
+    if not (np.isfinite(delta) and delta > 0):
+        raise InputError(f"RPE delta {delta}; expected a positive number of {unit}")
     if unit == "frames":
+        if delta != int(delta):
+            raise InputError(f"RPE delta {delta} frames; expected a whole number of frames")
         ids = np.arange(0, len(est), int(delta), dtype=np.int64)
     elif unit == "m":
         ids = _path_ids(np.ascontiguousarray(est.p_w), float(delta))
@@ -114,18 +118,24 @@ def rpe(
 def kitti_drift(
     ref: Trajectory, est: Trajectory, lengths: tuple[float, ...] = KITTI_LENGTHS, step: int = 10
 ) -> dict[float, tuple[float, float, int]]:
-    """KITTI segment errors: length -> (translation drift %, rotation drift deg/m, segments)."""
+    """KITTI segment errors: length -> (translation drift %, rotation drift deg/m, segments).
+
+    As the KITTI odometry devkit (evaluate_odometry.cpp): distances along the reference; from every
+    ``step``-th frame the segment ends at the first frame whose distance exceeds the start's by more than
+    L (``lastFrameFromSegmentLength``: strictly greater); the error pose is (P_i^-1 P_j)^-1 (Q_i^-1 Q_j),
+    its translation norm and rotation angle divided by L, averaged over the segments; reported as % and
+    deg/m as the devkit's summary."""
     dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref.p_w, axis=0), axis=1))])
     starts = np.arange(0, len(ref), step)
     out: dict[float, tuple[float, float, int]] = {}
     for L in lengths:
-        j = np.searchsorted(dist, dist[starts] + L)
+        j = np.searchsorted(dist, dist[starts] + L, side="right")
         ok = j < len(ref)
         if not ok.any():
             continue
         i_, j_ = starts[ok].astype(np.int64), j[ok].astype(np.int64)
         et, er = rpe(ref, est, i_, j_)
-        out[L] = (float(np.mean(et / L) * 100), float(np.mean(np.deg2rad(er) / L)), int(ok.sum()))
+        out[L] = (float(np.mean(et / L) * 100), float(np.mean(er / L)), int(ok.sum()))
     return out
 
 

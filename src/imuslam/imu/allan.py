@@ -189,24 +189,45 @@ class AllanResult:
     warnings: list[str] = field(default_factory=list)
 
     def kalibr(self, rostopic: str = "/imu0") -> dict[str, Any]:
-        """Kalibr ``imu.yaml`` fields: the worst axis of each noise term (conservative)."""
+        """Kalibr ``imu.yaml`` fields: the worst axis of each noise term (conservative); a random walk
+        the log is too short to show is bounded from the longest tau."""
 
-        def worst(terms: list[NoiseTerms], rw: bool) -> float:
+        def worst(terms: list[NoiseTerms], rw: bool, adev: FloatArray) -> float:
             v = [t.random_walk if rw else t.white for t in terms]
             vv = [x for x in v if x is not None]
-            return float(max(vv)) if vv else float("nan")
+            if vv:
+                return float(max(vv))
+            # No +1/2 slope within the log: the random walk is at most what the longest tau shows,
+            # K <= sigma(tau) sqrt(3 / tau) (IEEE 952-1997, annex C), a conservative value.
+            return float(np.max(adev[-1]) * np.sqrt(3.0 / self.taus[-1]))
 
         return {
-            "accelerometer_noise_density": worst(self.accel_terms, False),
-            "accelerometer_random_walk": worst(self.accel_terms, True),
-            "gyroscope_noise_density": worst(self.gyro_terms, False),
-            "gyroscope_random_walk": worst(self.gyro_terms, True),
+            "accelerometer_noise_density": worst(self.accel_terms, False, self.accel_adev),
+            "accelerometer_random_walk": worst(self.accel_terms, True, self.accel_adev),
+            "gyroscope_noise_density": worst(self.gyro_terms, False, self.gyro_adev),
+            "gyroscope_random_walk": worst(self.gyro_terms, True, self.gyro_adev),
             "rostopic": rostopic,
             "update_rate": float(round(self.rate_hz, 3)),
         }
 
 
 _TO_SI = {"g": 9.80665, "m/s^2": 1.0, "deg/s": np.pi / 180.0, "rad/s": 1.0, "counts": 1.0}
+
+
+def _check_static(acc: FloatArray, t_s: FloatArray, source: str, max_deg: float = 3.0) -> None:
+    """InputError when gravity's direction moves by more than ``max_deg`` between tenths of the log:
+    an Allan analysis of a moving IMU measures the motion, not the noise. (Means of a tenth of a
+    static log differ by noise / sqrt(N / 10), and a thermal bias drift of 0.05 m/s^2 by 0.3 deg.)"""
+    edges = np.linspace(0, len(acc), 11).astype(int)
+    means = np.stack([acc[a:b].mean(axis=0) for a, b in zip(edges[:-1], edges[1:], strict=True)])
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    ang = np.rad2deg(np.arccos(np.clip(u @ u[0], -1.0, 1.0)))
+    if ang.max() > max_deg:
+        j = int(np.argmax(ang))
+        raise InputError(
+            f"{source}: not a static log: gravity's direction moves {ang[j]:.1f} deg between the first "
+            f"tenth and the one from {t_s[edges[j]]:.0f} s; an Allan analysis needs the IMU still"
+        )
 
 
 def allan(log: ImuLog, n_taus: int = 100) -> AllanResult:
@@ -227,6 +248,7 @@ def allan(log: ImuLog, n_taus: int = 100) -> AllanResult:
         )
     acc = log.accel * _TO_SI[log.accel_unit]
     gyr = log.gyro * _TO_SI[log.gyro_unit]
+    _check_static(acc, log.t_s, log.source)
     ms = cluster_sizes(n, n_taus)
     taus, adev, _ = overlapped_adev(np.hstack([acc, gyr]), rate, ms)
     terms = [fit_noise_terms(taus, adev[:, j], n, rate) for j in range(6)]

@@ -84,6 +84,12 @@ class CalibrationConfig(BaseModel):
         description="joint method: estimate the gyro's g-sensitivity G (omega = T K (w ± b) - G f, rad/s per "
         "m/s^2) and the gyro bias from the rate at every static pose, not only the still start",
     )
+    joint_poses: Literal["middle", "still"] = Field(
+        "still",
+        description="joint method: middle: each pose referred to its middle sample (motion-compensated "
+        "mean, gyro integrated middle to middle); still: plain mean of its still part, gyro integrated "
+        "between still parts",
+    )
     weigh_by_length: bool = Field(
         True,
         description="joint method: weigh each pose by the square root of its length (white noise)",
@@ -510,6 +516,34 @@ def _extend_to_motion(
     return out
 
 
+def motion_compensated_means(
+    acc: FloatArray,
+    accel_model: TriadModel,
+    omega: FloatArray,
+    t_s: FloatArray,
+    windows: IntArray,
+    refs: IntArray,
+) -> FloatArray:
+    """Raw accelerometer means (K, 3) of each window [s, e] expressed in the sensor's attitude at its
+    reference sample: each calibrated sample f_k is turned by the gyro rotation from k to the reference,
+    ``f_ref = f_k + phi_k x f_k`` (small angles), then mapped back to raw units.
+
+    omega: (N, 3) calibrated angular rate, rad/s; windows: (K, 2); refs: (K,) sample index in each window.
+    """
+    out = np.empty((len(windows), 3))
+    Minv = np.linalg.inv(accel_model.M)
+    for i, ((s, e), c) in enumerate(zip(windows, refs, strict=True)):
+        w_ = omega[s : e + 1]
+        dt = np.diff(t_s[s : e + 1])
+        cum = np.concatenate(
+            [np.zeros((1, 3)), np.cumsum(0.5 * (w_[1:] + w_[:-1]) * dt[:, None], 0)]
+        )
+        phi = cum - cum[c - s]  # rotation vector from the reference to sample k (body frame)
+        f = accel_model.apply(acc[s : e + 1])
+        out[i] = acc[s : e + 1].mean(axis=0) + Minv @ np.cross(phi, f).mean(axis=0)
+    return out
+
+
 def _angle_free_resid(R: FloatArray, u0: FloatArray, u1: FloatArray) -> FloatArray:
     """Stacked residuals (3S,) ``R^T u0 - u1``."""
     return (np.einsum("sji,sj->si", R, u0) - u1).ravel()
@@ -547,6 +581,35 @@ def _check_log(log_: ImuLog) -> None:
                         f"{log_.source}: {name} {ax} axis is saturated ({hits} samples at {extreme:g}): "
                         "the sensor's range was exceeded, those poses cannot be used"
                     )
+
+
+#: SI per unit: a calibrated scale K (SI per raw unit) of a log in one of these is near its value.
+_UNIT_SI = {"m/s^2": 1.0, "g": 9.80665, "rad/s": 1.0, "deg/s": np.pi / 180.0}
+
+
+def _check_units(K: FloatArray, sensor: str, unit: str, option: str, source: str) -> None:
+    """InputError when the fitted scale says the log is not in its declared unit: a gyro in deg/s
+    declared rad/s fits K = 0.0175 (pi/180), which would otherwise be reported as a scale error of
+    98 %. Low-cost MEMS scale errors are a few percent; [0.7, 1.4] x the unit's factor is accepted."""
+    if unit not in _UNIT_SI:
+        return  # raw counts: any scale
+    k = float(np.mean(K))
+    ratio = k / _UNIT_SI[unit]
+    if 0.7 <= ratio <= 1.4:
+        return
+    si, candidates = (
+        ("m/s^2", ("m/s^2", "g")) if sensor == "accelerometer" else ("rad/s", ("rad/s", "deg/s"))
+    )
+    like = [u for u in candidates if u != unit and 0.7 <= k / _UNIT_SI[u] <= 1.4]
+    hint = (
+        f"the data look like {like[0]} (give {option} {like[0]})"
+        if like
+        else (f"the data look like raw counts (give {option} counts)")
+    )
+    raise InputError(
+        f"{source}: the {sensor} scale came out {k:.4g} {si} per {unit}, {ratio:.3g} x the expected "
+        f"{_UNIT_SI[unit]:.4g}: the {sensor} is not in {unit}; {hint}"
+    )
 
 
 def _verdict(
@@ -769,12 +832,32 @@ def calibrate(
     if cfg.method == "joint":
         use_g = cfg.gyro_g_sensitivity
         f_c = accel_model.apply(acc) if use_g else np.zeros((1, 3))
-        gyro_means = np.stack([w[s : e + 1].mean(axis=0) for s, e in iv])
+        # Each pose is referred to the middle sample of its interval, and the gyro is integrated from
+        # one pose's middle to the next's (still parts included: the bias is estimated). The slow ends
+        # of motion the accelerometer detector took for still are turned back into the pose's frame at
+        # that middle sample with the gyro (motion-compensated means), instead of being cut at a guess.
+        # The static-rate means use each pose's still part only: between the ends of the gyro segments
+        # that reach into its interval while the rate is above the still-period noise.
+        still = iv.copy()
+        still[pairs[:, 1], 0] = np.maximum(still[pairs[:, 1], 0], segs[:, 1])
+        still[pairs[:, 0], 1] = np.minimum(still[pairs[:, 0], 1], segs[:, 0])
+        short = still[:, 1] - still[:, 0] < 20
+        still[short] = iv[short]
+        if cfg.joint_poses == "middle":
+            refs = (iv[:, 0] + iv[:, 1]) // 2
+            segs = np.stack([refs[pairs[:, 0]], refs[pairs[:, 1]]], axis=1)
+            pose_means = motion_compensated_means(
+                acc, accel_model, w @ _gyro_M(theta_g[:9]).T, t_s, iv, refs
+            )
+        else:  # "still": plain means of the still parts, gyro segments between them
+            pose_means = np.stack([acc[s : e + 1].mean(axis=0) for s, e in still])
+        raw_means = pose_means
+        gyro_means = np.stack([w[s : e + 1].mean(axis=0) for s, e in still])
         jf = joint_refine(
-            raw_means, gyro_means, w, f_c, t_s, segs, pairs, theta_a, theta_g[:9], cfg.g, sign,
+            pose_means, gyro_means, w, f_c, t_s, segs, pairs, theta_a, theta_g[:9], cfg.g, sign,
             cfg.estimate_gyro_bias, use_g, integrate_segments,
             pose_t=t_s[(iv[:, 0] + iv[:, 1]) // 2] if cfg.accel_bias_drift else None,
-            pose_n=(iv[:, 1] - iv[:, 0] + 1).astype(float) if cfg.weigh_by_length else None,
+            pose_n=(still[:, 1] - still[:, 0] + 1).astype(float) if cfg.weigh_by_length else None,
         )  # fmt: skip
         theta_a, theta_g, db = jf.theta_a, jf.theta_g, jf.db
         G = jf.G if use_g else None
@@ -805,6 +888,8 @@ def calibrate(
     )[0]
     t_gyro = time.perf_counter()
 
+    _check_units(accel_model.K, "accelerometer", log_.accel_unit, "--accel-unit", log_.source)
+    _check_units(gyro_model.K, "gyro", log_.gyro_unit, "--gyro-unit", log_.source)
     std_a = np.sqrt(np.diag(cov_a))
     std_g = np.sqrt(np.diag(cov_g_full))[:9]
     poor = _verdict(std_a, std_g, theta_a, theta_g[:9], len(iv))

@@ -30,7 +30,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
-from scipy.optimize import least_squares
 
 from imuslam.imu.model import misalignment_matrix
 
@@ -109,7 +108,7 @@ def joint_refine(
     accel_free: NDArray[np.bool_] | None = None,
     pose_t: FloatArray | None = None,
     pose_n: FloatArray | None = None,
-    max_vce: int = 5,
+    max_iter: int = 50,
 ) -> JointFit:
     """Refine ``theta_a0`` (9,) and ``theta_g0`` (9,) jointly (see the module doc).
 
@@ -265,9 +264,6 @@ def joint_refine(
         x = full(z)
         return stack(*raw_resid(x, gyro_rot(x[None])[0]))
 
-    def jac(z: FloatArray) -> FloatArray:
-        return fun_jac(z)[1]
-
     # First weights from the starting point's residuals (each group its own RMS).
     rn0, rd0, rw0 = raw_resid(x_full0, gyro_rot(x_full0[None])[0])
     weights[0] = 1.0 / max(float(np.sqrt(np.sum((rn0 * wp) ** 2) / K)), 1e-12)
@@ -276,31 +272,50 @@ def joint_refine(
         weights[2] = 1.0 / max(float(np.sqrt(np.mean((rw0 * wp) ** 2))), 1e-12)
     bounds = np.cumsum([0, *n_rows])
     dof = [3 * K, 2 * S, 3 * K]  # each direction residual has 2 degrees of freedom (unit vectors)
-    x = x0
+    # Levenberg-Marquardt (Marquardt 1963, diagonal scaling) with the variance components re-estimated
+    # after every accepted step, so weights and parameters converge together (one Jacobian per step).
+    x = x0.copy()
+    lam = 1e-3
     n_iter = 0
-    for _ in range(max_vce):
+    r, J = fun_jac(x)
+    for _ in range(max_iter):
         n_iter += 1
-        res = least_squares(
-            fun,
-            x,
-            jac=jac,
-            method="lm",
-            x_scale=scale[free],
-            xtol=1e-12,
-            ftol=1e-12,
-        )
-        x = res.x
-        r, J = fun_jac(x)
         # Variance-component estimation: each group's redundancy from the hat matrix's diagonal.
         hat = _hat_diagonal(J)
         new = weights.copy()
         for k in range(3 if use_static else 2):
             a, b = bounds[k], bounds[k + 1]
             rho = max(dof[k] - float(hat[a:b].sum()), 1.0)
-            new[k] = weights[k] / np.sqrt(float(r[a:b] @ r[a:b]) / rho)
-        done = bool(np.all(np.abs(new / weights - 1.0) < 1e-2))
-        weights[:] = new
-        if done:
+            new[k] = weights[k] / np.sqrt(max(float(r[a:b] @ r[a:b]) / rho, 1e-300))
+        w_changed = float(np.max(np.abs(new / weights - 1.0)))
+        if w_changed > 0:
+            ratio = np.repeat(new / weights, n_rows)
+            r, J = r * ratio, J * ratio[:, None]
+            weights[:] = new
+        N = J.T @ J
+        gvec = J.T @ r
+        d = np.maximum(np.diag(N), 1e-30)
+        cost = float(r @ r)
+        step_ok = False
+        for _ in range(20):
+            try:
+                dx = -np.linalg.solve(N + lam * np.diag(d), gvec)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            r_try = fun(x + dx)
+            if np.all(np.isfinite(r_try)) and float(r_try @ r_try) < cost:
+                step_ok = True
+                break
+            lam *= 10.0
+        if not step_ok:
+            break
+        x = x + dx
+        lam = max(lam / 10.0, 1e-12)
+        r, J = fun_jac(x)
+        # Converged when the step is far below the parameters' uncertainty and the weights settled.
+        small = bool(np.all(np.abs(dx) <= 1e-3 * np.sqrt(np.diag(_inv_normal(J)))))
+        if small and w_changed < 1e-2:
             break
     r, J = fun_jac(x)
     cov_all = np.zeros((free.size, free.size))

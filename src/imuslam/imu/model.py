@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from imuslam.errors import InputError
 from imuslam.interfaces.imu import ImuLog
 from imuslam.io.atomic import write_atomic
+from imuslam.io.text import read_text
 
 FloatArray = NDArray[np.float64]
 BiasSign = Literal["plus", "minus"]
@@ -140,9 +141,7 @@ class TriadModel:
         """Read an imu_tk ``.calib`` file (21 numbers: T row-major, K row-major, B) as a ``minus`` model."""
         p = Path(path)
         try:
-            vals = np.array(p.read_text().split(), dtype=float)
-        except OSError as exc:
-            raise InputError(f"{p}: cannot read: {exc}") from exc
+            vals = np.array(read_text(p).split(), dtype=float)
         except ValueError as exc:
             raise InputError(f"{p}: not an imu_tk .calib file (non-numeric token): {exc}") from exc
         if vals.size != 21:
@@ -222,6 +221,28 @@ class ImuCalibration:
         )
         return out
 
+    def check_magnitudes(self, corrected: ImuLog, max_rate_rad_s: float = 35.0) -> None:
+        """InputError when a corrected log cannot be what the calibration was made for: the median
+        |accel| of any log of a robot on earth is near g (still, driving or walking), and no MEMS gyro
+        measures over 2000 deg/s (35 rad/s). Either failing means the log's units differ from the
+        calibration's (``units.accel_in`` / ``gyro_in``)."""
+        if len(corrected) == 0:
+            return
+        na = float(np.median(np.linalg.norm(corrected.accel, axis=1)))
+        if not 0.5 * self.g <= na <= 2.0 * self.g:
+            raise InputError(
+                f"{corrected.source}: corrected, the accelerations have a median magnitude of {na:.4g} "
+                f"m/s^2 where gravity is {self.g:g}: the log is not in the calibration's accelerometer "
+                f"unit ({self.accel_unit}); check --accel-unit and the calibration's units.accel_in"
+            )
+        ng = float(np.quantile(np.linalg.norm(corrected.gyro, axis=1), 0.99))
+        if not ng <= max_rate_rad_s:
+            raise InputError(
+                f"{corrected.source}: corrected, 1 % of the angular rates exceed {ng:.4g} rad/s (over "
+                f"{np.rad2deg(max_rate_rad_s):.0f} deg/s): the log is not in the calibration's gyro unit "
+                f"({self.gyro_unit}); check --gyro-unit and the calibration's units.gyro_in"
+            )
+
     @property
     def accel_params(self) -> FloatArray:
         """The 9 accelerometer parameters (``ACCEL_PARAM_NAMES``), bias in the model's sign."""
@@ -272,9 +293,7 @@ class ImuCalibration:
         """Read a calibration written by :meth:`save_yaml`; a bad field is an InputError naming it."""
         p = Path(path)
         try:
-            d = yaml.safe_load(p.read_text())
-        except OSError as exc:
-            raise InputError(f"{p}: cannot read: {exc}") from exc
+            d = yaml.safe_load(read_text(p))
         except yaml.YAMLError as exc:
             raise InputError(f"{p}: not valid YAML: {exc}") from exc
         if not isinstance(d, dict) or "accel" not in d or "gyro" not in d:
@@ -286,25 +305,53 @@ class ImuCalibration:
             v = d.get(key)
             if v is None:
                 return None
-            c = np.asarray(v, dtype=float)
+            try:
+                c = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                raise InputError(
+                    f"{p}: field '{key}' must be a {n}x{n} matrix of numbers"
+                ) from None
             if c.shape != (n, n):
                 raise InputError(f"{p}: field '{key}' must be {n}x{n}, got {c.shape}")
             return c
 
-        units = d.get("units") or {}
+        def mapping(key: str, value: Any) -> dict[str, Any]:
+            if not isinstance(value, dict):
+                raise InputError(
+                    f"{p}: field '{key}' must be a mapping, got {type(value).__name__} {value!r:.40}"
+                )
+            return value
+
+        units = mapping("units", {} if d.get("units") is None else d["units"])
+        unit_in: dict[str, str] = {}
+        for key, allowed, default in (
+            ("accel_in", ("m/s^2", "g", "counts"), "m/s^2"),
+            ("gyro_in", ("rad/s", "deg/s", "counts"), "rad/s"),
+        ):
+            u = units.get(key, default)
+            if u not in allowed:
+                raise InputError(
+                    f"{p}: field 'units.{key}' is {u!r}; expected one of {', '.join(allowed)}"
+                )
+            unit_in[key] = u
+        g = d.get("g", 9.80665)
+        if isinstance(g, bool) or not isinstance(g, int | float) or not 9.7 <= g <= 9.9:
+            raise InputError(
+                f"{p}: field 'g' is {g!r}; expected a gravity magnitude in [9.7, 9.9] m/s^2"
+            )
         return cls(
-            accel=TriadModel.from_dict(d["accel"], f"{p}: field 'accel'"),
-            gyro=TriadModel.from_dict(d["gyro"], f"{p}: field 'gyro'"),
+            accel=TriadModel.from_dict(mapping("accel", d["accel"]), f"{p}: field 'accel'"),
+            gyro=TriadModel.from_dict(mapping("gyro", d["gyro"]), f"{p}: field 'gyro'"),
             cov_accel=cov("cov_accel", 9),
             cov_gyro=cov("cov_gyro", 9),
             cov_gyro_bias=cov("cov_gyro_bias", 3),
-            accel_unit=str(units.get("accel_in", "m/s^2")),
-            gyro_unit=str(units.get("gyro_in", "rad/s")),
-            g=float(d.get("g", 9.80665)),
+            accel_unit=unit_in["accel_in"],
+            gyro_unit=unit_in["gyro_in"],
+            g=float(g),
             sensor_id=str(d.get("sensor_id", "")),
             date=str(d.get("date", "")),
             source=str(d.get("source", "")),
-            notes=dict(d.get("notes") or {}),
+            notes=mapping("notes", {} if d.get("notes") is None else d["notes"]),
             gyro_g_sensitivity=cov("gyro_g_sensitivity", 3),
         )
 

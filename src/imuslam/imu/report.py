@@ -105,8 +105,10 @@ def write_report(
     truth_accel: np.ndarray | None = None,
     truth_gyro: np.ndarray | None = None,
     cv: CrossValidation | None = None,
+    extra_html: str = "",
 ) -> list[Path]:
-    """PNG plots and ``report.html`` in ``out_dir``; returns the files written."""
+    """PNG plots and ``report.html`` in ``out_dir``; returns the files written. ``extra_html``: more
+    sections (already escaped HTML) appended to the report, e.g. what the calibration buys an INS."""
     out = Path(out_dir)
     files = {
         "static_detection.png": plot_static_detection(res, log),
@@ -165,6 +167,7 @@ Method {html.escape(res.config.method)}. Time {1e3 * res.timings_s.get("total", 
 <h2>Static detection</h2><img src="static_detection.png" width="100%">
 <h2>Residuals before and after</h2><img src="residuals.png" width="100%">
 <h2>Sweep</h2><img src="sweep.png">
+{extra_html}
 </body></html>
 """
     write_atomic(out / "report.html", doc)

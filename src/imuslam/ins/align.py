@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from imuslam.errors import InputError
 from imuslam.ins.core import ErrorLayout
 from imuslam.ins.kf import FilterDivergence, KfNoise, eskf_batch
-from imuslam.ins.rwnn import run_rwnn
+from imuslam.ins.rwnn import RwnnConfig, run_rwnn
 from imuslam.ins.strapdown import integrate
 from imuslam.interfaces.imu import ImuLog
 from imuslam.interfaces.nav import NavState
@@ -95,6 +95,7 @@ def run_alignment(
     stkf_beta: float = 3.0,
     stkf_rho: float = 0.95,
     stkf_max_fading: float = 5.0,
+    rwnn_config: RwnnConfig | None = None,
 ) -> AlignmentResult:
     """Run ``method`` over ``log`` (SI, body frame) with ``aiding`` from ``init`` at the first sample."""
     if log.accel_unit != "m/s^2" or log.gyro_unit != "rad/s":
@@ -120,11 +121,13 @@ def run_alignment(
             init.v_n,
             init.R_n_b,
             g,
+            rwnn_config,
             aid_std=aiding.std,
             accel_noise=(noise or KfNoise()).accel,
         )
         idx = np.clip(np.searchsorted(t, aiding.t_s), 0, len(t) - 1)
-        # the 1-sigma is that of the least-squares learning of the constant (bias) weights
+        # the error estimates are the network's whole output (bias weights + nodes), their 1-sigma that of
+        # the least-squares learning of the output weights
         return AlignmentResult("rwnn", t[idx], r.accel_error[idx], r.accel_error_std[idx], r.gyro_error[idx], r.gyro_error_std[idx], r.R_n_b[idx],
                                r.p_n[idx], r.v_n[idx], np.ones(len(idx)), NavState(r.p_n[idx[-1]], r.v_n[idx[-1]], r.R_n_b[idx[-1]]))  # fmt: skip
     if method not in ("kf", "stkf"):

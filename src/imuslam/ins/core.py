@@ -35,6 +35,7 @@ each iterate, gain in state dimension K = (H^T R^-1 H + P^-1)^-1 H^T R^-1, stop 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -245,20 +246,49 @@ def strapdown_step(
     h: float,
     g_n: FloatArray,
     w_ie_n: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
     """One interval of length h (s) between samples (f0, w0) and (f1, w1) (bias-corrected specific force
-    m/s^2 and rate rad/s, body frame): the state (p, v, R_n_b) at the second sample. ``w_ie_n``: earth
-    rate in n (zeros to neglect it)."""
+    m/s^2 and rate rad/s, body frame): the state (p, v, R_n_b) at the second sample, and the first
+    sample's specific force in n (R f0). ``w_ie_n``: earth rate in n (zeros to neglect it)."""
     wm = 0.5 * (w0 + w1) * h + (h * h / 12.0) * np.cross(w0, w1)  # coning (Savage 1998)
     Rn = R @ exp_nb(wm)
-    if w_ie_n[0] != 0.0 or w_ie_n[1] != 0.0 or w_ie_n[2] != 0.0:
+    earth = w_ie_n[0] != 0.0 or w_ie_n[1] != 0.0 or w_ie_n[2] != 0.0
+    if earth:
         Rn = exp_nb(-w_ie_n * h) @ Rn
-        cor = 2.0 * np.cross(w_ie_n, v)
-    else:
-        cor = np.zeros(3)
-    vn = v + h * (0.5 * (R @ f0 + Rn @ f1) + g_n - cor)
+    f0_n = R @ f0
+    dv = 0.5 * (f0_n + Rn @ f1) + g_n
+    if earth:
+        dv -= 2.0 * np.cross(w_ie_n, v)
+    vn = v + h * dv
     pn = p + 0.5 * h * (v + vn)
-    return pn, vn, Rn
+    return pn, vn, Rn, f0_n
+
+
+@numba.njit(cache=True)
+def _integrate(
+    f_b: FloatArray,
+    w_b: FloatArray,
+    dt: FloatArray,
+    p0: FloatArray,
+    v0: FloatArray,
+    R0: FloatArray,
+    g_n: FloatArray,
+    w_ie_n: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """:func:`integrate_nominal` on bias-corrected samples; also the sum of R_k f_k over the intervals."""
+    n = f_b.shape[0]
+    P = np.empty((n, 3))
+    V = np.empty((n, 3))
+    Rs = np.empty((n, 3, 3))
+    P[0], V[0], Rs[0] = p0, v0, R0
+    fn_sum = np.zeros(3)
+    for k in range(n - 1):
+        pn, vn, Rn, f0_n = strapdown_step(
+            P[k], V[k], Rs[k], f_b[k], f_b[k + 1], w_b[k], w_b[k + 1], dt[k], g_n, w_ie_n
+        )
+        P[k + 1], V[k + 1], Rs[k + 1] = pn, vn, Rn
+        fn_sum += f0_n
+    return P, V, Rs, fn_sum
 
 
 @numba.njit(cache=True)
@@ -276,16 +306,7 @@ def integrate_nominal(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
     """IMU samples (N, 3) with intervals dt (N - 1,) s -> per-sample states p (N, 3), v (N, 3),
     R_n_b (N, 3, 3), starting at (p0, v0, R0) on sample 0, biases removed from every sample."""
-    n = accel.shape[0]
-    P = np.empty((n, 3))
-    V = np.empty((n, 3))
-    Rs = np.empty((n, 3, 3))
-    P[0], V[0], Rs[0] = p0, v0, R0
-    for k in range(n - 1):
-        P[k + 1], V[k + 1], Rs[k + 1] = strapdown_step(
-            P[k], V[k], Rs[k], accel[k] - ba, accel[k + 1] - ba, gyro[k] - bg, gyro[k + 1] - bg,
-            dt[k], g_n, w_ie_n,
-        )  # fmt: skip
+    P, V, Rs, _ = _integrate(accel - ba, gyro - bg, dt, p0, v0, R0, g_n, w_ie_n)
     return P, V, Rs
 
 
@@ -362,12 +383,8 @@ def propagate(
 ]:  # pragma: no cover - compiled
     """The filter's prediction over samples 0..N-1: per-sample p (N, 3), v (N, 3), R_n_b (N, 3, 3) from
     :func:`integrate_nominal`, and the covariance P and the process noise Qsum at the last sample."""
-    Ps, Vs, Rs = integrate_nominal(accel, gyro, dt, p, v, R, ba, bg, g_n, np.zeros(3))
-    ns = dt.shape[0]
-    fn_mean = np.zeros(3)
-    for k in range(ns):
-        fn_mean += Rs[k] @ (accel[k] - ba)
-    fn_mean /= max(ns, 1)
+    Ps, Vs, Rs, fn_sum = _integrate(accel - ba, gyro - bg, dt, p, v, R, g_n, np.zeros(3))
+    fn_mean = fn_sum / max(dt.shape[0], 1)
     P, Qsum = propagate_covariance(P, Rs, gyro, bg, dt, fn_mean, q, off)
     return Ps, Vs, Rs, P, Qsum
 
@@ -434,8 +451,10 @@ def kalman_update(
     return dx, P, V, fading
 
 
+@functools.lru_cache(maxsize=256)
 def chi2_threshold(prob: float, dof: int) -> float:
-    """The chi-square quantile: P(chi2_dof <= threshold) = prob (2 * gammaincinv(dof / 2, prob))."""
+    """The chi-square quantile: P(chi2_dof <= threshold) = prob (2 * gammaincinv(dof / 2, prob)).
+    Cached: a filter gates every update with the same few (prob, dof) pairs."""
     from scipy.special import gammaincinv
 
     if not 0.0 < prob < 1.0:
@@ -738,7 +757,9 @@ class Eskf:
         delta = x_j ⊟ x_prior, ``(r, H, R) = linearize_fn(x_j)``, K = (H^T R^-1 H + P^-1)^-1 H^T R^-1
         (state dimension: cheap for thousands of point-to-plane rows), x_j+1 = x_j ⊞ (K r - (I - K H)
         delta); stop when |x_j+1 ⊟ x_j| < eps or after ``max_iter``; then P = (I - K H) P. The Jacobian
-        of ⊟ at the prior is taken as identity (its attitude block differs from it by O(|dtheta|))."""
+        of ⊟ at the prior is taken as identity (its attitude block differs from it by O(|dtheta|)).
+        ``linearize_fn`` may return R as a 1-D array of variances (a diagonal R), which keeps the cost
+        linear in the number of rows; gating needs the full matrix."""
         x0 = self.x
         P0 = self.P
         try:
@@ -751,8 +772,7 @@ class Eskf:
         r0 = np.zeros(0)
         nis = float("nan")
         m = self.n
-        K = np.zeros((m, 0))
-        H = np.zeros((0, m))
+        KH: FloatArray = np.zeros((m, m))
         it = 0
         for it in range(1, max_iter + 1):
             r, H, Rm = linearize_fn(xj)
@@ -763,18 +783,20 @@ class Eskf:
                     if not ok:
                         return UpdateResult(False, nis, r, np.zeros(m), 0)
             delta = boxminus(xj, x0, self.layout)
-            Rinv_H = np.linalg.solve(Rm, H)  # R^-1 H
-            A = H.T @ Rinv_H + Pinv
-            K = np.linalg.solve(A, Rinv_H.T)  # (H^T R^-1 H + P^-1)^-1 H^T R^-1
-            step = K @ r - (np.eye(m) - K @ H) @ delta
+            # R^-1 H; a 1-D R is the diagonal (independent rows: thousands of point-to-plane residuals)
+            Rinv_H = H / Rm[:, None] if np.ndim(Rm) == 1 else np.linalg.solve(Rm, H)
+            HtRH = H.T @ Rinv_H
+            A = HtRH + Pinv
+            # K = A^-1 H^T R^-1 never formed (m x k): only K H and K r are needed
+            KH = np.asarray(np.linalg.solve(A, HtRH), dtype=np.float64)
+            step = np.linalg.solve(A, Rinv_H.T @ r) - (np.eye(m) - KH) @ delta
             xj = boxplus(xj, step, self.layout)
             if not np.all(np.isfinite(step)):
                 break
             if float(np.linalg.norm(step)) < eps:
                 break
         self.x = xj
-        I_KH = np.eye(m) - K @ H
-        self.P = I_KH @ P0
+        self.P = (np.eye(m) - KH) @ P0
         self.P = 0.5 * (self.P + self.P.T)
         self._Qsum = np.zeros_like(self.P)
         self._check()

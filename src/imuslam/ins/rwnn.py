@@ -6,37 +6,50 @@ RWNN's estimate of the IMU's error. Here x = [p, v] in n, u = R_n_b f_b + g_n, a
 body-frame errors e_a, e_g (measured = true + error) that correct the sensor before the strapdown, so
 du = -R_n_b e_a (and the attitude integrates omega - e_g).
 
-Network (the choices the seed leaves open are stated here):
-- inputs, each normalised to [0, 1] by fixed ranges: the last innovation (3, +-1 m or m/s), the specific
-  force (3, +-2 g) and the rate (3, +-5 rad/s);
-- recurrent wavelet layer: each input i through 3 Mexican-hat wavelets sigma(mu) = (1 - mu^2) exp(-mu^2 / 2),
-  scaled and shifted sigma_{d,t}(mu) = 2^(d/2) sigma(2^d mu - t) with (d, t) = (0, 0), (1, 0.5), (2, 1),
-  whose input is mu = z_i + r phi_prev (memory of the previous step, r = ``recurrence``);
+Network (seed 001 fig. 2 and eqs. 2-8; the choices the seed leaves open are stated here):
+- input layer: the normalised state estimate and sensor output, mu_i in [0, 1] by fixed ranges: the
+  velocity estimate v_n (3, +-5 m/s), the specific force f_b (3, +-2 g) and the rate omega_b (3, +-5 rad/s);
+- recurrent wavelet layer: each input i through 3 Mexican-hat wavelets j,
+  phi_ij = 2^(d_ij/2) sigma(2^d_ij s_ij - t_ij), sigma(x) = (1 - x^2) exp(-x^2 / 2), whose argument carries
+  the memory of the previous step, s_ij = mu_i + r_ij phi_ij(k-1); the dilations d_ij, translations t_ij
+  and recurrent weights r_ij (27 each) are learned; they start at d = 0, t = (0, 0.5, 1), r = 0.1 so that
+  the three wavelets of an input peak at the two ends and the middle of its range;
 - product layer: node j multiplies the j-th wavelet of every input, Pi_j = prod_i phi_ij (3 nodes);
-- output layer: per output (e_a, e_g: 6) a weighted sum of [1, Pi_1, Pi_2, Pi_3], e = W Pi.
+- output layer: per output (e_a, e_g: 6) a weighted sum of [1, Pi_1, Pi_2, Pi_3], e = W Pi; the weight of
+  the constant input is the bias.
 
 Learning. The output is linear in the weights W, so the observer is an adaptive observer for a linear
 time-varying system (Q. Zhang, "Adaptive observer for multiple-input-multiple-output (MIMO) linear
 time-varying systems", IEEE TAC 47(3), 2002). Its error dynamics, with the attitude error phi in n
 (R_true = exp(phi) R), are
 
-    dp' = dv,   dv' = -[f_n x] phi - R (w_a - W_a) Pi,   phi' = -R (w_g - W_g) Pi
+    dp' = dv,   dv' = -[f_n x] phi - R (e_a,true - e_a),   phi' = -R (e_g,true - e_g)
 
 (Savage; Sola 2017 eq. 262 ff. in the navigation frame). The sensitivity Y = d x / d W obeys
 Y' = (A(t) - K C) Y + Psi(t) with the regressor Psi = [0; -R (x) Pi^T; -R (x) Pi^T]; the innovation is
-e = C Y (W_true - W) + (a decaying state error), so the weights learn along Y^T C^T e. Because Y carries the
-phase of the dynamics, biases modulated by a rotating platform are demodulated correctly, which a gradient of
-the raw innovation is not. The weights of the constant input (the biases) learn by recursive least squares
-with a forgetting factor (Zhang's Gamma = P); the wavelet weights by a normalised gradient at rate
-``eta_wavelet``, each step clipped to ``max_rate`` and each weight to ``max_weight`` (projection), with
-leakage (e-modification) so they stay bounded without persistent excitation. On a still base (``zupt``
-aiding) the mean rate is also a direct measurement of the gyro error, as the Kalman filter's ZARU.
+e = C Y (W_true - W) + (a decaying state error). All 24 output weights and the initial attitude and
+velocity errors (nuisance parameters, so that an initial error is not taken for a bias) learn by recursive
+least squares on this regression, i.e. a Kalman filter on the weights (the classic way to train a recurrent
+network's output layer: Puskorius and Feldkamp, IEEE TNN 5(2), 1994), with a forgetting factor on all of
+them (memory ``forgetting_s``) and a random walk on the node weights (``net_accel_walk``,
+``net_gyro_walk`` per sqrt(s)): the bias weights hold what stays constant, the node weights follow what
+varies, with time (a bias step or drift) or with the inputs (a rate-dependent scale error). The node
+weights are projected onto |W| <= ``max_weight_accel`` / ``max_weight_gyro``. The wavelet parameters
+(d, t, r) learn by a normalised gradient of the innovation, their sensitivity columns of Y driven by
+dPi_j / d theta (real-time recurrent learning through the memory term, Williams and Zipser 1989), each
+step bounded by ``max_hidden_rate``, d in [-2, 2], t in [-1, 2] and |r| small enough that the memory is a
+contraction. Because Y carries the phase of the dynamics, biases modulated by a rotating platform are
+demodulated correctly, which a gradient of the raw innovation is not. On a still base (``zupt`` aiding)
+the mean rate is also a direct measurement of the gyro error, as the Kalman filter's ZARU.
+``network=False`` keeps only the bias weights (the node weights stay 0): the same observer without the
+network, for comparison.
 
 Gain K (applied at the aiding times, the discrete form of L): position aiding, per axis dp += 3 w h e,
 dv += 3 w^2 h e; velocity aiding dv += 2 w h e; and the attitude is turned by k_att h f_n x a_c / |f_n|^2 with
 a_c the acceleration correction (3 w^2 e or 2 w e), heading from the horizontal specific force only,
 regularised by ``f_h_reg``. With k_att = w / 3 the level channel has all three roots at -w
-(:func:`observer_matrix`).
+(:func:`observer_matrix`). The kernel takes these gains from :func:`observer_gains`, so the matrix tested
+for Hurwitz is the one the kernel applies.
 """
 
 from __future__ import annotations
@@ -74,27 +87,53 @@ class RwnnConfig(BaseModel):
     forgetting_s: float = Field(
         1000.0, gt=0, description="memory of the least-squares learning (forgetting factor), s"
     )
-    eta_wavelet: float = Field(0.05, ge=0, description="learning rate of the wavelet weights")
-    leakage: float = Field(
-        1e-3, ge=0, description="e-modification leakage of the wavelet weights, 1/s"
+    network: bool = Field(
+        True, description="learn the wavelet nodes (False: the bias weights only, for comparison)"
     )
-    max_rate: float = Field(0.05, gt=0, description="bound on a wavelet weight's change per second")
-    max_weight: float = Field(
-        0.2, gt=0, description="bound on a wavelet weight's magnitude (m/s^2 or rad/s)"
+    net_accel_std: float = Field(
+        0.02, ge=0, description="prior 1-sigma of an accelerometer node weight, m/s^2"
     )
-    recurrence: float = Field(
-        0.2, ge=0, lt=1, description="memory gain of the recurrent wavelet layer"
+    net_gyro_std: float = Field(
+        0.002, ge=0, description="prior 1-sigma of a gyro node weight, rad/s"
     )
+    net_accel_walk: float = Field(
+        0.002, ge=0, description="random walk of an accelerometer node weight, m/s^2/sqrt(s)"
+    )
+    net_gyro_walk: float = Field(
+        1e-4, ge=0, description="random walk of a gyro node weight, rad/s/sqrt(s)"
+    )
+    max_weight_accel: float = Field(
+        1.0, gt=0, description="bound on an accelerometer node weight's magnitude, m/s^2"
+    )
+    max_weight_gyro: float = Field(
+        0.1, gt=0, description="bound on a gyro node weight's magnitude, rad/s"
+    )
+    eta_hidden: float = Field(
+        0.5, ge=0, description="learning rate of the wavelet dilations, translations, recurrences"
+    )
+    max_hidden_rate: float = Field(
+        0.2, gt=0, description="bound on a wavelet parameter's change per second"
+    )
+
+
+@numba.njit(cache=True)
+def observer_gains(omega: float, position: bool) -> tuple[float, float, float]:  # pragma: no cover
+    """The gains the kernel applies per aiding: (l_p, l_v, k_att). The position (velocity) correction is
+    l_p h e (l_v h e) for an innovation e, the acceleration correction a_c = l_v e turns the attitude by
+    k_att h f_n x a_c / |f_n|^2. Position aiding: l_p = 3 w, l_v = 3 w^2, k_att = w / 3; velocity aiding:
+    l_p = 0, l_v = 2 w, k_att = w / 2."""
+    if position:
+        return 3.0 * omega, 3.0 * omega * omega, omega / 3.0
+    return 0.0, 2.0 * omega, omega / 2.0
 
 
 def observer_matrix(omega: float, position: bool) -> FloatArray:
-    """A - K C of one level axis, x = [p, v, tilt * g] (position aiding) or [v, tilt * g]: the gains put
-    every eigenvalue at -omega."""
+    """A - K C of one level axis built from :func:`observer_gains` (the kernel's gains), x = [p, v, tilt * g]
+    (position aiding) or [v, tilt * g]; with these gains every eigenvalue is at -omega."""
+    l_p, l_v, k = observer_gains(omega, position)
     if position:
-        l1, l2, k = 3 * omega, 3 * omega**2, omega / 3
-        return np.array([[-l1, 1.0, 0.0], [-l2, 0.0, -1.0], [k * l2, 0.0, 0.0]])
-    l1, k = 2 * omega, omega / 2
-    return np.array([[-l1, -1.0], [k * l1, 0.0]])
+        return np.array([[-l_p, 1.0, 0.0], [-l_v, 0.0, -1.0], [k * l_v, 0.0, 0.0]])
+    return np.array([[-l_v, -1.0], [k * l_v, 0.0]])
 
 
 def innovation_variance(
@@ -115,8 +154,16 @@ def innovation_variance(
 
 
 @numba.njit(cache=True, inline="always")
-def _mexican_hat(mu: float) -> float:  # pragma: no cover - compiled
-    return (1.0 - mu * mu) * np.exp(-0.5 * mu * mu)
+def _mexican_hat(x: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """sigma(x) = (1 - x^2) exp(-x^2 / 2) and its derivative x (x^2 - 3) exp(-x^2 / 2)."""
+    e = np.exp(-0.5 * x * x)
+    return (1.0 - x * x) * e, x * (x * x - 3.0) * e
+
+
+N_IN = 9  # network inputs: v_n (3), f_b (3), omega_b (3)
+N_LIN = 30  # 24 output weights (6 outputs x [1, Pi_1, Pi_2, Pi_3]) + initial attitude and velocity errors
+N_HID = N_IN * 3 * 3  # d, t, r of each (input, node)
+MAX_SIGMA_SLOPE = 1.38  # max |sigma'(x)| of the Mexican hat (at |x| = 0.74)
 
 
 @numba.njit(cache=True)
@@ -135,33 +182,44 @@ def _rwnn_observer(
     g: float,
     gains: FloatArray,
 ) -> tuple[
-    FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray
+    FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray
 ]:  # pragma: no cover - compiled
     """Run the observer over the log. ``kind`` 0 position, 1 velocity, 2 zupt (zero velocity and rate).
-    Returns accel error (N, 3), gyro error (N, 3), p (N, 3), v (N, 3), R (N, 3, 3) and the 1-sigma of the
-    bias weights (N, 6) from the least-squares covariance."""
-    omega, f_h_reg, sa0, sg0, t_forget, eta_w, leak, max_rate, max_w, rec, sth0, sv0 = gains
+    Returns accel error (N, 3), gyro error (N, 3), p (N, 3), v (N, 3), R (N, 3, 3), the 1-sigma of the
+    error estimates (N, 6) from the least-squares covariance, the network's part of the error (N, 6) and
+    the final wavelet parameters (9, 3, 3: d, t, r)."""
+    (omega, f_h_reg, sa0, sg0, t_forget, net_on, sna, sng, qa, qg, max_wa, max_wg, eta_h, max_hr,
+     sth0, sv0) = gains  # fmt: skip
     position = kind == 0
+    l_p, l_v, k_att = observer_gains(omega, position)
+    network = net_on > 0.5
     n = t.shape[0]
-    n_in = 9
-    # weights: 6 outputs x [1, Pi_1, Pi_2, Pi_3] at index o * 4 + c; then the initial attitude (24-26) and
-    # velocity (27-29) errors, nuisance parameters learned with the biases so that an initial error is not
-    # taken for a bias
-    n_par = 30
-    n_ls = 12
-    ls_col = np.array([0, 4, 8, 12, 16, 20, 24, 25, 26, 27, 28, 29])
-    d = np.array([0.0, 1.0, 2.0])
-    sh = np.array([0.0, 0.5, 1.0])
-    scale_in = np.array([1.0, 1.0, 1.0, 2 * 9.81, 2 * 9.81, 2 * 9.81, 5.0, 5.0, 5.0])
-    phi_prev = np.zeros((n_in, 3))
+    n_par = N_LIN + N_HID
+    scale_in = np.array([5.0, 5.0, 5.0, 2 * 9.81, 2 * 9.81, 2 * 9.81, 5.0, 5.0, 5.0])
+    # wavelet parameters theta[i, j] = (d, t, r), their memory and its derivatives (RTRL)
+    th = np.zeros((N_IN, 3, 3))
+    for i in range(N_IN):
+        for j in range(3):
+            th[i, j, 1] = 0.5 * j
+            th[i, j, 2] = 0.1
+    phi_prev = np.zeros((N_IN, 3))
+    dphi_prev = np.zeros((N_IN, 3, 3))
+    phi = np.zeros((N_IN, 3))
+    dphi = np.zeros((N_IN, 3, 3))
+    gpi = np.zeros((N_IN, 3, 3))  # d Pi_j / d theta_ij
     W = np.zeros((6, 4))
-    # least-squares covariance: accel bias, gyro bias, initial attitude, initial velocity
-    Pb = np.zeros((n_ls, n_ls))
+    # least-squares covariance of the 24 output weights and the initial attitude and velocity errors
+    Pb = np.zeros((N_LIN, N_LIN))
+    q_node = np.zeros(N_LIN)
+    for o in range(6):
+        Pb[o * 4, o * 4] = sa0 * sa0 if o < 3 else sg0 * sg0
+        if network:
+            for c in range(1, 4):
+                Pb[o * 4 + c, o * 4 + c] = sna * sna if o < 3 else sng * sng
+                q_node[o * 4 + c] = qa * qa if o < 3 else qg * qg
     for i in range(3):
-        Pb[i, i] = sa0 * sa0
-        Pb[3 + i, 3 + i] = sg0 * sg0
-        Pb[6 + i, 6 + i] = sth0 * sth0
-        Pb[9 + i, 9 + i] = sv0 * sv0
+        Pb[24 + i, 24 + i] = sth0 * sth0
+        Pb[27 + i, 27 + i] = sv0 * sv0
     Y = np.zeros((9, n_par))  # sensitivity of [dp, dv, phi] to the parameters
     for i in range(3):
         Y[6 + i, 24 + i] = 1.0
@@ -174,11 +232,12 @@ def _rwnn_observer(
     ea_out = np.zeros((n, 3))
     eg_out = np.zeros((n, 3))
     sd_out = np.zeros((n, 6))
+    net_out = np.zeros((n, 6))
     P = np.zeros((n, 3))
     V = np.zeros((n, 3))
     Rs = np.zeros((n, 3, 3))
-    Pi = np.ones(4)
-    innov = np.zeros(3)
+    Pi = np.zeros(4)
+    Pi[0] = 1.0
     f_bar = np.array([0.0, 0.0, g])
     f_sum = np.zeros(3)
     w_sum = np.zeros(3)
@@ -187,21 +246,46 @@ def _rwnn_observer(
     t_last = t[0]
     m = 0
     ri = 0 if position else 3  # first row of Y the aiding sees: dp or dv
+    ln2 = np.log(2.0)
+    z = np.empty(N_IN)
+    pre = np.empty(N_IN + 1)
+    suf = np.empty(N_IN + 1)
     for k in range(n):
-        # network forward pass on the current inputs
-        z = np.empty(n_in)
-        for i in range(3):
-            z[i] = 0.5 + 0.5 * max(-1.0, min(1.0, innov[i] / scale_in[i]))
-            z[3 + i] = 0.5 + 0.5 * max(-1.0, min(1.0, accel[k, i] / scale_in[3 + i]))
-            z[6 + i] = 0.5 + 0.5 * max(-1.0, min(1.0, gyro[k, i] / scale_in[6 + i]))
-        for j in range(3):
-            prod = 1.0
-            for i in range(n_in):
-                mu = z[i] + rec * phi_prev[i, j]
-                ph = 2.0 ** (d[j] / 2) * _mexican_hat(2.0 ** d[j] * mu - sh[j])
-                phi_prev[i, j] = ph
-                prod *= ph
-            Pi[1 + j] = prod
+        # network forward pass on the normalised state estimate and sensor output
+        if network:
+            for i in range(3):
+                z[i] = 0.5 + 0.5 * max(-1.0, min(1.0, v[i] / scale_in[i]))
+                z[3 + i] = 0.5 + 0.5 * max(-1.0, min(1.0, accel[k, i] / scale_in[3 + i]))
+                z[6 + i] = 0.5 + 0.5 * max(-1.0, min(1.0, gyro[k, i] / scale_in[6 + i]))
+            for i in range(N_IN):
+                for j in range(3):
+                    d_, t_, r_ = th[i, j, 0], th[i, j, 1], th[i, j, 2]
+                    sc = 2.0**d_
+                    amp = 2.0 ** (0.5 * d_)
+                    s_in = z[i] + r_ * phi_prev[i, j]
+                    sg, dsg = _mexican_hat(sc * s_in - t_)
+                    ph = amp * sg
+                    sl = amp * dsg  # d phi / d (argument)
+                    dphi[i, j, 0] = 0.5 * ln2 * ph + sl * (
+                        ln2 * sc * s_in + sc * r_ * dphi_prev[i, j, 0]
+                    )
+                    dphi[i, j, 1] = sl * (-1.0 + sc * r_ * dphi_prev[i, j, 1])
+                    dphi[i, j, 2] = sl * sc * (phi_prev[i, j] + r_ * dphi_prev[i, j, 2])
+                    phi[i, j] = ph
+            for j in range(3):
+                pre[0] = 1.0
+                for i in range(N_IN):
+                    pre[i + 1] = pre[i] * phi[i, j]
+                suf[N_IN] = 1.0
+                for i in range(N_IN - 1, -1, -1):
+                    suf[i] = suf[i + 1] * phi[i, j]
+                Pi[1 + j] = pre[N_IN]
+                for i in range(N_IN):
+                    ex = pre[i] * suf[i + 1]  # product of the other inputs' wavelets
+                    for q in range(3):
+                        gpi[i, j, q] = ex * dphi[i, j, q]
+            phi_prev[:, :] = phi
+            dphi_prev[:, :, :] = dphi
         du = W @ Pi
         e_a = du[0:3]
         e_g = du[3:6]
@@ -212,63 +296,74 @@ def _rwnn_observer(
             if n_sum > 0:
                 f_bar = f_sum / n_sum
             innov = aid_val[m] - (p if position else v)
-            H = Y[ri : ri + 3, :]  # (3, 24)
-            # least squares on the bias weights and the initial state
-            Hb = np.empty((3, n_ls))
-            for j in range(n_ls):
-                Hb[:, j] = H[:, ls_col[j]]
+            H = Y[ri : ri + 3, :]  # (3, n_par)
+            Hb = np.ascontiguousarray(H[:, :N_LIN])
             lam = max(1.0 - h_a / t_forget, 0.5)
             Pb = Pb / lam
+            for c in range(N_LIN):
+                Pb[c, c] += q_node[c] * h_a
             S = Hb @ Pb @ Hb.T
             for i in range(3):
                 S[i, i] += meas_var
             if not (np.all(np.isfinite(S)) and np.all(np.isfinite(innov))):
                 ea_out[k:] = np.nan  # diverged: the caller reports the first non-finite sample
                 P[k:] = np.nan
-                return ea_out, eg_out, P, V, Rs, sd_out
-            Kb = Pb @ Hb.T @ np.linalg.inv(S)
+                return ea_out, eg_out, P, V, Rs, sd_out, net_out, th
+            Si = np.linalg.inv(S)
+            Kb = Pb @ Hb.T @ Si
             dtheta = np.zeros(n_par)
-            db = Kb @ innov
-            for j in range(n_ls):
-                dtheta[ls_col[j]] = db[j]
+            dtheta[:N_LIN] = Kb @ innov
             Pb = Pb - Kb @ Hb @ Pb
             Pb = 0.5 * (Pb + Pb.T)
-            # normalised gradient on the wavelet weights, bounded and leaky
-            nrm = 1.0 + np.sum(H * H)
-            for o in range(6):
-                for c in range(1, 4):
-                    col = o * 4 + c
-                    hi = H[0, col] * innov[0] + H[1, col] * innov[1] + H[2, col] * innov[2]
-                    step = h_a * (eta_w * hi / nrm - leak * W[o, c])
-                    step = max(-max_rate * h_a, min(max_rate * h_a, step))
-                    dtheta[col] = max(-max_w, min(max_w, W[o, c] + step)) - W[o, c]
             if kind == 2 and n_sum > 1:  # still: the mean rate measures the gyro error directly
                 wm = w_sum / n_sum
                 for i in range(3):
                     var = max((w_sq[i] - n_sum * wm[i] * wm[i]) / (n_sum - 1), 1e-12) / n_sum
                     o = 3 + i
-                    cur = e_g[i] + db[o]
-                    s_ = Pb[o, o] + var
-                    kk = Pb[:, o] / s_
-                    r_ = wm[i] - cur
-                    for q in range(n_ls):
-                        dtheta[ls_col[q]] += kk[q] * r_
-                    Pb = Pb - np.outer(kk, Pb[o, :])
-                    db = db + kk * r_
-            # state correction: what the new weights explain, then the gain on the rest
+                    hrow = np.zeros(N_LIN)
+                    cur = 0.0
+                    for c in range(4):
+                        hrow[o * 4 + c] = Pi[c]
+                        cur += (W[o, c] + dtheta[o * 4 + c]) * Pi[c]
+                    ph_ = Pb @ hrow
+                    kk = ph_ / (hrow @ ph_ + var)
+                    dtheta[:N_LIN] += kk * (wm[i] - cur)
+                    Pb = Pb - np.outer(kk, ph_)
+            # projection of the node weights onto their bounds
+            for o in range(6):
+                mw = max_wa if o < 3 else max_wg
+                for c in range(1, 4):
+                    col = o * 4 + c
+                    dtheta[col] = max(-mw, min(mw, W[o, c] + dtheta[col])) - W[o, c]
+            # wavelet parameters: normalised gradient of the innovation through their sensitivities
+            if network and eta_h > 0:
+                Sin = Si @ innov
+                for c in range(N_LIN, n_par):
+                    hc0, hc1, hc2 = H[0, c], H[1, c], H[2, c]
+                    grad = hc0 * Sin[0] + hc1 * Sin[1] + hc2 * Sin[2]
+                    hsh = 0.0
+                    for a_ in range(3):
+                        hsh += H[a_, c] * (Si[a_, 0] * hc0 + Si[a_, 1] * hc1 + Si[a_, 2] * hc2)
+                    step = eta_h * h_a * grad / (1.0 + hsh)
+                    dtheta[c] = max(-max_hr * h_a, min(max_hr * h_a, step))
+                for i in range(N_IN):
+                    for j in range(3):
+                        c = N_LIN + (i * 3 + j) * 3
+                        d_new = max(-2.0, min(2.0, th[i, j, 0] + dtheta[c]))
+                        t_new = max(-1.0, min(2.0, th[i, j, 1] + dtheta[c + 1]))
+                        # |r| 2^(3d/2) max|sigma'| < 0.9: the memory is a contraction
+                        r_max = 0.9 / (MAX_SIGMA_SLOPE * 2.0 ** (1.5 * d_new))
+                        r_new = max(-r_max, min(r_max, th[i, j, 2] + dtheta[c + 2]))
+                        dtheta[c] = d_new - th[i, j, 0]
+                        dtheta[c + 1] = t_new - th[i, j, 1]
+                        dtheta[c + 2] = r_new - th[i, j, 2]
+                        th[i, j, 0], th[i, j, 1], th[i, j, 2] = d_new, t_new, r_new
+            # state correction: what the new parameters explain, then the gain on the rest
             dx = Y @ dtheta
             res = innov - (dx[ri : ri + 3])
-            if position:
-                l1, l2 = 3 * omega, 3 * omega * omega
-                dx[0:3] += l1 * h_a * res
-                dx[3:6] += l2 * h_a * res
-                a_c = l2 * res
-                k_att = omega / 3
-            else:
-                l1 = 2 * omega
-                dx[3:6] += l1 * h_a * res
-                a_c = l1 * res
-                k_att = omega / 2
+            dx[0:3] += l_p * h_a * res
+            dx[3:6] += l_v * h_a * res
+            a_c = l_v * res
             ff = f_bar @ f_bar
             fh2 = f_bar[0] * f_bar[0] + f_bar[1] * f_bar[1]
             # M maps the acceleration correction to the attitude correction (level rows, heading row)
@@ -292,13 +387,9 @@ def _rwnn_observer(
                     W[o, c] += dtheta[o * 4 + c]
             # Y <- (I - K C) Y
             Hc = Y[ri : ri + 3, :].copy()
-            if position:
-                Y[0:3, :] -= 3 * omega * h_a * Hc
-                Y[3:6, :] -= 3 * omega * omega * h_a * Hc
-                Y[6:9, :] -= (M * (3 * omega * omega)) @ Hc
-            else:
-                Y[3:6, :] -= 2 * omega * h_a * Hc
-                Y[6:9, :] -= (M * (2 * omega)) @ Hc
+            Y[0:3, :] -= l_p * h_a * Hc
+            Y[3:6, :] -= l_v * h_a * Hc
+            Y[6:9, :] -= (M * l_v) @ Hc
             du = W @ Pi
             e_a = du[0:3]
             e_g = du[3:6]
@@ -309,48 +400,78 @@ def _rwnn_observer(
             m += 1
         ea_out[k], eg_out[k] = e_a, e_g
         for o in range(6):
-            sd_out[k, o] = np.sqrt(max(Pb[o, o], 0.0))
+            var_o = 0.0
+            for c in range(4):
+                for c2 in range(4):
+                    var_o += Pi[c] * Pb[o * 4 + c, o * 4 + c2] * Pi[c2]
+            sd_out[k, o] = np.sqrt(max(var_o, 0.0))
+            net_out[k, o] = du[o] - W[o, 0]
         P[k], V[k], Rs[k] = p, v, R
         if k + 1 == n:
             break
         # strapdown of the corrected sensor (trapezoidal, as ins/strapdown.py)
         h = t[k + 1] - t[k]
-        a0 = R @ (accel[k] - e_a)
-        pn, vn, Rn = strapdown_step(p, v, R, accel[k] - e_a, accel[k + 1] - e_a, gyro[k] - e_g,
-                                    gyro[k + 1] - e_g, h, g_n, no_earth_rate)  # fmt: skip
+        pn, vn, Rn, a0 = strapdown_step(p, v, R, accel[k] - e_a, accel[k + 1] - e_a, gyro[k] - e_g,
+                                        gyro[k + 1] - e_g, h, g_n, no_earth_rate)  # fmt: skip
         p = pn
         # sensitivity: Y' = A(t) Y + Psi(t), A with the block-mean specific force
+        RW = np.zeros(
+            (3, 6)
+        )  # R times the node weights' columns: accel (0-2) and gyro (3-5) per node
+        if network:
+            for j in range(3):
+                for i in range(3):
+                    sa_ = 0.0
+                    sg_ = 0.0
+                    for o in range(3):
+                        sa_ += R[i, o] * W[o, 1 + j]
+                        sg_ += R[i, o] * W[3 + o, 1 + j]
+                    RW[i, j] = sa_
+                    RW[i, 3 + j] = sg_
         for c in range(n_par):
-            o = c // 4
-            pc = Pi[c % 4] if c < 24 else 0.0
+            if c >= N_LIN and not network:
+                break
             for i in range(3):
                 Y[i, c] += h * Y[3 + i, c]
             ph0, ph1, ph2 = Y[6, c], Y[7, c], Y[8, c]
             Y[3, c] += h * (ph1 * f_bar[2] - ph2 * f_bar[1])
             Y[4, c] += h * (ph2 * f_bar[0] - ph0 * f_bar[2])
             Y[5, c] += h * (ph0 * f_bar[1] - ph1 * f_bar[0])
-            if c >= 24:  # the initial-state columns only follow the dynamics
-                continue
-            if o < 3:  # Y = d x / d W: an accelerometer weight drives v' by -R e_o Pi_c
+            if c < 24:
+                # Y = d x / d W: an accelerometer weight drives v' by -R e_o Pi_c, a gyro weight turns the
+                # attitude by -R e_o Pi_c
+                o = c // 4
+                pc = Pi[c % 4]
+                if o < 3:
+                    for i in range(3):
+                        Y[3 + i, c] -= h * R[i, o] * pc
+                else:
+                    for i in range(3):
+                        Y[6 + i, c] -= h * R[i, o - 3] * pc
+            elif c >= N_LIN:
+                # a wavelet parameter of (input i, node j) moves every output of node j by W[:, j] dPi_j
+                q_ = c - N_LIN
+                i_, j_ = q_ // 9, (q_ // 3) % 3
+                gp = gpi[i_, j_, q_ % 3]
                 for i in range(3):
-                    Y[3 + i, c] -= h * R[i, o] * pc
-            else:  # a gyro weight turns the attitude by -R e_o Pi_c
-                for i in range(3):
-                    Y[6 + i, c] -= h * R[i, o - 3] * pc
+                    Y[3 + i, c] -= h * RW[i, j_] * gp
+                    Y[6 + i, c] -= h * RW[i, 3 + j_] * gp
+            # c in 24..29: the initial-state columns only follow the dynamics
         v, R = vn, Rn
         f_sum += a0
         for i in range(3):
             w_sum[i] += gyro[k, i]
             w_sq[i] += gyro[k, i] * gyro[k, i]
         n_sum += 1
-    return ea_out, eg_out, P, V, Rs, sd_out
+    return ea_out, eg_out, P, V, Rs, sd_out, net_out, th
 
 
 @dataclass
 class RwnnResult:
-    """Accelerometer and gyro error estimates (N, 3) (body frame, measured = true + error), the
-    least-squares 1-sigma of their constant part (N, 3) each, and the observer's p, v (N, 3), R_n_b
-    (N, 3, 3)."""
+    """Accelerometer and gyro error estimates (N, 3) (body frame, measured = true + error), their
+    least-squares 1-sigma (N, 3) each, the observer's p, v (N, 3), R_n_b (N, 3, 3), the network's part of
+    the error estimates (the node weights' output, N, 3 each; zero with ``network=False``) and the final
+    wavelet parameters (9 inputs, 3 nodes, [d, t, r])."""
 
     accel_error: FloatArray
     gyro_error: FloatArray
@@ -359,6 +480,9 @@ class RwnnResult:
     p_n: FloatArray
     v_n: FloatArray
     R_n_b: FloatArray
+    network_accel: FloatArray
+    network_gyro: FloatArray
+    wavelet_params: FloatArray
 
 
 def run_rwnn(
@@ -387,8 +511,9 @@ def run_rwnn(
     if not (np.isfinite(accel_noise) and accel_noise >= 0):
         raise InputError(f"accelerometer noise density must be >= 0, got {accel_noise}")
     c = config or RwnnConfig()
-    gains = np.array([c.omega, c.f_h_reg, c.accel_error_std, c.gyro_error_std, c.forgetting_s, c.eta_wavelet,
-                      c.leakage, c.max_rate, c.max_weight, c.recurrence, c.attitude_std, c.velocity_std])  # fmt: skip
+    gains = np.array([c.omega, c.f_h_reg, c.accel_error_std, c.gyro_error_std, c.forgetting_s, float(c.network),
+                      c.net_accel_std, c.net_gyro_std, c.net_accel_walk, c.net_gyro_walk, c.max_weight_accel,
+                      c.max_weight_gyro, c.eta_hidden, c.max_hidden_rate, c.attitude_std, c.velocity_std])  # fmt: skip
     t = np.asarray(t_s, float)
     at = np.asarray(aid_t, float)
     idx = np.searchsorted(t, at).astype(np.int64)
@@ -398,7 +523,7 @@ def run_rwnn(
         vals = np.zeros_like(vals)
     h_a = float(np.median(np.diff(at))) if len(at) > 1 else 0.1
     var = innovation_variance(c.omega, aid_kind == "position", aid_std, accel_noise, h_a)
-    ea, eg, P, V, R, sd = _rwnn_observer(
+    ea, eg, P, V, R, sd, net, th = _rwnn_observer(
         t, np.ascontiguousarray(accel, float), np.ascontiguousarray(gyro, float), idx[ok], at[ok], vals,
         var, kinds[aid_kind], np.asarray(p0, float), np.asarray(v0, float),
         np.ascontiguousarray(R0, float), g, gains,
@@ -413,4 +538,4 @@ def run_rwnn(
             f"RWNN observer diverged at sample {k} (t = {t[k]:.3f} s): state not finite; check the log "
             "there (a NaN, a saturated sample) and the aiding"
         )
-    return RwnnResult(ea, eg, sd[:, 0:3], sd[:, 3:6], P, V, R)
+    return RwnnResult(ea, eg, sd[:, 0:3], sd[:, 3:6], P, V, R, net[:, 0:3], net[:, 3:6], th)

@@ -17,7 +17,6 @@ from typing import Any, Literal
 import numpy as np
 
 from imuslam.errors import InputError
-from imuslam.geometry import quat_to_matrix
 from imuslam.interfaces.imu import ImuLog
 from imuslam.interfaces.lidar import Scan2d, Scan3d
 from imuslam.interfaces.odometry import WheelOdometry
@@ -47,10 +46,14 @@ class Bag:
 
         self.path = Path(path)
         p = self.path
-        if p.suffix == ".mcap" and p.is_file() and (p.parent / "metadata.yaml").is_file():
-            p = p.parent  # a ROS 2 bag is its folder; a bare .mcap file is read on its own
         if not p.exists():
             raise InputError(f"{path}: no such bag")
+        # A .mcap file is read as itself (it holds its schemas), never through the folder it lies in:
+        # that folder's metadata.yaml may describe another bag. An sqlite3 .db3 needs its folder's.
+        if p.suffix == ".db3" and p.is_file() and (p.parent / "metadata.yaml").is_file():
+            p = p.parent
+        if p.is_dir() and not (p / "metadata.yaml").is_file():
+            raise InputError(f"{path}: a folder without metadata.yaml; expected a ROS 2 bag folder")
         self.dialect: rosmsg.Dialect = "ros1" if p.suffix == ".bag" else "ros2"
         try:
             self.reader = AnyReader([p], default_typestore=rosmsg.typestore(self.dialect))
@@ -110,16 +113,35 @@ class Bag:
     def count(self, topic: str) -> int:
         return sum(c.msgcount for c in self.reader.connections if c.topic == topic)
 
+    def raw(self, connections: Sequence[Any] | None = None) -> Iterator[tuple[Any, int, bytes]]:
+        """(connection, receive time ns, serialised bytes) in time order; a bag damaged after its header
+        (a truncated or overwritten chunk) is an InputError naming the bag and the last good message."""
+        it = self.reader.messages(connections=connections) if connections is not None else (
+            self.reader.messages())  # fmt: skip
+        k = 0
+        while True:
+            try:
+                item = next(it, None)
+            except Exception as exc:  # rosbags' ReaderError / AnyReaderError, struct, decompression
+                raise InputError(f"{self.path}: corrupted after message {k}: {exc}") from exc
+            if item is None:
+                return
+            yield item
+            k += 1
+
+    def deserialize(self, raw: bytes, msgtype: str, k: int) -> Any:
+        """Message ``k`` of ``msgtype`` from its bytes; bytes that do not decode name the message."""
+        try:
+            return self.reader.deserialize(raw, msgtype)
+        except Exception as exc:  # a damaged message: struct, index or decode errors
+            raise InputError(
+                f"{self.path}: message {k} ({msgtype}) does not decode: {exc}"
+            ) from exc
+
     def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
         """(topic, receive time ns, deserialised message) of ``topics`` in time order."""
-        from rosbags.highlevel import AnyReaderError
-
-        conns = self.connections_of(topics)
-        try:
-            for c, t, raw in self.reader.messages(connections=conns):
-                yield c.topic, int(t), self.reader.deserialize(raw, c.msgtype)
-        except AnyReaderError as exc:
-            raise InputError(f"{self.path}: {exc}") from exc
+        for k, (c, t, raw) in enumerate(self.raw(self.connections_of(topics))):
+            yield c.topic, int(t), self.deserialize(raw, c.msgtype, k)
 
     def records(self, topics: Sequence[str]) -> Iterator[tuple[str, Any]]:
         """(topic, record) in time order: Imu -> (t_ns, accel, gyro); PointCloud2 -> Scan3d;
@@ -134,6 +156,7 @@ class Bag:
     def imu(self, topic: str | None = None) -> ImuLog:
         """The Imu messages of ``topic`` (the only Imu topic when None), by header stamp, checked and
         repaired as every reader's stamps (:func:`imuslam.io.timestamps.check_and_repair`)."""
+        from imuslam.io.readers import check_samples
         from imuslam.io.timestamps import check_and_repair
 
         tp = self.topic_of_type([rosmsg.IMU], topic)
@@ -143,22 +166,31 @@ class Bag:
         gyr = np.empty((n, 3))
         k = 0
         for _, _, m in self.messages([tp]):
+            if k >= n:
+                raise InputError(f"{self.path}: more {tp} messages than its index counts ({n})")
             t[k], acc[k], gyr[k] = rosmsg.imu_sample(m)
             k += 1
         src = f"{self.path}:{tp}"
         if k == 0:
             raise InputError(f"{src}: the topic has no messages")
+        check_samples(acc[:k], gyr[:k], src)
         tc = check_and_repair(t[:k], src)
         return ImuLog(tc.t_ns, acc[:k], gyr[:k], "m/s^2", "rad/s", src, list(tc.warnings))
 
     def trajectory(self, topic: str | None = None) -> Trajectory:
         """Poses of a PoseStamped / Odometry / PointStamped topic, by header stamp."""
         tp = self.topic_of_type([rosmsg.POSESTAMPED, rosmsg.ODOMETRY, rosmsg.POINTSTAMPED], topic)
+        from imuslam.io.trajectory import check_poses, check_times
+
         rows = [rosmsg.pose_from_msg(m) for _, _, m in self.messages([tp])]
-        if not rows:
-            raise InputError(f"{self.path}:{tp}: the topic has no messages")
-        return Trajectory(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]),
-                          quat_to_matrix(np.array([r[2] for r in rows])), f"{self.path}:{tp}")  # fmt: skip
+        src = f"{self.path}:{tp}"
+        if len(rows) < 2:
+            raise InputError(f"{src}: {len(rows)} pose(s); a trajectory needs at least 2")
+        t_ns = np.array([r[0] for r in rows], dtype=np.int64)
+        check_times(t_ns, src)
+        p_w, R_w_b = check_poses(np.array([r[1] for r in rows], dtype=float),
+                                 np.array([r[2] for r in rows], dtype=float), src)  # fmt: skip
+        return Trajectory(t_ns, p_w, R_w_b, src)
 
     def scans3d(self, topic: str | None = None) -> Iterator[Scan3d]:
         tp = self.topic_of_type([rosmsg.POINTCLOUD2], topic)

@@ -29,10 +29,10 @@ def detect_format(path: str | Path) -> ImuFormat:
         raise InputError(f"{p}: a folder that is neither a ROS 2 bag nor a EuRoC dataset")
     if p.suffix == ".csv":
         try:
-            with open(p) as fh:
-                head = fh.readline()
+            with open(p, encoding="utf-8", errors="replace") as fh:
+                head = fh.readline(4096)  # the reader reports what is not text, naming the line
         except OSError as exc:
-            raise InputError(f"{p}: cannot read: {exc}") from exc
+            raise InputError(f"{p}: cannot read ({exc.strerror})") from None
         if head.startswith("#timestamp") or "w_RS_S_x" in head:
             return "euroc"
     return "imutk"

@@ -7,6 +7,7 @@ Every reader returns an :class:`ImuLog` with integer ``t_ns``, checked and repai
 from __future__ import annotations
 
 import csv
+import io
 import logging
 from pathlib import Path
 from typing import Literal
@@ -16,7 +17,7 @@ from numpy.typing import NDArray
 
 from imuslam.errors import InputError
 from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
-from imuslam.io.text import read_table
+from imuslam.io.text import INT64_MAX, read_table, read_table_ns, read_text
 from imuslam.io.timestamps import check_and_repair
 
 log = logging.getLogger(__name__)
@@ -25,13 +26,50 @@ TimeUnit = Literal["s", "ms", "us", "ns", "auto"]
 _TIME_SCALE = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
 
 
-def _to_ns(t: NDArray[np.float64], unit: TimeUnit, source: str) -> NDArray[np.int64]:
+#: No IMU in any unit (m/s^2, g, rad/s, deg/s, 24-bit counts) reports a value this large: a larger one
+#: is a corrupted field (1e308 would otherwise pass as finite and silently ruin every estimate).
+MAX_ABS_SAMPLE = 1e7
+
+
+def check_samples(
+    accel: NDArray[np.float64],
+    gyro: NDArray[np.float64],
+    source: str,
+    lines: NDArray[np.int64] | None = None,
+) -> None:
+    """InputError naming the line (or sample) of the first NaN, infinite or absurdly large value."""
+    where = (lambda i: f"line {int(lines[i])}") if lines is not None else (lambda i: f"sample {i}")
+    for name, x in (("accelerometer", accel), ("gyro", gyro)):
+        nonfinite = ~np.isfinite(x).all(axis=1)
+        if nonfinite.any():
+            i = int(np.argmax(nonfinite))
+            raise InputError(f"{source}, {where(i)}: the {name} value is NaN or infinite")
+        big = (np.abs(x) > MAX_ABS_SAMPLE).any(axis=1)
+        if big.any():
+            i = int(np.argmax(big))
+            v = float(x[i][np.argmax(np.abs(x[i]))])
+            raise InputError(
+                f"{source}, {where(i)}: the {name} value {v:g} is beyond any IMU's range "
+                f"(|value| <= {MAX_ABS_SAMPLE:g} in any unit)"
+            )
+
+
+def _to_ns(
+    t: NDArray[np.float64], unit: TimeUnit, source: str, lines: NDArray[np.int64] | None = None
+) -> NDArray[np.int64]:
     if unit == "auto":
         d = np.diff(t)
         step = float(np.median(d[d > 0])) if np.any(d > 0) else 1.0
         # IMU rates 1 Hz .. 10 kHz: the median step decides the unit.
         unit = "s" if step < 1.0 else "ms" if step < 100 else "us" if step < 1e5 else "ns"
         log.info("%s: time unit guessed as %s (median step %g)", source, unit, step)
+    big = np.abs(t) * _TIME_SCALE[unit] >= INT64_MAX
+    if big.any():
+        i = int(np.argmax(big))
+        at = f"line {int(lines[i])}" if lines is not None else f"sample {i}"
+        raise InputError(
+            f"{source}, {at}: time {t[i]:g} {unit} is beyond the int64 nanosecond range (the year 2262)"
+        )
     if unit == "ns":
         return np.round(t).astype(np.int64)
     t0 = np.floor(t[0])
@@ -64,7 +102,8 @@ def _finish(
     accel_unit: AccelUnit | None,
     gyro_unit: GyroUnit | None,
 ) -> ImuLog:
-    t_ns = _to_ns(t, time_unit, source)
+    check_samples(accel, gyro, source, lines)
+    t_ns = _to_ns(t, time_unit, source, lines)
     tc = check_and_repair(t_ns, source, lines)
     warnings = list(tc.warnings)
     if accel_unit is None or gyro_unit is None:
@@ -132,18 +171,11 @@ def read_euroc(path: str | Path) -> ImuLog:
     p = Path(path)
     if p.is_dir():
         p = p / "mav0" / "imu0" / "data.csv" if (p / "mav0").is_dir() else p / "imu0" / "data.csv"
-    data, lines = read_table(p, 7)
-    t_ns = data[:, 0].astype(np.int64)
-    # float64 holds ns stamps of 2014 to ~256 ns; re-read the first column as integers for exactness.
-    try:
-        with open(p) as fh:
-            ints = [
-                int(row[0]) for row in csv.reader(fh) if row and not row[0].lstrip().startswith("#")
-            ]
-        if len(ints) == len(t_ns):
-            t_ns = np.asarray(ints, dtype=np.int64)
-    except ValueError:
-        pass
+    if not p.is_file():
+        raise InputError(f"{p}: no such file (a EuRoC imu0/data.csv or its dataset folder)")
+    # float64 holds ns stamps of 2014 to ~256 ns: the stamps are read as integers, exactly.
+    data, lines, t_ns = read_table_ns(p, 7)
+    check_samples(data[:, 4:7], data[:, 1:4], str(p), lines)
     tc = check_and_repair(t_ns, str(p), lines)
     return ImuLog(tc.t_ns, data[:, 4:7], data[:, 1:4], "m/s^2", "rad/s", str(p), list(tc.warnings))
 
@@ -169,43 +201,43 @@ def read_csv(
         raise InputError(
             f"{p}: the column mapping lacks {', '.join(missing)} (keys {', '.join(need)})"
         )
+    text = read_text(p)
     try:
-        fh = open(p, newline="")
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read: {exc}") from exc
-    with fh:
-        reader = csv.reader(fh, delimiter=delimiter)
-        header = next(reader, None)
-        if header is None:
-            raise InputError(f"{p}: the file is empty")
-        idx: list[int] = []
-        for k in need:
-            c = columns[k]
-            if isinstance(c, int):
-                idx.append(c)
-            elif c in header:
-                idx.append(header.index(c))
-            else:
-                raise InputError(
-                    f"{p}: no column '{c}' (for {k}) in the header: {', '.join(header)}"
-                )
-        rows: list[list[str]] = []
-        lines: list[int] = []
-        skipped = 0
-        for ln, row in enumerate(reader, start=2):
-            if not row:
-                continue
-            try:
-                vals = [row[i].strip() for i in idx]
-            except IndexError:
-                raise InputError(
-                    f"{p}, line {ln}: {len(row)} columns; expected at least {max(idx) + 1}"
-                ) from None
-            if any(v == "" for v in vals):
-                skipped += 1
-                continue
-            rows.append(vals)
-            lines.append(ln)
+        with io.StringIO(text, newline="") as fh:
+            reader = csv.reader(fh, delimiter=delimiter)
+            header = next(reader, None)
+            if header is None:
+                raise InputError(f"{p}: the file is empty")
+            idx: list[int] = []
+            for k in need:
+                c = columns[k]
+                if isinstance(c, int):
+                    idx.append(c)
+                elif c in header:
+                    idx.append(header.index(c))
+                else:
+                    raise InputError(
+                        f"{p}: no column '{c}' (for {k}) in the header: {', '.join(header)}"
+                    )
+            rows: list[list[str]] = []
+            lines: list[int] = []
+            skipped = 0
+            for ln, row in enumerate(reader, start=2):
+                if not row:
+                    continue
+                try:
+                    vals = [row[i].strip() for i in idx]
+                except IndexError:
+                    raise InputError(
+                        f"{p}, line {ln}: {len(row)} columns; expected at least {max(idx) + 1}"
+                    ) from None
+                if any(v == "" for v in vals):
+                    skipped += 1
+                    continue
+                rows.append(vals)
+                lines.append(ln)
+    except csv.Error as exc:
+        raise InputError(f"{p}: not a CSV file ({exc})") from None
     if not rows:
         raise InputError(f"{p}: no row has all of the mapped columns filled")
     try:

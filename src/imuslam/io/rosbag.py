@@ -6,6 +6,8 @@ replaced by a corrected log and every other message copied byte for byte.
 
 from __future__ import annotations
 
+import os
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -53,6 +55,20 @@ def _check_si(log: ImuLog) -> None:
         )
 
 
+def _writer2(tmp: Path, plugin: StoragePlugin) -> Any:
+    return Writer2(tmp, version=8, storage_plugin=plugin)
+
+
+def _single_mcap(tmp: Path) -> None:
+    """rosbags writes a ROS 2 bag as a folder ``x.mcap/x.mcap.mcap`` + metadata.yaml: keep the one
+    .mcap file (it holds its schemas and is read on its own) under the name ``x.mcap``."""
+    inner = tmp / f"{tmp.name}.mcap"
+    single = tmp.with_name(tmp.name + ".single")
+    os.replace(inner, single)
+    shutil.rmtree(tmp)
+    os.replace(single, tmp)
+
+
 def write_imu_bag(
     log: ImuLog,
     path: str | Path,
@@ -75,13 +91,15 @@ def write_imu_bag(
             w1.close()
         else:
             plugin = StoragePlugin.MCAP if k == "mcap" else StoragePlugin.SQLITE3
-            w2 = Writer2(tmp, version=8, storage_plugin=plugin)
+            w2 = _writer2(tmp, plugin)
             w2.open()
             ts2 = rosmsg.typestore("ros2")
             c2 = w2.add_connection(topic, IMU_TYPE, typestore=ts2)
             for t, msg in _imu_msgs(log, frame_id, "ros2"):
                 w2.write(c2, t, ts2.serialize_cdr(msg, IMU_TYPE))
             w2.close()
+            if p.suffix == ".mcap":
+                _single_mcap(tmp)
 
 
 def replace_imu_topic(src: str | Path, dst: str | Path, topic: str, corrected: ImuLog) -> int:
@@ -102,7 +120,7 @@ def replace_imu_topic(src: str | Path, dst: str | Path, topic: str, corrected: I
                 writer = Writer1(tmp)
             else:
                 plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
-                writer = Writer2(tmp, version=8, storage_plugin=plugin)
+                writer = _writer2(tmp, plugin)
             writer.open()
             out_conns = {}
             for c in reader.connections:
@@ -115,9 +133,9 @@ def replace_imu_topic(src: str | Path, dst: str | Path, topic: str, corrected: I
                         c.topic, c.msgtype, typestore=reader.typestore
                     )
             i = 0
-            for c, t, raw in reader.messages():
+            for k, (c, t, raw) in enumerate(bag.raw()):
                 if c.topic == topic and c.msgtype == IMU_TYPE:
-                    msg: Any = reader.deserialize(raw, c.msgtype)
+                    msg = bag.deserialize(raw, c.msgtype, k)
                     stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
                     if i >= len(corrected) or int(corrected.t_ns[i]) != stamp:
                         raise InputError(
@@ -142,6 +160,8 @@ def replace_imu_topic(src: str | Path, dst: str | Path, topic: str, corrected: I
                 else:
                     writer.write(out_conns[c.id], t, raw)
             writer.close()
+            if kind != "ros1" and dp.suffix == ".mcap":
+                _single_mcap(tmp)
             if i != len(corrected):
                 raise InputError(
                     f"{sp}:{topic}: {i} messages but {len(corrected)} corrected samples"

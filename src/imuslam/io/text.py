@@ -2,12 +2,48 @@
 
 from __future__ import annotations
 
+import codecs
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import InputError
+
+INT64_MAX = np.iinfo(np.int64).max
+
+
+def read_text(path: str | Path) -> str:
+    """The text of ``path``: UTF-8 (a BOM allowed) or UTF-16 with its BOM (as Windows tools write it).
+
+    A folder, an unreadable file, bytes that are not text in those encodings, or NUL characters are an
+    InputError naming the file (and the line of the first NUL)."""
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except IsADirectoryError:
+        raise InputError(f"{p}: a folder; expected a file") from None
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+    if raw.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        enc = "utf-16"
+    elif raw.startswith(codecs.BOM_UTF8):
+        enc = "utf-8-sig"
+    else:
+        enc = "utf-8"
+    try:
+        text = raw.decode(enc)
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise InputError(
+            f"{p}, line {line}: not a text file (byte {exc.start} is not valid {enc}); "
+            "expected UTF-8 or UTF-16 text"
+        ) from None
+    nul = text.find("\x00")
+    if nul >= 0:
+        line = text.count("\n", 0, nul) + 1
+        raise InputError(f"{p}, line {line}: not a text file (a NUL character); expected text")
+    return text
 
 
 def read_table(
@@ -18,17 +54,29 @@ def read_table(
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Numeric rows (N, C) of a whitespace- or comma-separated file and their 1-based line numbers.
 
-    n_cols: the accepted column count(s); a row with another count is an InputError naming its line.
-    Blank lines and lines starting with a ``comment`` character are skipped; a first line that is not
-    numeric is taken as a header when ``skip_header`` is None.
+    n_cols: the accepted column count(s); every row must have the same count, one of these; a row
+    with another is an InputError naming its line. Blank lines and lines starting with a ``comment``
+    character are skipped; a first line that is not numeric is taken as a header when ``skip_header``
+    is None.
     """
+    data, lines, _ = _parse(Path(path), n_cols, comment, skip_header)
+    return data, lines
+
+
+def read_table_ns(
+    path: str | Path, n_cols: int | tuple[int, ...], comment: str = "#%"
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """:func:`read_table` whose first column is also returned exactly as int64 nanoseconds (stamps
+    that float64 would round): ``(data, lines, t_ns)``; a stamp beyond int64 is an InputError."""
     p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read: {exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{p}: not a text file ({exc.reason})") from exc
+    data, lines, rows = _parse(p, n_cols, comment, None)
+    return data, lines, _int_column([r[0] for r in rows], data[:, 0], lines, p)
+
+
+def _parse(
+    p: Path, n_cols: int | tuple[int, ...], comment: str, skip_header: bool | None
+) -> tuple[NDArray[np.float64], NDArray[np.int64], list[list[str]]]:
+    text = read_text(p)
     allowed = (n_cols,) if isinstance(n_cols, int) else n_cols
     rows: list[list[str]] = []
     lines: list[int] = []
@@ -53,6 +101,12 @@ def read_table(
         raise InputError(
             f"{p}, line {lines[j]}: {counts[j]} columns; expected {' or '.join(map(str, allowed))}"
         )
+    ragged = counts != counts[0]
+    if ragged.any():
+        j = int(np.argmax(ragged))
+        raise InputError(
+            f"{p}, line {lines[j]}: {counts[j]} columns; the rows before it have {counts[0]}"
+        )
     try:
         data = np.array(rows, dtype=float)
     except ValueError:
@@ -65,7 +119,35 @@ def read_table(
     if nonfinite.any():
         j = int(np.argmax(nonfinite))
         raise InputError(f"{p}, line {lines[j]}: a value is NaN or infinite")
-    return data, np.asarray(lines, dtype=np.int64)
+    return data, np.asarray(lines, dtype=np.int64), rows
+
+
+def _int_column(
+    toks: list[str], values: NDArray[np.float64], lines: NDArray[np.int64], p: Path
+) -> NDArray[np.int64]:
+    """Exact int64 of integer tokens (a float token such as 1.4e18 is rounded); beyond int64 is an error."""
+    big = np.abs(values) >= INT64_MAX
+    if big.any():
+        j = int(np.argmax(big))
+        raise InputError(
+            f"{p}, line {int(lines[j])}: time stamp {toks[j]} is beyond the int64 range of "
+            "nanosecond stamps (up to 9.2e18 ns, the year 2262)"
+        )
+    try:
+        return np.array(toks).astype(np.int64)
+    except (ValueError, OverflowError):
+        pass
+    out = np.round(values).astype(np.int64)
+    for j, tok in enumerate(toks):  # only when a token is not a plain integer: exact where it is
+        try:
+            out[j] = int(tok)
+        except ValueError:
+            continue
+        except OverflowError:
+            raise InputError(
+                f"{p}, line {int(lines[j])}: time stamp {tok} is beyond int64"
+            ) from None
+    return out
 
 
 def _numeric(tok: str) -> bool:

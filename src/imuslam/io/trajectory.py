@@ -7,6 +7,7 @@ TUM is ``qx qy qz qw``, EuRoC ``qw qx qy qz``.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -18,8 +19,9 @@ from imuslam.errors import InputError
 from imuslam.geometry import quat_to_matrix
 from imuslam.interfaces.trajectory import Trajectory
 from imuslam.io.atomic import write_atomic
-from imuslam.io.text import read_table
+from imuslam.io.text import read_table, read_table_ns
 
+log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 TrajFormat = Literal["tum", "kitti", "euroc", "bag"]
 TRAJ_FORMATS = ("tum", "kitti", "euroc", "bag")
@@ -34,48 +36,124 @@ __all__ = [
 ]
 
 
-def _t_ns_from_seconds(t: FloatArray) -> NDArray[np.int64]:
+def _t_ns_from_seconds(
+    t: FloatArray, source: str = "", lines: NDArray[np.int64] | None = None
+) -> NDArray[np.int64]:
+    big = np.abs(t) >= 9.2e9  # int64 nanoseconds end in 2262
+    if big.any():
+        i = int(np.argmax(big))
+        raise InputError(
+            f"{source}, line {int(lines[i]) if lines is not None else i}: time {t[i]:g} s is beyond the "
+            "int64 nanosecond range (the year 2262); expected seconds"
+        )
     t0 = np.floor(t[0]) if len(t) else 0.0
     return (np.int64(t0) * 1_000_000_000 + np.round((t - t0) * 1e9).astype(np.int64)).astype(
         np.int64
     )
 
 
+def check_times(
+    t_ns: NDArray[np.int64],
+    source: str,
+    lines: NDArray[np.int64] | None = None,
+    max_repeat_frac: float = 0.01,
+) -> None:
+    """InputError naming the line (or pose) where time goes backwards, or where it first repeats when
+    more than ``max_repeat_frac`` of the stamps repeat one before. A few repeats are real (motion-capture
+    stamps rounded to 0.1 ms: one in TUM's fr2_desk ground truth, four in evo's V102 estimate) and are
+    kept with a warning, as evo keeps them; many mean the file is broken and association would pair
+    the wrong poses."""
+    d = np.diff(t_ns)
+    at = (lambda i: f"line {int(lines[i])}") if lines is not None else (lambda i: f"pose {i}")
+    back = np.flatnonzero(d < 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise InputError(
+            f"{source}, {at(i)}: time goes backwards ({t_ns[i]} ns after {t_ns[i - 1]} ns); expected "
+            "increasing time stamps"
+        )
+    rep = np.flatnonzero(d == 0)
+    if rep.size > max_repeat_frac * len(t_ns):
+        i = int(rep[0]) + 1
+        raise InputError(
+            f"{source}, {at(i)}: time repeats ({t_ns[i]} ns), and {rep.size - 1} more times; expected "
+            "increasing time stamps"
+        )
+    if rep.size:
+        log.warning(
+            "%s: %d repeated time stamp(s), the first at %s", source, rep.size, at(int(rep[0]) + 1)
+        )
+
+
+#: Farther than any robot's map (earth-centred coordinates are 6.4e6 m): a larger position is corrupted.
+MAX_ABS_POSITION_M = 1e8
+
+
+def check_poses(
+    p_w: FloatArray, q_wxyz: FloatArray, source: str, lines: NDArray[np.int64] | None = None
+) -> tuple[FloatArray, FloatArray]:
+    """Positions and rotation matrices; an absurd position or a quaternion that is not a unit one
+    (norm off by more than 10 %, as a corrupted field makes it) is an InputError naming the line."""
+    at = (lambda i: f"line {int(lines[i])}") if lines is not None else (lambda i: f"pose {i}")
+    far = ~(np.abs(p_w) <= MAX_ABS_POSITION_M).all(axis=1)
+    if far.any():
+        i = int(np.argmax(far))
+        raise InputError(
+            f"{source}, {at(i)}: position {p_w[i].tolist()} m is not finite or beyond "
+            f"{MAX_ABS_POSITION_M:g} m"
+        )
+    with np.errstate(over="ignore", invalid="ignore"):  # a corrupted 1e308 is reported below
+        n = np.linalg.norm(q_wxyz, axis=1)
+    bad = ~(np.abs(n - 1.0) <= 0.1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(
+            f"{source}, {at(i)}: the quaternion has norm {n[i]:g}; expected a unit quaternion"
+        )
+    return p_w, quat_to_matrix(q_wxyz / n[:, None])
+
+
 def read_tum(path: str | Path) -> Trajectory:
     """TUM: ``t x y z qx qy qz qw`` per line (s, m), spaces or commas, '#' comments."""
-    d, _ = read_table(path, 8)
+    d, ln = read_table(path, 8)
     q = d[:, [7, 4, 5, 6]]
-    return Trajectory(_t_ns_from_seconds(d[:, 0]), d[:, 1:4], quat_to_matrix(q), str(path))
+    t_ns = _t_ns_from_seconds(d[:, 0], str(path), ln)
+    check_times(t_ns, str(path), ln)
+    return Trajectory(t_ns, *check_poses(d[:, 1:4], q, str(path), ln), str(path))
 
 
 def read_kitti(path: str | Path, times: str | Path | None = None) -> Trajectory:
     """KITTI: a 3x4 pose matrix per line (row-major); times (s) from ``times`` or the line index."""
-    d, _ = read_table(path, 12)
+    d, ln = read_table(path, 12)
     M = d.reshape(-1, 3, 4)
+    off = np.abs(np.einsum("nji,njk->nik", M[:, :, :3], M[:, :, :3]) - np.eye(3)).max(axis=(1, 2))
+    bad = ~(off <= 0.1) | ~(np.abs(M[:, :, 3]) <= MAX_ABS_POSITION_M).all(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(
+            f"{path}, line {int(ln[i])}: not a pose (the 3x3 part is not a rotation, or the position "
+            f"is beyond {MAX_ABS_POSITION_M:g} m)"
+        )
     if times is not None:
-        t, _ = read_table(times, 1)
+        t, lt = read_table(times, 1)
         if len(t) != len(d):
             raise InputError(f"{times}: {len(t)} times for {len(d)} poses in {path}")
-        t_ns = _t_ns_from_seconds(t[:, 0])
+        t_ns = _t_ns_from_seconds(t[:, 0], str(times), lt)
+        check_times(t_ns, str(times), lt)
     else:
         t_ns = np.arange(len(d), dtype=np.int64) * 100_000_000  # one pose per frame, 10 Hz nominal
     return Trajectory(t_ns, M[:, :, 3].copy(), M[:, :, :3].copy(), str(path))
 
 
 def read_euroc_gt(path: str | Path) -> Trajectory:
-    """EuRoC ground truth csv: ``#timestamp [ns], p x y z, q w x y z, ...`` (more columns ignored)."""
+    """EuRoC ground truth csv: ``#timestamp [ns], p x y z, q w x y z, ...`` (more columns ignored);
+    commas or spaces; the stamps are read as integers, exactly."""
     p = Path(path)
     if p.is_dir():
         p = p / "mav0" / "state_groundtruth_estimate0" / "data.csv" if (p / "mav0").is_dir() else p
-    d, _ = read_table(p, (8, 11, 14, 17))
-    ints = []
-    with open(p) as fh:
-        for line in fh:
-            s = line.strip()
-            if s and not s.startswith("#"):
-                ints.append(int(s.split(",")[0]))
-    t_ns = np.asarray(ints, dtype=np.int64) if len(ints) == len(d) else d[:, 0].astype(np.int64)
-    return Trajectory(t_ns, d[:, 1:4], quat_to_matrix(d[:, 4:8]), str(p))
+    d, ln, t_ns = read_table_ns(p, (8, 11, 14, 17))
+    check_times(t_ns, str(p), ln)
+    return Trajectory(t_ns, *check_poses(d[:, 1:4], d[:, 4:8], str(p), ln), str(p))
 
 
 @dataclass

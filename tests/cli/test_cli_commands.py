@@ -20,9 +20,10 @@ def test_calibrate_xsens_writes_everything(shared_data: Path, tmp_path: Path) ->
     r = runner.invoke(
         app,
         ["calibrate", str(d / "xsens_acc.mat"), str(d / "xsens_gyro.mat"), "--g", "9.81744",
-         "--t-init", "50", "--bias-sign", "minus", "--out", str(out)],
+         "--t-init", "50", "--bias-sign", "minus", "--method", "tedaldi", "--out", str(out)],
     )  # fmt: skip
     assert r.exit_code == 0, r.output
+    assert "held out" in (out / "report.html").read_text()  # the cross-validation section
     for f in (
         "calibration.yaml",
         "acc.calib",
@@ -111,6 +112,12 @@ def test_demo(tmp_path: Path) -> None:
 
     runs = {r["variant"]: r for r in json.loads((tmp_path / "d" / "ins_benefit.json").read_text())}
     assert (tmp_path / "d" / "ins_benefit.png").exists() and len(runs) == 5
+    # progress is shown before the long steps, and the report shows the INS result it computed
+    assert r.output.index("compiles the numerical kernels") < r.output.index("Accelerometer")
+    report = (tmp_path / "d" / "report.html").read_text()
+    assert "What the calibration buys an INS" in report and 'src="ins_benefit.png"' in report
+    for v in runs.values():
+        assert f"<td>{v['position_err_m']:.2f}</td>" in report
     # the raw BWT901CL's gyro biases (1.6, 2.9, 0.6 deg/s) and misalignments (up to 5 deg) wreck a free INS
     # within 30 s; calibrated, its residual errors are ~100x smaller; after the same KF alignment the
     # calibrated IMU still keeps its attitude several times better (the filter models biases only)

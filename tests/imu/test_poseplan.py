@@ -29,6 +29,9 @@ def test_optimised_order_lowers_every_gyro_std_measured() -> None:
             stds.append(calibrate(simulate_multipose(plan, rng).log, CalibrationConfig()).std_gyro)
         ratios.append(stds[1] / stds[0])
     mean_ratio = np.mean(ratios, axis=0)
+    print(f"optimised order: predicted gyro std lower by {100 * (1 - sg1 / sg0).min():.0f}-"
+          f"{100 * (1 - sg1 / sg0).max():.0f} %; measured over 10 paired runs: mean ratio "
+          f"{np.mean(mean_ratio):.2f} (per parameter {mean_ratio.min():.2f}-{mean_ratio.max():.2f})")  # fmt: skip
     assert np.all(mean_ratio < 1.10) and np.mean(mean_ratio) < 0.95
     # the model predicts what the calibrator reports (within the 17 % scatter of one run, on average)
     assert np.all(np.abs(stds[0] / sg0 - 1) < 0.3)
@@ -43,5 +46,6 @@ def test_fewer_poses_when_a_looser_target_is_met() -> None:
     sa0, sg0 = model.predicted_std(sphere_plan_deg(40))
     plan = plan_for_target(model, 1.3 * sa0, 1.3 * sg0, min_poses=16, max_poses=40, iterations=500)
     sa, sg = model.predicted_std(plan)
+    print(f"a target 30 % looser than the 40-pose plan's is met with {len(plan)} poses")
     assert len(plan) < 40
     assert np.all(sa <= 1.3 * sa0) and np.all(sg <= 1.3 * sg0)

@@ -64,10 +64,56 @@ def test_sim3_recovers_scale() -> None:
 
 
 def test_interpolation_is_exact_on_linear_motion() -> None:
-    ref = _traj()
-    mid = (ref.t_ns[:-1] + ref.t_ns[1:]) // 2
-    it = interpolate(ref, mid)
-    np.testing.assert_allclose(it.p_w, 0.5 * (ref.p_w[:-1] + ref.p_w[1:]), atol=1e-12)
+    """Constant velocity and constant angular rate, p(t) = p0 + v t and R(t) = R0 exp(w t), sampled at
+    irregular stamps and queried at random times between them: linear position and slerp reproduce the
+    motion itself (computed here from its closed form), to rounding."""
+    rng = np.random.default_rng(3)
+    t0 = 1_700_000_000_000_000_000
+    t_ns = t0 + np.cumsum(rng.integers(20_000_000, 80_000_000, size=200)).astype(np.int64)
+    p0, v = np.array([1.0, -2.0, 0.5]), np.array([0.8, 0.3, -0.1])
+    R0, w = exp(np.array([0.3, -0.2, 1.0])), np.array([0.05, -0.1, 0.4])
+
+    def motion(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ts = (t - t0) * 1e-9
+        return p0 + ts[:, None] * v, R0 @ exp(ts[:, None] * w)
+
+    p, R = motion(t_ns)
+    ref = Trajectory(t_ns, p, R, "linear")
+    q = np.sort(rng.integers(t_ns[0], t_ns[-1], size=500)).astype(np.int64)
+    it = interpolate(ref, q)
+    p_true, R_true = motion(q)
+    np.testing.assert_allclose(it.p_w, p_true, atol=1e-9)
+    np.testing.assert_allclose(it.R_w_b, R_true, atol=1e-9)
+
+
+def _straight_line(n: int, R: np.ndarray | None = None, scale: float = 1.0) -> Trajectory:
+    t = 1_700_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 100_000_000
+    p = np.zeros((n, 3))
+    p[:, 0] = scale * np.arange(n)  # 1 m per frame along x
+    return Trajectory(t, p, np.tile(np.eye(3), (n, 1, 1)) if R is None else R, "line")
+
+
+def test_kitti_drift_on_hand_computed_cases() -> None:
+    """1001 frames 1 m apart along x. By the KITTI devkit's rules (segments start every 10th frame and end
+    at the first frame more than L metres on), a 100 m segment starting at frame s ends at s + 101, so
+    starts 0..890 fit: 90 segments; 800 m: starts 0..190, 20 segments. The devkit divides a segment's
+    error by L, not by its length L + 1: an estimate 1 % too long drifts 1 % x (L + 1) / L and 0 deg/m; one
+    that rolls 0.001 rad per frame about the direction of travel keeps every translation and drifts 0 % and
+    0.001 (L + 1) / L rad/m (0.0573 deg/m x (L + 1) / L)."""
+    from imuslam.eval.metrics import kitti_drift
+
+    ref = _straight_line(1001)
+    long = kitti_drift(ref, _straight_line(1001, scale=1.01))
+    assert long[100.0][2] == 90 and long[800.0][2] == 20
+    for L, (tp, rd, _) in long.items():
+        assert tp == pytest.approx(1.0 * (L + 1) / L, rel=1e-9), L
+        assert rd == pytest.approx(0.0, abs=1e-9), L
+    roll = exp(np.outer(np.arange(1001) * 0.001, [1.0, 0.0, 0.0]))
+    rolled = kitti_drift(ref, _straight_line(1001, R=roll))
+    for L, (tp, rd, _) in rolled.items():
+        assert tp == pytest.approx(0.0, abs=1e-9)
+        # the devkit's angle of a segment of L + 1 frames: 0.001 (L + 1) rad, over L metres
+        assert rd == pytest.approx(np.rad2deg(0.001 * (L + 1)) / L, rel=1e-6), L
 
 
 def test_round_trips(tmp_path: Path) -> None:

@@ -17,32 +17,62 @@ TRUTH = ImuCalibration(
 N_RUNS = 100
 
 
+@pytest.mark.slow
 def test_monte_carlo_errors_consistent_with_covariance() -> None:
-    """100 seeded 40-pose logs with seed-000 errors and BWT901CL-class noise.
+    """100 seeded 40-pose logs with seed-000 errors and BWT901CL-class noise, both methods.
 
     If the reported covariance is right, each run's NEES e^T P^-1 e is chi-square with 9 dof, and the sum
     over 100 runs is chi-square with 900 dof: mean 9, std of the mean sqrt(18 / 100) = 0.42. The band is
-    +-3 of those sigmas (99.7 %), widened by the 3 % a residual-estimated variance adds to the gyro NEES
-    (69 degrees of freedom: 69 / 67).
+    +-3 of those sigmas (99.7 %), widened by what a residual-estimated variance adds: 3 % for tedaldi's
+    gyro (69 degrees of freedom: 69 / 67); for the joint fit's variance components, whose smallest group
+    (the accelerometer's 3 residuals per pose less the pose's direction and the 9 parameters) has about
+    28 degrees of freedom, up to 2 / 28 on the upper side.
+    The joint fit's accelerometer must also be more accurate: the mean over parameters of its squared
+    error, relative to tedaldi's, below 1. Its gyroscope is not (measured ratio 1.26 over these 100 runs,
+    reported as missed in the README), so that ratio is printed, not asserted.
     """
-    nees_a, nees_g = [], []
+    nees: dict[str, list[float]] = {k: [] for k in ("ta", "tg", "ja", "jg")}
+    err: dict[str, list[np.ndarray]] = {k: [] for k in ("ta", "tg", "ja", "jg")}
+    std: dict[str, list[np.ndarray]] = {k: [] for k in ("ta", "tg", "ja", "jg")}
     for seed in range(N_RUNS):
         rng = np.random.default_rng(seed)
         sim = simulate_multipose(sphere_plan_deg(40, rng), rng)
-        res = calibrate(sim.log, CalibrationConfig(g=sim.truth.g))
-        c = res.calibration
-        assert c.cov_accel is not None and c.cov_gyro is not None
-        ea = c.accel_params - TRUTH.accel_params
-        eg = c.gyro_params - TRUTH.gyro_params
-        nees_a.append(ea @ np.linalg.solve(c.cov_accel, ea))
-        nees_g.append(eg @ np.linalg.solve(c.cov_gyro, eg))
-        # Accuracy for BWT901CL-class noise (docs/calibration.md): angles and scales to ~1e-3, bias
-        # to ~5e-3 m/s^2; 6 sigma of the reported std so a single run cannot fail by chance.
-        assert np.all(np.abs(ea) < 6 * res.std_accel)
-        assert np.all(np.abs(eg) < 6 * res.std_gyro)
+        for m in ("tedaldi", "joint"):
+            res = calibrate(sim.log, CalibrationConfig(g=sim.truth.g, method=m))
+            c = res.calibration
+            assert c.cov_accel is not None and c.cov_gyro is not None
+            ea = c.accel_params - TRUTH.accel_params
+            eg = c.gyro_params - TRUTH.gyro_params
+            nees[m[0] + "a"].append(ea @ np.linalg.solve(c.cov_accel, ea))
+            nees[m[0] + "g"].append(eg @ np.linalg.solve(c.cov_gyro, eg))
+            err[m[0] + "a"].append(ea)
+            err[m[0] + "g"].append(eg)
+            std[m[0] + "a"].append(res.std_accel)
+            std[m[0] + "g"].append(res.std_gyro)
+            # 6 sigma of the reported std so a single run cannot fail by chance.
+            assert np.all(np.abs(ea) < 6 * res.std_accel)
+            assert np.all(np.abs(eg) < 6 * res.std_gyro)
     band = 3 * np.sqrt(2 * 9 / N_RUNS)
-    assert abs(np.mean(nees_a) - 9) < band
-    assert abs(np.mean(nees_g) - 9 * 69 / 67) < band
+    for m in ("tedaldi", "joint"):
+        ma, mg = np.median(std[m[0] + "a"], axis=0), np.median(std[m[0] + "g"], axis=0)
+        print(f"{m}: mean NEES accel {np.mean(nees[m[0] + 'a']):.1f}, gyro {np.mean(nees[m[0] + 'g']):.1f} "
+              f"(band 9 +- {band:.1f}); median 1-sigma: accel angles {1e3 * ma[:3].min():.2f}-"
+              f"{1e3 * ma[:3].max():.2f} mrad, scales {ma[3:6].min():.1e}-{ma[3:6].max():.1e}, biases "
+              f"{ma[6:].min():.1e}-{ma[6:].max():.1e} m/s^2; gyro angles {1e3 * mg[:6].min():.2f}-"
+              f"{1e3 * mg[:6].max():.2f} mrad, scales {mg[6:].min():.1e}-{mg[6:].max():.1e}")  # fmt: skip
+    assert abs(np.mean(nees["ta"]) - 9) < band
+    assert abs(np.mean(nees["tg"]) - 9 * 69 / 67) < band
+    for k in ("ja", "jg"):
+        assert 9 - band < np.mean(nees[k]) < 9 * (1 + 2 / 28) + band
+    ratio = {}
+    for t in ("a", "g"):
+        mse_t = np.mean(np.square(err["t" + t]), axis=0)
+        mse_j = np.mean(np.square(err["j" + t]), axis=0)
+        ratio[t] = float(np.mean(mse_j / mse_t))
+    print(f"joint / tedaldi mean squared error ratio: accel {ratio['a']:.3f}, gyro {ratio['g']:.3f}; "
+          f"NEES joint accel {np.mean(nees['ja']):.2f} gyro {np.mean(nees['jg']):.2f}, "
+          f"tedaldi accel {np.mean(nees['ta']):.2f} gyro {np.mean(nees['tg']):.2f}")  # fmt: skip
+    assert ratio["a"] < 1.0
 
 
 def test_recovers_seed000_parameters_and_residuals_shrink() -> None:

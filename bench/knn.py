@@ -1,0 +1,59 @@
+"""k-nearest-neighbour libraries on a LiDAR local map: build and query time (ms) per scan.
+
+    PYTHONPATH=src python bench/knn.py [--scans 30]
+
+Builds the street drive's local map from ground-truth poses (direct mode, 0.5 m voxels), then for each
+library times building the k-d tree over the map and querying one scan's points (k = 5), with the same
+queries for all, and checks the three return the same neighbours.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from imuslam.lio.features import voxel_downsample
+from imuslam.lio.voxelmap import KnnIndex, VoxelMap
+from imuslam.sim.drive import simulate_lidar_drive
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--scans", type=int, default=30)
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args()
+    d = simulate_lidar_drive("street", args.scans / 10.0, seed=3)
+    vmap = VoxelMap(0.5, 1, 100.0)
+    queries = np.zeros((0, 3))
+    for s in d.scans:
+        i = np.searchsorted(d.gt_t_ns, s.t_ns)
+        R, p = d.gt_R_w_b[i], d.gt_p_w[i] + d.gt_R_w_b[i] @ d.T_i_l[:3, 3]
+        pts = s.points_l.astype(float)
+        pts = pts[voxel_downsample(pts, 0.5)]
+        queries = pts @ R.T + p
+        vmap.add(queries)
+    print(f"map {len(vmap)} points, {len(queries)} queries, k = 5")
+    print(f"{'library':12s} {'build ms':>9s} {'query ms':>9s} {'total ms':>9s}")
+    ref = None
+    for lib in ("pykdtree", "small_gicp", "scipy"):
+        tb, tq = [], []
+        for _ in range(args.repeat):
+            t0 = time.perf_counter()
+            idx = KnnIndex(vmap.points, lib)  # type: ignore[arg-type]
+            t1 = time.perf_counter()
+            nbr, d2 = idx.query(queries, 5)
+            t2 = time.perf_counter()
+            tb.append(t1 - t0)
+            tq.append(t2 - t1)
+        if ref is None:
+            ref = d2
+        elif not np.allclose(np.sort(d2, axis=1), np.sort(ref, axis=1), atol=1e-9):
+            raise SystemExit(f"{lib} returned other neighbours than pykdtree")
+        b, q = 1e3 * np.median(tb), 1e3 * np.median(tq)
+        print(f"{lib:12s} {b:9.2f} {q:9.2f} {b + q:9.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,249 @@
+"""LiDAR-inertial odometry on the simulator against KISS-ICP, measured in the same run.
+
+    PYTHONPATH=src python bench/lio.py main      # street loop (4 laps, 137 s): imuslam modes/states vs KISS-ICP
+    PYTHONPATH=src python bench/lio.py imu       # raw vs calibrated IMU x {reduced, full} x {none, kf, stkf, rwnn}
+    PYTHONPATH=src python bench/lio.py rotating  # IMU and LiDAR on a 10 Hz rotating platform vs fixed mount
+    PYTHONPATH=src python bench/lio.py corridor  # LiDAR-only vs LIO in the corridor (degenerate for LiDAR)
+    PYTHONPATH=src python bench/lio.py memory    # map size and RSS over a long drive
+
+Options: --duration S (drive length), --cache DIR (simulated drives are cached there, keyed by their
+parameters). The street drive is seed 001's car loop around an urban block: VLP-16 at 10 Hz (about 28k
+points a scan), IMU at 200 Hz with seed 000's table-2 errors (BWT901CL) plus noise and bias random walk.
+"Calibrated" applies the table-2 correction model with its true parameters (a perfect calibration; the
+bias random walk and noise stay). Drift is the KITTI translation error averaged over 100-800 m segments
+(``imuslam.eval``), ATE after an SE(3) alignment; scans/s counts the estimator step only, for both.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # pykdtree's OpenMP pool stalls on a shared machine
+
+import argparse  # noqa: E402
+import pickle  # noqa: E402
+import resource  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from imuslam.eval.metrics import KITTI_LENGTHS, evaluate  # noqa: E402
+from imuslam.imu.model import ImuCalibration, TriadModel  # noqa: E402
+from imuslam.interfaces import Trajectory  # noqa: E402
+from imuslam.lio.config import ExtrinsicConfig, FilterConfig, FrontEndConfig, LioConfig  # noqa: E402
+from imuslam.lio.datasets import MemoryDataset  # noqa: E402
+from imuslam.lio.pipeline import LioPipeline, LioResult  # noqa: E402
+from imuslam.sim.drive import LidarDrive, simulate_lidar_drive  # noqa: E402
+from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO  # noqa: E402
+
+LAP_S = 34.32  # one lap of the street loop (sim.drive.car_loop_period_s)
+
+
+def true_calibration() -> ImuCalibration:
+    """Seed 000's table-2 correction with the simulator's true parameters."""
+    a, g = SEED000_ACCEL, SEED000_GYRO
+    return ImuCalibration(
+        TriadModel(a.T, a.K, a.b, a.bias_sign), TriadModel(g.T, g.K, g.b, g.bias_sign)
+    )
+
+
+def drive(
+    scene: str, duration: float, cache: Path, rotating_hz: float = 0.0, seed: int = 1
+) -> LidarDrive:
+    cache.mkdir(parents=True, exist_ok=True)
+    f = cache / f"{scene}_{duration:.2f}s_rot{rotating_hz:g}_seed{seed}.pkl"
+    if f.exists():
+        with open(f, "rb") as fh:
+            d: LidarDrive = pickle.load(fh)
+            return d
+    t0 = time.perf_counter()
+    d = simulate_lidar_drive(scene, duration, seed, rotating_platform_hz=rotating_hz, progress=True)
+    print(f"simulated {scene} {duration:g} s in {time.perf_counter() - t0:.0f} s")
+    with open(f, "wb") as fh:
+        pickle.dump(d, fh)
+    return d
+
+
+def truth(d: LidarDrive) -> Trajectory:
+    return Trajectory(d.gt_t_ns, d.gt_p_w, d.gt_R_w_b, "simulator truth")
+
+
+def metrics(gt: Trajectory, est: Trajectory) -> dict[str, float]:
+    res, _, _ = evaluate(gt, est, "se3", 1.0, "frames", 0.02, KITTI_LENGTHS)
+    kd = [v[0] for v in res.kitti.values()]
+    return {"drift_pct": float(np.mean(kd)) if kd else float("nan"), "ate_m": res.ape_trans.rmse,
+            "rot_deg": res.ape_rot_deg.rmse}  # fmt: skip
+
+
+def run_imuslam(d: LidarDrive, mode: str = "direct", state: str = "full", align: str = "none",
+                imu: str = "cal", use_imu: bool = True) -> tuple[LioResult, Trajectory]:  # fmt: skip
+    cfg = LioConfig(
+        frontend=FrontEndConfig(mode=mode, scan_voxel=1.0),  # type: ignore[arg-type]
+        extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])),  # type: ignore[arg-type]
+        filter=FilterConfig(state=state),  # type: ignore[arg-type]
+        align=align,  # type: ignore[arg-type]
+        use_imu=use_imu,
+    )
+    log = true_calibration().correct(d.imu) if imu == "cal" else d.imu
+    res = LioPipeline(
+        MemoryDataset(d.scans, log if use_imu else None, "sim"), cfg, progress=False
+    ).run()
+    est = res.trajectory
+    if (
+        d.platform_rate and use_imu
+    ):  # the vehicle from the platform (encoder) angle: R_w_b = R_w_i R_b_i^T
+        R_b_i = d.R_b_i(est.t_ns)
+        est = Trajectory(est.t_ns, est.p_w, est.R_w_b @ np.swapaxes(R_b_i, 1, 2), est.source)
+    return res, est
+
+
+def run_kiss(d: LidarDrive) -> tuple[Trajectory, float]:
+    from kiss_icp.config import KISSConfig
+    from kiss_icp.kiss_icp import KissICP
+
+    cfg = KISSConfig()
+    cfg.data.max_range, cfg.data.min_range, cfg.data.deskew = 100.0, 1.0, True
+    cfg.mapping.voxel_size = 1.0  # max_range / 100, KISS-ICP's own rule
+    k = KissICP(cfg)
+    poses, t_ns, el = [], [], 0.0
+    for s in d.scans:
+        pts = s.points_l.astype(np.float64)
+        ts = s.t_offset_s.astype(np.float64)
+        ts = (ts - ts.min()) / max(
+            float(ts.max() - ts.min()), 1e-9
+        )  # normalised per scan, as its readers do
+        t0 = time.perf_counter()
+        k.register_frame(pts, ts)
+        el += time.perf_counter() - t0
+        poses.append(k.last_pose.copy())
+        t_ns.append(s.t_ns + int(round(float(s.t_offset_s.max()) * 1e9)))
+    P = np.array(poses)
+    T_l_i = np.linalg.inv(d.T_i_l)
+    P = P @ T_l_i  # LiDAR poses -> the body (IMU) frame, as the truth
+    return Trajectory(np.array(t_ns), P[:, :3, 3], P[:, :3, :3], "kiss-icp"), len(d.scans) / el
+
+
+def row(name: str, m: dict[str, float], sps: float, extra: str = "") -> str:
+    return f"| {name} | {m['drift_pct']:.3f} | {m['rot_deg']:.3f} | {m['ate_m']:.3f} | {sps:.1f} |{extra}"
+
+
+HEAD = "| run | KITTI drift % | rotation RMSE deg | ATE m | scans/s |"
+SEP = "|---|---|---|---|---|"
+
+
+def main_bench(args: Any) -> None:
+    d = drive("street", args.duration or 137.5, args.cache)  # four laps and a little
+    gt = truth(d)
+    print(f"street loop: {len(d.scans)} scans, {gt.path_length:.0f} m, closes every {LAP_S:.1f} s")
+    kt, ksps = run_kiss(d)
+    km = metrics(gt, kt)
+    print(HEAD + " drift / KISS | speed / KISS |")
+    print(SEP + "---|---|")
+    print(row("KISS-ICP 1.x (C++, all cores)", km, ksps, " 1 | 1 |"))
+    for mode in ("features", "direct"):
+        for state in ("reduced", "full"):
+            res, est = run_imuslam(d, mode, state, "none", "cal")
+            m = metrics(gt, est)
+            print(row(f"imuslam lio {mode} {state}", m, res.scans_per_s,
+                      f" {m['drift_pct'] / km['drift_pct']:.2f} | {res.scans_per_s / ksps:.2f} |"))  # fmt: skip
+    res, est = run_imuslam(d, "direct", "full", "none", "cal", use_imu=False)
+    m = metrics(gt, est)
+    print(row("imuslam LiDAR-only direct", m, res.scans_per_s,
+              f" {m['drift_pct'] / km['drift_pct']:.2f} | {res.scans_per_s / ksps:.2f} |"))  # fmt: skip
+
+
+def imu_bench(args: Any) -> None:
+    d = drive("street", args.duration or LAP_S + 1.0, args.cache)
+    gt = truth(d)
+    print(f"street loop, {len(d.scans)} scans, {gt.path_length:.0f} m, direct mode")
+    print("| IMU | state | align | KITTI drift % | rotation RMSE deg | ATE m |")
+    print("|---|---|---|---|---|---|")
+    for imu in ("raw", "cal"):
+        for state in ("reduced", "full"):
+            for align in ("none", "kf", "stkf", "rwnn"):
+                try:
+                    _, est = run_imuslam(d, "direct", state, align, imu)
+                    m = metrics(gt, est)
+                    print(
+                        f"| {imu} | {state} | {align} | {m['drift_pct']:.3f} | {m['rot_deg']:.3f} | {m['ate_m']:.3f} |"
+                    )
+                except Exception as exc:  # a diverging run is a result of the table
+                    print(
+                        f"| {imu} | {state} | {align} | failed: {str(exc).splitlines()[0][:80]} | | |"
+                    )
+
+
+def rotating_bench(args: Any) -> None:
+    dur = args.duration or LAP_S + 1.0
+    print(HEAD)
+    print(SEP)
+    for hz in (0.0, 10.0):
+        d = drive("street", dur, args.cache, rotating_hz=hz)
+        gt = truth(d)
+        for state in ("reduced", "full"):
+            res, est = run_imuslam(d, "direct", state, "none", "cal")
+            print(
+                row(
+                    f"{'rotating 10 Hz' if hz else 'fixed mount'} {state}",
+                    metrics(gt, est),
+                    res.scans_per_s,
+                )
+            )
+
+
+def corridor_bench(args: Any) -> None:
+    d = drive("corridor", args.duration or 30.0, args.cache)
+    gt = truth(d)
+    print(f"corridor: {len(d.scans)} scans, {gt.path_length:.1f} m")
+    print("| run | ATE m | final error m | rotation RMSE deg |")
+    print("|---|---|---|---|")
+    for name, use_imu in (("LiDAR-only", False), ("LIO full", True)):
+        try:
+            _, est = run_imuslam(d, "direct", "full", "none", "cal", use_imu=use_imu)
+            res, r, ea = evaluate(gt, est, "se3", 1.0, "frames", 0.02)
+            fin = float(np.linalg.norm(ea.p_w[-1] - r.p_w[-1]))
+            print(f"| {name} | {res.ape_trans.rmse:.3f} | {fin:.3f} | {res.ape_rot_deg.rmse:.3f} |")
+        except Exception as exc:
+            print(f"| {name} | failed: {str(exc).splitlines()[0][:80]} | | |")
+
+
+def memory_bench(args: Any) -> None:
+    import tracemalloc
+
+    from imuslam.lio.estimator import LioEstimator
+
+    dur = args.duration or 300.0
+    d = drive("street", dur, args.cache)
+    cfg = LioConfig(frontend=FrontEndConfig(mode="direct", scan_voxel=1.0),
+                    extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])))  # type: ignore[arg-type]  # fmt: skip
+    est = LioEstimator(cfg, true_calibration().correct(d.imu))
+    tracemalloc.start()
+    print("| scans | drive s | local map points | map MB | traced MB | max RSS MB |")
+    print("|---|---|---|---|---|---|")
+    t_ref = d.imu.t_ns[0]
+    for k, s in enumerate(d.scans):
+        t = (s.t_ns - t_ref) * 1e-9 + s.t_offset_s.astype(np.float64)
+        est.register_scan(s.points_l.astype(np.float64), t, s.ring)
+        if (k + 1) % 500 == 0:
+            cur, _ = tracemalloc.get_traced_memory()
+            rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+            print(f"| {k + 1} | {(k + 1) / 10:.0f} | {len(est.map)} | {est.map.nbytes / 1e6:.1f} | "
+                  f"{cur / 1e6:.1f} | {rss:.0f} |")  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("what", choices=["main", "imu", "rotating", "corridor", "memory"])
+    ap.add_argument("--duration", type=float, default=None)
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/imuslam-bench-lio"))
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    {"main": main_bench, "imu": imu_bench, "rotating": rotating_bench, "corridor": corridor_bench,
+     "memory": memory_bench}[args.what](args)  # fmt: skip
+    print(f"({time.perf_counter() - t0:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()

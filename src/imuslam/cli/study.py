@@ -1,0 +1,62 @@
+"""``imuslam study``: a study of simulated cells (simulate -> calibrate -> align -> estimate -> evaluate)
+run on Dask, with a report that answers each claim."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    from imuslam.cli.common import console, friendly_errors, table
+
+    @app.command("study")
+    @friendly_errors
+    def study_cmd(
+        study_file: Path | None = typer.Argument(None, help="study YAML (see examples/seeds.yaml)"),
+        out: Path = typer.Option(
+            Path("study_out"), "--out", help="results folder (its cells/ cache resumes a study)"
+        ),
+        scheduler: str | None = typer.Option(
+            None, "--scheduler", help="address of a running Dask scheduler, e.g. tcp://host:8786"
+        ),
+        workers: int | None = typer.Option(
+            None, "--workers", min=1, help="local worker processes (default: one per core)"
+        ),
+        serial: bool = typer.Option(
+            False, "--serial", help="run the cells one after another in this process"
+        ),
+        quick: bool = typer.Option(False, "--quick", help="the built-in quick study (a few cells)"),
+    ) -> None:
+        """Run a study: cells on Dask, results.parquet/.csv, report.html per claim."""
+        import logging
+
+        logging.getLogger("numexpr").setLevel(logging.WARNING)
+        from imuslam.errors import InputError
+        from imuslam.study.config import load_study, parse_study
+        from imuslam.study.presets import QUICK
+        from imuslam.study.report import analyse
+        from imuslam.study.runner import run_study
+
+        if quick == (study_file is not None):
+            raise InputError("give a study YAML or --quick (one of them)")
+        if scheduler and (serial or workers):
+            raise InputError(
+                "--scheduler runs on that cluster's workers; drop --serial / --workers"
+            )
+        study = parse_study(QUICK, "--quick") if quick else load_study(study_file)  # type: ignore[arg-type]
+        src = "--quick" if quick else str(study_file)
+        res = run_study(study, out, scheduler, workers, serial, source=src)
+        n_err = int((res.table["status"] != "ok").sum())
+        console.print(
+            f"{len(res.table)} cells on {res.backend}: {res.n_run} run, {res.n_cached} from the cache, {n_err} failed"
+        )
+        rows = []
+        for c in study.claims:
+            a = analyse(c, res.table)
+            rows.append([c.name, c.seed_doc or "-", c.compare, c.metric, a.verdict])
+        console.print(table("Claims", ["claim", "seed", "compared", "metric", "verdict"], rows))
+        console.print(
+            f"wrote {out}/report.html, report.md, results.parquet, results.csv, study.yaml"
+        )

@@ -1,0 +1,155 @@
+"""Results on disk all or nothing: an output path is checked before any work, and a command's set of
+outputs is written into a temporary sibling that replaces the target only when everything succeeded.
+
+    check_out_dir(out, "folder")           # before reading anything: fails fast on a bad --out
+    ...                                     # the work
+    with results_folder(out) as tmp:        # every output written into tmp
+        save(tmp / "a.yaml"); plot(tmp / "b.png")
+    # on success tmp's entries are in out; on any error (an exception, a full disk) nothing is left
+
+A file on its own (``correct --out x.mcap``) goes through :func:`results_file` the same way.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Literal
+
+from imuslam.errors import InputError
+
+OutKind = Literal["folder", "file", "any"]
+
+# Errors of the output location itself: reported as bad input (the --out option), exit 2.
+_OUT_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG}
+
+
+def _first_existing(p: Path) -> Path:
+    a = p
+    while not a.exists() and a != a.parent:
+        a = a.parent
+    return a
+
+
+def check_out_dir(path: str | Path, kind: OutKind = "folder", option: str = "--out") -> None:
+    """Raise an InputError naming ``option`` unless ``path`` can receive a ``kind`` output.
+
+    folder: absent, or an existing writable folder; file: absent or an existing file, in a folder that
+    can be created and written; any: either. A path under an existing file is always an error.
+    """
+    p = Path(path).absolute()
+    if p.exists():
+        if kind == "folder" and not p.is_dir():
+            raise InputError(
+                f"{option} {path}: an existing file; expected a folder (new or existing)"
+            )
+        if kind == "file" and p.is_dir():
+            raise InputError(f"{option} {path}: an existing folder; expected a file name")
+        if p.is_dir() and not os.access(p, os.W_OK | os.X_OK):
+            raise InputError(f"{option} {path}: the folder is not writable")
+    a = _first_existing(p.parent)
+    if not a.is_dir():
+        raise InputError(f"{option} {path}: {a} is a file, so nothing can be created under it")
+    if not os.access(a, os.W_OK | os.X_OK):
+        raise InputError(f"{option} {path}: {a} is not writable")
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@contextmanager
+def _parents(p: Path) -> Iterator[None]:
+    """Create the missing parents of ``p``; remove the ones created here if the block fails."""
+    missing: list[Path] = []
+    a = p.parent
+    while not a.exists():
+        missing.append(a)
+        a = a.parent
+    for d in reversed(missing):
+        d.mkdir()
+    try:
+        yield
+    except BaseException:
+        for d in missing:  # deepest first; only if still empty
+            try:
+                d.rmdir()
+            except OSError:
+                break
+        raise
+
+
+def _as_input_error(exc: OSError, out: Path, option: str) -> InputError | OSError:
+    if exc.errno in _OUT_ERRNOS:
+        return InputError(f"{option} {out}: cannot write ({exc.strerror}); nothing was written")
+    return exc
+
+
+def _move_into(src: Path, dst: Path) -> None:
+    """Move every entry of folder ``src`` into the existing folder ``dst``, replacing same names (a
+    replaced folder goes into ``src``, removed with it). Each move is a rename: no space needed."""
+    entries = sorted(src.iterdir())
+    trash = Path(tempfile.mkdtemp(dir=src, prefix=".replaced-"))
+    for e in entries:
+        target = dst / e.name
+        if target.is_dir() and not target.is_symlink():
+            os.replace(target, trash / e.name)
+        os.replace(e, target)
+
+
+@contextmanager
+def results_folder(out: str | Path, option: str = "--out") -> Iterator[Path]:
+    """Yield an empty temporary folder; on success its entries land in ``out`` (created if absent),
+    on any error it is removed and ``out`` is as it was.
+
+    An absent ``out`` is replaced in one rename. An existing ``out`` keeps the files it has that the
+    command does not write (``--out .`` is safe); those it writes are replaced one rename each.
+    """
+    o = Path(out)
+    check_out_dir(o, "folder", option)
+    p = o.absolute()
+    existed = p.is_dir()
+    with _parents(p):
+        base = p if existed else p.parent
+        tmp = Path(tempfile.mkdtemp(dir=base, prefix=f".{p.name or 'out'}.partial-"))
+        try:
+            try:
+                yield tmp
+                if existed:
+                    _move_into(tmp, p)
+                else:
+                    os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp made it private
+                    os.rename(tmp, p)
+            except OSError as exc:
+                raise _as_input_error(exc, o, option) from exc
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextmanager
+def results_file(out: str | Path, option: str = "--out") -> Iterator[Path]:
+    """Yield a temporary path beside ``out``; on success it replaces ``out`` (a file, or a folder bag
+    written there), on any error it is removed."""
+    o = Path(out)
+    check_out_dir(o, "any", option)
+    p = o.absolute()
+    if p.is_dir():
+        raise InputError(f"{option} {out}: exists; choose a new name")
+    with _parents(p):
+        tmp_dir = Path(tempfile.mkdtemp(dir=p.parent, prefix=f".{p.name}.partial-"))
+        try:
+            try:
+                tmp = tmp_dir / p.name
+                yield tmp
+                os.replace(tmp, p)
+            except OSError as exc:
+                raise _as_input_error(exc, o, option) from exc
+        finally:
+            shutil.rmtree(tmp_dir, ignore_errors=True)

@@ -1,0 +1,93 @@
+"""Configuration of the LiDAR(-inertial) odometry: nested pydantic models, YAML keys = field names."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+FloatArray = NDArray[np.float64]
+
+
+class ExtrinsicConfig(BaseModel):
+    """The LiDAR pose in the IMU frame ``T_i_l`` (translation m, rotation as a Hamilton quaternion) and
+    the LiDAR clock offset: ``t_imu = t_lidar + time_offset_s``."""
+
+    model_config = ConfigDict(extra="forbid")
+    p_i_l: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    quat_wxyz_i_l: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    time_offset_s: float = 0.0
+
+    @field_validator("quat_wxyz_i_l")
+    @classmethod
+    def _unit(cls, q: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+        n = float(np.linalg.norm(q))
+        if not abs(n - 1.0) < 1e-3:
+            raise ValueError(f"quat_wxyz_i_l must be a unit quaternion, its norm is {n:.6f}")
+        return q
+
+    def T_i_l(self) -> FloatArray:
+        from imuslam.geometry import quat_to_matrix
+
+        T = np.eye(4)
+        T[:3, :3] = quat_to_matrix(np.asarray(self.quat_wxyz_i_l, dtype=float))
+        T[:3, 3] = self.p_i_l
+        return T
+
+
+class FrontEndConfig(BaseModel):
+    """mode: LOAM features or voxel-downsampled raw points; scan_voxel: downsampling of the scan, m;
+    min_range / max_range: points kept, m."""
+
+    model_config = ConfigDict(extra="forbid")
+    mode: Literal["features", "direct"] = "features"
+    scan_voxel: float = Field(1.0, gt=0)
+    min_range: float = Field(1.0, ge=0)
+    max_range: float = Field(100.0, gt=0)
+    edge_threshold: float = Field(0.005, gt=0)
+    plane_threshold: float = Field(0.003, gt=0)
+
+
+class MapConfig(BaseModel):
+    """voxel: map voxel size, m; max_per_voxel: points per voxel; radius: local map radius, m;
+    knn: the k-nearest-neighbour library."""
+
+    model_config = ConfigDict(extra="forbid")
+    voxel: float = Field(0.5, gt=0)
+    max_per_voxel: int = Field(1, ge=1)
+    radius: float = Field(100.0, gt=0)
+    knn: Literal["pykdtree", "small_gicp", "scipy"] = "pykdtree"
+
+
+class FilterConfig(BaseModel):
+    """state: reduced [p, v, theta, g] (12) for a corrected IMU or full with biases (18); noise densities
+    of the IMU (continuous, per sqrt(Hz)) and bias random walks; lidar_std: point-to-plane 1-sigma, m;
+    max_iterations and the convergence threshold of the iterated update (on |dx|); max_speed /
+    max_rate bound a physically possible state (divergence check)."""
+
+    model_config = ConfigDict(extra="forbid")
+    state: Literal["reduced", "full"] = "full"
+    accel_noise: float = Field(0.02, gt=0)
+    gyro_noise: float = Field(2e-3, gt=0)
+    accel_bias_rw: float = Field(1e-3, ge=0)
+    gyro_bias_rw: float = Field(1e-4, ge=0)
+    lidar_std: float = Field(0.05, gt=0)
+    max_iterations: int = Field(5, ge=1)
+    converge: float = Field(1e-3, gt=0)
+    max_speed: float = Field(60.0, gt=0)
+    g: float = Field(9.80665, gt=0)
+
+
+class LioConfig(BaseModel):
+    """Everything the LiDAR-inertial odometry needs beside its input."""
+
+    model_config = ConfigDict(extra="forbid")
+    extrinsic: ExtrinsicConfig = ExtrinsicConfig()
+    frontend: FrontEndConfig = FrontEndConfig()
+    map: MapConfig = MapConfig()
+    filter: FilterConfig = FilterConfig()
+    align: Literal["none", "kf", "stkf", "rwnn"] = "none"
+    align_seconds: float = Field(1.0, gt=0)
+    use_imu: bool = True

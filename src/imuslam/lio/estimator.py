@@ -1,0 +1,281 @@
+"""LiDAR-inertial odometry: the iterated error-state Kalman filter of seed 001 on the shared inertial core.
+
+State (``imuslam.ins.core.InsState``): IMU position, velocity and attitude in the world w (z up, along
+gravity), biases and gravity. Error state (``ErrorLayout``): ``reduced`` = [dtheta, dp, dv, dg] (12), for
+an IMU corrected beforehand (seed 001, module 3: the biases are dropped), or ``full`` = [dtheta, dp, dv,
+db_a, db_g, dg] (18). Per scan (FAST-LIO2, Xu et al., T-RO 2022, Sec. IV):
+
+1. prediction: the core's propagation kernel over the IMU samples up to the scan end (``Eskf.predict``),
+   which returns the per-sample states;
+2. deskew: every point moved to the scan-end frame from those states (backward propagation);
+3. update: ``Eskf.iterated_update`` with a point-to-plane / point-to-line measurement that re-associates
+   against the local map at every iterate, until the correction is below ``converge``;
+4. mapping: the registered points go into the voxel map, pruned around the sensor.
+
+Initialisation over the first ``align_seconds``: the LiDAR-only odometry gives poses; ``align none``
+(LINS-like) takes the tilt from the mean specific force, the velocity from the LiDAR poses and zero
+biases; ``kf`` / ``stkf`` / ``rwnn`` run ``imuslam.ins.align.run_alignment`` with the LiDAR positions
+as aiding and start from its attitude, velocity and biases.
+A pure object: ``register_scan(points, times, ring) -> T_w_i``; it reads no files.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imuslam.errors import FilterDivergence, InputError
+from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise
+from imuslam.io.imulog import ImuLog
+from imuslam.lio.config import LioConfig
+from imuslam.lio.deskew import deskew
+from imuslam.lio.frontend import select_points
+from imuslam.lio.lidar_only import LidarOdometry
+from imuslam.lio.matcher import LocalMap, huber_weights
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+
+
+def level_rotation(f_b: FloatArray) -> FloatArray:
+    """R_w_b (3, 3) with zero yaw whose z axis is along the mean specific force ``f_b`` (3,) (static
+    levelling, Titterton & Weston eq. 10.13: roll and pitch from the accelerometers)."""
+    f = np.asarray(f_b, float) / np.linalg.norm(f_b)
+    roll = np.arctan2(f[1], f[2])
+    pitch = np.arctan2(-f[0], np.hypot(f[1], f[2]))
+    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    return Ry @ Rx
+
+
+class LidarMeasurement:
+    """Point-to-plane / point-to-line residuals of one scan against the local map, re-associated at each
+    iterate; ``linearize`` returns the innovation -r (M,), H (M, dim) and the diagonal R (M,) inflated
+    by the Huber weights (iteratively reweighted least squares)."""
+
+    kind = "lidar"
+
+    def __init__(self, local_map: LocalMap, surf_i: FloatArray, edge_i: FloatArray, std: float,
+                 huber: float) -> None:  # fmt: skip
+        self.map = local_map
+        self.surf_i = surf_i
+        self.edge_i = edge_i
+        self.var = std * std
+        self.huber = huber
+        self.n_corr = 0
+        self.n_calls = 0
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        corr = self.map.associate(self.surf_i, self.edge_i, x.R_n_b, x.p_n)
+        self.n_corr = len(corr)
+        self.n_calls += 1
+        r, J = corr.system(x.R_n_b, x.p_n)
+        H = np.zeros((len(r), layout.dim))
+        H[:, layout.P] = J[:, :3]
+        H[:, layout.TH] = J[:, 3:]
+        return -r, H, self.var / huber_weights(r, self.huber)
+
+
+class LioEstimator:
+    """Iterated ESKF LiDAR-inertial odometry. ``imu``: the whole IMU log (SI, IMU frame, already
+    calibrated if a calibration is used); scan times are seconds after ``imu.t_ns[0]``."""
+
+    def __init__(self, config: LioConfig, imu: ImuLog) -> None:
+        if imu.accel_unit != "m/s^2" or imu.gyro_unit != "rad/s":
+            raise InputError(f"{imu.source}: the LIO needs the IMU in m/s^2 and rad/s")
+        if len(imu) < 10:
+            raise InputError(f"{imu.source}: {len(imu)} IMU samples; at least 10 are needed")
+        self.config = config
+        self.imu = imu
+        self.t = imu.t_s
+        self.T_i_l = config.extrinsic.T_i_l()
+        fc = config.filter
+        self.layout = (
+            ErrorLayout.reduced() if fc.state == "reduced" else ErrorLayout.full(gravity=True)
+        )
+        self.noise = KfNoise(fc.accel_noise, fc.gyro_noise, max(fc.accel_bias_rw, 1e-12),
+                             max(fc.gyro_bias_rw, 1e-12))  # fmt: skip
+        m = config.map
+        self.map = LocalMap(m.voxel, m.radius, m.max_per_voxel, m.knn)
+        self.lidar_only = LidarOdometry(config.model_copy(update={"use_imu": False}))
+        self._init_scans: list[tuple[float, FloatArray]] = []
+        self.eskf: Eskf | None = None
+        self.t_state = 0.0
+        self.n_scans = 0
+        self.last_iterations = 0
+        self.last_n_corr = 0
+        self.last_n_used = 0
+        self.peak_map_points = 0
+        self.n_no_update = 0
+        self.alignment: object | None = None
+        self.T_w_i0 = np.eye(
+            4
+        )  # the levelled world in the first IMU frame's terms, set at initialisation
+        self.n_before_filter = 0  # poses returned in the first IMU frame, before the filter started
+
+    # ------------------------------------------------------------------------------------------
+    def _samples(self, t0: float, t1: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """IMU samples on [t0, t1] with both ends interpolated: times (K,), accel, gyro (K, 3)."""
+        t = self.t
+        if t1 > t[-1] + 0.05 or t0 < t[0] - 0.05:
+            raise InputError(
+                f"{self.imu.source}: scan at {t1:.3f} s is outside the IMU's time span "
+                f"[{t[0]:.3f}, {t[-1]:.3f}] s (no overlap between IMU and LiDAR times?)"
+            )
+        i0, i1 = np.searchsorted(t, t0, side="right"), np.searchsorted(t, t1, side="left")
+        inner = np.arange(i0, i1)
+        if i1 > i0 and np.max(np.diff(t[max(i0 - 1, 0) : min(i1 + 1, len(t))])) > 0.1:
+            log.warning("IMU gap of more than 0.1 s before t = %.3f s", t1)
+        ts = np.concatenate([[t0], t[inner], [t1]])
+        acc = np.column_stack([np.interp(ts, t, self.imu.accel[:, a]) for a in range(3)])
+        gyr = np.column_stack([np.interp(ts, t, self.imu.gyro[:, a]) for a in range(3)])
+        keep = np.concatenate([[True], np.diff(ts) > 1e-9])
+        return ts[keep], acc[keep], gyr[keep]
+
+    def _initialise(self, t_end: float) -> None:
+        """Start the filter at ``t_end`` from the LiDAR-only poses of the first scans (see module doc)."""
+        from imuslam.ins.align import Aiding, run_alignment
+        from imuslam.interfaces.nav import NavState
+
+        cfg = self.config
+        ts = np.array([s[0] for s in self._init_scans])
+        T_l0 = np.array([s[1] for s in self._init_scans])  # T_l0_lk
+        T_l_i = np.linalg.inv(self.T_i_l)
+        T_i0_ik = self.T_i_l @ T_l0 @ T_l_i  # IMU poses in the first IMU frame
+        t0 = ts[0]
+        _, acc, _ = self._samples(t0, min(t0 + 0.5, ts[-1]))
+        R_w_i0 = level_rotation(acc.mean(axis=0))  # w: levelled first IMU frame, zero yaw
+        R_k = R_w_i0 @ T_i0_ik[:, :3, :3]
+        p_k = T_i0_ik[:, :3, 3] @ R_w_i0.T
+        v_end = (p_k[-1] - p_k[-2]) / (ts[-1] - ts[-2])
+        ba, bg = np.zeros(3), np.zeros(3)
+        R_end, p_end = R_k[-1], p_k[-1]
+        if cfg.align != "none":
+            sel = (self.t >= t0) & (self.t <= ts[-1])
+            win = ImuLog(self.imu.t_ns[sel], self.imu.accel[sel], self.imu.gyro[sel], "m/s^2", "rad/s",
+                         self.imu.source)  # fmt: skip
+            tw = self.t[sel]
+            v0 = (p_k[1] - p_k[0]) / (ts[1] - ts[0])
+            aid = Aiding(ts - tw[0], "position", p_k, 0.02)
+            # the alignment starts at the first window sample, which lies just after the first scan end
+            init = NavState(p_k[0] + v0 * (tw[0] - t0), v0, R_k[0])
+            res = run_alignment(win, aid, init, cfg.align, self.noise)
+            self.alignment = res
+            ba, bg = res.accel_bias[-1], res.gyro_bias[-1]
+            if not (np.all(np.isfinite(ba)) and np.all(np.isfinite(bg))):
+                ba, bg = np.zeros(3), np.zeros(3)
+            # attitude, velocity and position at the window end from the aligned INS, then moved to t_end
+            nav = res.final
+            ts_e, acc_e, gyr_e = self._samples(float(tw[-1]), t_end)
+            from imuslam.ins.core import integrate_nominal
+
+            P, V, R = integrate_nominal(acc_e, gyr_e, np.diff(ts_e), nav.p_n, nav.v_n,
+                                        np.ascontiguousarray(nav.R_n_b), ba, bg,
+                                        np.array([0.0, 0.0, -cfg.filter.g]), np.zeros(3))  # fmt: skip
+            # keep the LiDAR position (the map is built there) and take attitude / velocity from the INS
+            R_end, v_end = R[-1], V[-1]
+            log.info("alignment %s: accel bias %s m/s^2, gyro bias %s rad/s", cfg.align,
+                     np.round(ba, 4), np.round(bg, 5))  # fmt: skip
+        x = InsState(p_end.copy(), v_end.copy(), R_end.copy(), ba.copy(), bg.copy(),
+                     np.array([0.0, 0.0, -cfg.filter.g]))  # fmt: skip
+        lay = self.layout
+        sb = 0.05 if cfg.align == "none" else 0.01
+        P0 = np.diag(lay.diag(theta=np.deg2rad(1.0) ** 2, p=0.05**2, v=0.2**2, ba=sb**2 * 100,
+                              bg=sb**2, g=0.05**2))  # fmt: skip
+        self.eskf = Eskf(x, P=P0, noise=self.noise, layout=lay, g=cfg.filter.g)
+        # the LiDAR-only map moves into w: x_w = T_w_i0 T_i_l x_l0
+        T_w_l0 = np.eye(4)
+        T_w_l0[:3, :3] = R_w_i0
+        T_w_l0 = T_w_l0 @ self.T_i_l
+        self.map = self.lidar_only.map
+        self.map.transform(T_w_l0[:3, :3], T_w_l0[:3, 3])
+        self.t_state = t_end
+        self.T_w_i0[:3, :3] = R_w_i0
+        self.n_before_filter = len(self._init_scans) - 1
+
+    # ------------------------------------------------------------------------------------------
+    def register_scan(
+        self, points_l: FloatArray, t_s: FloatArray, ring: NDArray[np.integer] | None = None
+    ) -> FloatArray:
+        """Register one scan; returns ``T_w_i`` (4, 4) of the IMU at the scan end ``max(t_s)``.
+
+        points_l: (N, 3) LiDAR frame at each point's time; t_s: (N,) s after the IMU log's first sample.
+        """
+        t_end = float(np.max(t_s))
+        k = self.n_scans
+        if self.eskf is None:
+            T_l = self.lidar_only.register_scan(points_l, t_s, ring)
+            self._init_scans.append((t_end, T_l))
+            self.last_iterations, self.last_n_corr = (
+                self.lidar_only.last_iterations,
+                self.lidar_only.last_n_corr,
+            )
+            self.last_n_used = self.lidar_only.last_n_used
+            self.n_scans += 1
+            span = t_end - self._init_scans[0][0]
+            if span >= self.config.align_seconds and len(self._init_scans) >= 3:
+                self._initialise(t_end)
+                assert self.eskf is not None
+                return self._pose(self.eskf.x)
+            T_w_i = self.T_i_l @ T_l @ np.linalg.inv(self.T_i_l)
+            return T_w_i  # the first IMU frame, before the filter's levelled world exists
+        eskf = self.eskf
+        if t_end <= self.t_state:
+            raise InputError(
+                f"scan {k}: ends at {t_end:.3f} s, not after the previous scan ({self.t_state:.3f} s)"
+            )
+        tk, acc, gyr = self._samples(self.t_state, t_end)
+        Ps, Vs, Rs = eskf.predict(acc, gyr, tk)
+        x = eskf.x
+        omega = gyr - x.gyro_bias
+        a_w = np.einsum("kij,kj->ki", Rs, acc - x.accel_bias) + x.g_n
+        pts_l = deskew(points_l, t_s, tk, Rs, Ps, Vs, a_w, omega, self.T_i_l, t_end)
+        surf_l, edge_l = select_points(pts_l, t_s, ring, self.config.frontend)
+        R_i_l, p_i_l = self.T_i_l[:3, :3], self.T_i_l[:3, 3]
+        surf_i, edge_i = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
+        meas = LidarMeasurement(self.map, surf_i, edge_i, self.config.filter.lidar_std, 0.2)
+        fc = self.config.filter
+        # at least as many rows as states, else the IMU carries the filter through (corridors, fog)
+        meas.linearize(eskf.x, self.layout)
+        if meas.n_corr >= 3 * self.layout.dim:
+            res = eskf.iterated_update(
+                lambda s: meas.linearize(s, self.layout), fc.max_iterations, fc.converge
+            )
+            self.last_iterations = res.iterations
+        else:
+            self.n_no_update += 1
+            self.last_iterations = 0
+        x = eskf.x
+        speed = float(np.linalg.norm(x.v_n))
+        if not (np.all(np.isfinite(x.p_n)) and speed <= fc.max_speed):
+            raise FilterDivergence(
+                f"scan {k} (t = {t_end:.3f} s): the filter diverged (speed {speed:.1f} m/s, limit {fc.max_speed:g})"
+            )
+        self.map.insert(surf_i, edge_i, x.R_n_b, x.p_n)
+        if k % 10 == 0:
+            self.map.prune(x.p_n)
+        self.peak_map_points = max(self.peak_map_points, len(self.map))
+        self.t_state = t_end
+        self.n_scans += 1
+        self.last_n_corr = meas.n_corr
+        self.last_n_used = len(surf_i) + len(edge_i)
+        return self._pose(x)
+
+    @staticmethod
+    def _pose(x: InsState) -> FloatArray:
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = x.R_n_b, x.p_n
+        return T
+
+    @property
+    def state(self) -> InsState | None:
+        return None if self.eskf is None else self.eskf.x
+
+    @property
+    def covariance(self) -> FloatArray | None:
+        return None if self.eskf is None else self.eskf.P

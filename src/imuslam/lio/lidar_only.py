@@ -1,0 +1,121 @@
+"""LiDAR-only odometry: constant-velocity deskew and prediction, point-to-plane / point-to-line
+Gauss-Newton against the local map (the KISS-ICP scheme, Vizzo et al. 2023, with LOAM's residuals).
+A pure object: ``register_scan(points, times) -> pose``; it knows no files.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imuslam.errors import FilterDivergence
+from imuslam.geometry import exp
+from imuslam.lio.config import LioConfig
+from imuslam.lio.deskew import constant_velocity_motion, deskew_constant_velocity
+from imuslam.lio.frontend import select_points
+from imuslam.lio.matcher import LocalMap, huber_weights
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class Registration:
+    """Result of one scan-to-map registration: pose (R, p), iterations, correspondences used."""
+
+    R_w_s: FloatArray
+    p_w: FloatArray
+    iterations: int
+    n_corr: int
+
+
+def gauss_newton(
+    local_map: LocalMap,
+    surf: FloatArray,
+    edge: FloatArray,
+    R_w_s: FloatArray,
+    p_w: FloatArray,
+    max_iterations: int = 10,
+    converge: float = 1e-3,
+    huber: float = 0.2,
+) -> Registration:
+    """Iteratively re-associated Gauss-Newton with Huber weights on [dp, dtheta] (right perturbation)."""
+    R, p = R_w_s.copy(), p_w.copy()
+    it, n = 0, 0
+    while it < max_iterations:
+        it += 1
+        corr = local_map.associate(surf, edge, R, p)
+        n = len(corr)
+        if n < 6:
+            break
+        r, J = corr.system(R, p)
+        w = huber_weights(r, huber)
+        H = J.T @ (w[:, None] * J) + 1e-9 * np.eye(6)
+        dx = -np.linalg.solve(H, J.T @ (w * r))
+        p = p + dx[:3]
+        R = R @ exp(dx[3:])
+        if np.linalg.norm(dx) < converge:
+            break
+    return Registration(R, p, it, n)
+
+
+class LidarOdometry:
+    """Scan-to-map odometry with no IMU. Poses are of the LiDAR frame in the first scan's frame."""
+
+    def __init__(self, config: LioConfig | None = None) -> None:
+        self.config = config or LioConfig(use_imu=False)
+        m = self.config.map
+        self.map = LocalMap(m.voxel, m.radius, m.max_per_voxel, m.knn)
+        self.T_w_l = np.eye(4)
+        self.T_prev = np.eye(4)
+        self.t_last: float | None = None
+        self.dt_frames = 0.1
+        self.n_scans = 0
+        self.last_iterations = 0
+        self.last_n_corr = 0
+        self.last_n_used = 0
+        self.peak_map_points = 0
+
+    def register_scan(
+        self,
+        points_l: FloatArray,
+        t_s: FloatArray,
+        ring: NDArray[np.integer] | None = None,
+    ) -> FloatArray:
+        """Register one scan; returns ``T_w_l`` (4, 4) at the scan end ``max(t_s)``.
+
+        points_l: (N, 3) LiDAR frame at each point's time; t_s: (N,) point times, s (any origin, the
+        same clock for every scan); ring: (N,) beam index or None.
+        """
+        t_end = float(np.max(t_s))
+        if self.t_last is not None and t_end > self.t_last:
+            self.dt_frames = t_end - self.t_last
+        omega, vel = constant_velocity_motion(self.T_prev, self.T_w_l, self.dt_frames)
+        D = np.linalg.inv(self.T_prev) @ self.T_w_l if self.n_scans >= 2 else np.eye(4)
+        T_pred = self.T_w_l @ D
+        if self.n_scans < 2:
+            omega, vel = np.zeros(3), np.zeros(3)
+        pts = deskew_constant_velocity(points_l, t_s, t_end, T_pred, omega, vel)
+        surf, edge = select_points(pts, t_s, ring, self.config.frontend)
+        if len(self.map) == 0:
+            reg = Registration(T_pred[:3, :3], T_pred[:3, 3], 0, 0)
+        else:
+            reg = gauss_newton(self.map, surf, edge, T_pred[:3, :3], T_pred[:3, 3])
+            if reg.n_corr < 6:
+                raise FilterDivergence(
+                    f"scan {self.n_scans} (t = {t_end:.3f} s): {reg.n_corr} point-to-map "
+                    "correspondences; the scan does not overlap the map"
+                )
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = reg.R_w_s, reg.p_w
+        self.map.insert(surf, edge, reg.R_w_s, reg.p_w)
+        if self.n_scans % 10 == 0:
+            self.map.prune(reg.p_w)
+        self.T_prev, self.T_w_l = self.T_w_l, T
+        self.t_last = t_end
+        self.n_scans += 1
+        self.last_iterations, self.last_n_corr = reg.iterations, reg.n_corr
+        self.last_n_used = len(surf) + len(edge)
+        self.peak_map_points = max(self.peak_map_points, len(self.map))
+        return T

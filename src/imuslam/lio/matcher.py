@@ -1,0 +1,128 @@
+"""Scan-to-map association: the current scan's points (IMU frame) against the local map's planes and
+lines, giving the stacked residuals and Jacobians every registration path (the filter's measurement and
+the LiDAR-only Gauss-Newton) uses; and the insertion of a registered scan into the map.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imuslam.lio.residuals import fit_lines, fit_planes, point_to_plane_system
+from imuslam.lio.voxelmap import KnnBackend, VoxelMap
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class MatchParams:
+    """k: neighbours per plane / line; max_nbr_dist: farthest neighbour, m; max_plane_res: plane
+    thickness, m; line_ratio: eigenvalue ratio of a line; max_residual: gate on |r| before weighting, m;
+    huber: robust kernel width, m."""
+
+    k: int = 5
+    max_nbr_dist: float = 2.0
+    max_plane_res: float = 0.1
+    line_ratio: float = 3.0
+    max_residual: float = 1.0
+    huber: float = 0.2
+
+
+@dataclass
+class Correspondences:
+    """p_i (M, 3) scan points in the IMU frame; n (M, 3) unit directions; c (M, 3) anchors (world);
+    kind (M,) 0 plane, 1 line."""
+
+    p_i: FloatArray
+    n: FloatArray
+    c: FloatArray
+    kind: NDArray[np.int8]
+
+    def __len__(self) -> int:
+        return int(self.p_i.shape[0])
+
+    def system(self, R_w_i: FloatArray, p_w: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Residuals (M,) m and Jacobians (M, 6) w.r.t. [dp, dtheta] at the pose (R_w_i, p_w)."""
+        return point_to_plane_system(
+            self.p_i, self.n, self.c, np.ascontiguousarray(R_w_i), np.ascontiguousarray(p_w),
+            np.ones(len(self.p_i)),
+        )  # fmt: skip
+
+
+class LocalMap:
+    """Planes (and, in feature mode, lines) of the surroundings in the world frame."""
+
+    def __init__(
+        self,
+        voxel_size: float = 0.5,
+        max_range: float = 100.0,
+        max_per_voxel: int = 1,
+        backend: KnnBackend = "pykdtree",
+        params: MatchParams | None = None,
+    ) -> None:
+        self.surf = VoxelMap(voxel_size, max_per_voxel, max_range, backend)
+        self.edge = VoxelMap(voxel_size * 0.5, max_per_voxel, max_range, backend)
+        self.params = params or MatchParams()
+
+    def __len__(self) -> int:
+        return len(self.surf) + len(self.edge)
+
+    def associate(
+        self, surf_i: FloatArray, edge_i: FloatArray, R_w_i: FloatArray, p_w: FloatArray
+    ) -> Correspondences:
+        """Planes for ``surf_i`` (N, 3) and lines for ``edge_i`` (E, 3), IMU-frame points, at the pose."""
+        pr = self.params
+        out_p, out_n, out_c, out_k = [], [], [], []
+        for pts, vmap, kind in ((surf_i, self.surf, 0), (edge_i, self.edge, 1)):
+            if len(pts) == 0 or len(vmap) < pr.k:
+                continue
+            q = pts @ R_w_i.T + p_w
+            nbr, d2 = vmap.knn(q, pr.k)
+            if kind == 0:
+                n, c, ok = fit_planes(q, nbr, d2, vmap.points, pr.max_nbr_dist**2, pr.max_plane_res)
+            else:
+                n, c, ok = fit_lines(q, nbr, d2, vmap.points, pr.max_nbr_dist**2, pr.line_ratio)
+            r = np.einsum("mk,mk->m", n, q - c)
+            ok &= np.abs(r) < pr.max_residual
+            out_p.append(pts[ok])
+            out_n.append(n[ok])
+            out_c.append(c[ok])
+            out_k.append(np.full(int(ok.sum()), kind, np.int8))
+        if not out_p:
+            z = np.zeros((0, 3))
+            return Correspondences(z, z, z, np.zeros(0, np.int8))
+        return Correspondences(
+            np.concatenate(out_p),
+            np.concatenate(out_n),
+            np.concatenate(out_c),
+            np.concatenate(out_k),
+        )
+
+    def insert(
+        self, surf_i: FloatArray, edge_i: FloatArray, R_w_i: FloatArray, p_w: FloatArray
+    ) -> None:
+        """Add the registered scan's points and prune around the sensor."""
+        self.surf.add(surf_i @ R_w_i.T + p_w)
+        if len(edge_i):
+            self.edge.add(edge_i @ R_w_i.T + p_w)
+
+    def transform(self, R: FloatArray, t: FloatArray) -> None:
+        """Express the map in another world frame: ``x -> R x + t``."""
+        self.surf.transform(R, t)
+        self.edge.transform(R, t)
+
+    def prune(self, centre_w: FloatArray) -> None:
+        self.surf.prune(centre_w)
+        self.edge.prune(centre_w)
+
+    @property
+    def nbytes(self) -> int:
+        return self.surf.nbytes + self.edge.nbytes
+
+
+def huber_weights(r: FloatArray, delta: float) -> FloatArray:
+    """IRLS weights (M,) of the Huber kernel of width ``delta`` (1 inside, delta/|r| outside)."""
+    a = np.abs(r)
+    return np.where(a <= delta, 1.0, delta / np.maximum(a, 1e-12))

@@ -1,0 +1,297 @@
+"""The LiDAR(-inertial) odometry pipeline: reads a dataset, cleans each scan, drives the pure estimator
+(:class:`~imuslam.lio.lidar_only.LidarOdometry` or :class:`~imuslam.lio.estimator.LioEstimator`), keeps
+timing, builds the global map and returns a :class:`LioResult` (KISS-ICP's ``OdometryPipeline`` beside
+``KissICP``). Writing the results folder is :func:`write_results`.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imuslam.errors import EstimatorError, InputError
+from imuslam.interfaces import Scan3d
+from imuslam.io.imulog import ImuLog
+from imuslam.io.trajectory import Trajectory
+from imuslam.lio.config import LioConfig
+from imuslam.lio.features import voxel_downsample
+from imuslam.lio.lidar_only import LidarOdometry
+from imuslam.lio.voxelmap import VoxelMap
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+
+
+class LidarDataset(Protocol):
+    name: str
+
+    def lidar_scans(self) -> Any: ...
+
+    def imu(self) -> ImuLog | None: ...
+
+    def __len__(self) -> int: ...
+
+
+@dataclass
+class ScanStats:
+    """Per scan: stamp of its end (ns), points read, dropped (NaN / zero), registered, iterations,
+    correspondences and the wall time of the estimator step, s."""
+
+    t_ns: int
+    n_points: int
+    n_dropped: int
+    n_used: int
+    iterations: int
+    n_corr: int
+    time_s: float
+
+
+@dataclass
+class LioResult:
+    """Poses of the IMU frame (LiDAR frame when there is no IMU) at each scan end, per-scan statistics,
+    the downsampled global map (world frame), warnings, and the effective configuration."""
+
+    trajectory: Trajectory
+    stats: list[ScanStats]
+    map_points: FloatArray
+    config: LioConfig
+    warnings: list[str] = field(default_factory=list)
+    peak_map_points: int = 0
+    wall_s: float = 0.0
+
+    @property
+    def scans_per_s(self) -> float:
+        t = sum(s.time_s for s in self.stats)
+        return len(self.stats) / t if t > 0 else float("nan")
+
+
+def clean_scan(
+    scan: Scan3d, index: int
+) -> tuple[FloatArray, FloatArray, NDArray[np.uint16] | None, int]:
+    """Points (N, 3) float64, point times (N,) s after the scan stamp, rings or None, and the number of
+    NaN / infinite / zero points dropped."""
+    p = np.asarray(scan.points_l, dtype=np.float64)
+    t = np.asarray(scan.t_offset_s, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or t.shape != (len(p),):
+        raise InputError(
+            f"scan {index}: expected points (N, 3) and times (N,), got {p.shape} and {t.shape}"
+        )
+    ok = np.isfinite(p).all(axis=1) & np.isfinite(t) & (np.abs(p).sum(axis=1) > 0)
+    ring = np.asarray(scan.ring)[ok] if len(scan.ring) == len(p) and len(p) else None
+    return p[ok], t[ok], ring, int(len(p) - ok.sum())
+
+
+class LioPipeline:
+    """Run the odometry over ``dataset``; ``imu`` overrides the dataset's IMU (e.g. after calibration)."""
+
+    def __init__(
+        self,
+        dataset: LidarDataset,
+        config: LioConfig | None = None,
+        imu: ImuLog | None = None,
+        progress: bool = True,
+        map_voxel: float = 0.2,
+        max_scans: int | None = None,
+    ) -> None:
+        self.dataset = dataset
+        self.config = config or LioConfig()
+        self.imu = imu if imu is not None else dataset.imu()
+        self.progress = progress
+        self.map_voxel = map_voxel
+        self.max_scans = max_scans
+
+    def _estimator(self) -> Any:
+        if self.config.use_imu and self.imu is not None:
+            from imuslam.lio.estimator import LioEstimator
+
+            return LioEstimator(self.config, self.imu)
+        if self.config.use_imu:
+            log.warning(
+                "%s: no IMU; LiDAR-only odometry (constant-velocity model)", self.dataset.name
+            )
+        return LidarOdometry(self.config)
+
+    def run(self) -> LioResult:
+        from imuslam.lio.threads import blas_threads
+
+        with blas_threads(1):
+            return self._run()
+
+    def _run(self) -> LioResult:
+        from tqdm import tqdm
+
+        est = self._estimator()
+        lidar_only = isinstance(est, LidarOdometry)
+        T_l_i = np.linalg.inv(self.config.extrinsic.T_i_l()) if lidar_only else np.eye(4)
+        offset_ns = int(round(self.config.extrinsic.time_offset_s * 1e9))
+        gmap = VoxelMap(self.map_voxel, 1, np.inf)
+        t_ns: list[int] = []
+        poses: list[FloatArray] = []
+        stats: list[ScanStats] = []
+        warnings: list[str] = []
+        n_empty = n_back = n_dropped = n_outside = 0
+        span = None if lidar_only else (int(self.imu.t_ns[0]), int(self.imu.t_ns[-1]))  # type: ignore[union-attr]
+        lidar_span: list[int] = []
+        t_ref: int | None = None if lidar_only else int(self.imu.t_ns[0])  # type: ignore[union-attr]
+        last_end: int | None = None
+        total = (
+            len(self.dataset) if self.max_scans is None else min(len(self.dataset), self.max_scans)
+        )
+        bar = tqdm(total=total, unit="scan", desc="lio", disable=not self.progress)
+        wall0 = time.perf_counter()
+        for k, scan in enumerate(self.dataset.lidar_scans()):
+            if self.max_scans is not None and k >= self.max_scans:
+                break
+            bar.update(1)
+            pts, toff, ring, dropped = clean_scan(scan, k)
+            n_dropped += dropped
+            if len(pts) < 100:
+                n_empty += 1
+                continue
+            stamp = int(scan.t_ns) + offset_ns
+            if t_ref is None:
+                t_ref = stamp
+            end_ns = stamp + int(round(float(toff.max()) * 1e9))
+            start_ns = stamp + int(round(float(toff.min()) * 1e9))
+            lidar_span = [lidar_span[0] if lidar_span else start_ns, end_ns]
+            if span is not None and (start_ns < span[0] or end_ns > span[1]):
+                n_outside += 1  # points before the first or after the last IMU sample
+                continue
+            if last_end is not None and end_ns <= last_end:
+                n_back += 1
+                continue
+            t_s = (stamp - t_ref) * 1e-9 + toff
+            t0 = time.perf_counter()
+            try:
+                T = est.register_scan(pts, t_s, ring)
+            except EstimatorError:
+                raise
+            dt = time.perf_counter() - t0
+            if not np.all(np.isfinite(T)):
+                from imuslam.errors import FilterDivergence
+
+                raise FilterDivergence(
+                    f"scan {k} (t = {end_ns * 1e-9:.3f} s): the pose is not finite"
+                )
+            last_end = end_ns
+            T_w = T @ T_l_i
+            t_ns.append(end_ns)
+            poses.append(T_w)
+            stats.append(ScanStats(end_ns, len(pts) + dropped, dropped, est.last_n_used, est.last_iterations,
+                                   est.last_n_corr, dt))  # fmt: skip
+            if k % 5 == 0:
+                used = pts[voxel_downsample(pts, self.map_voxel)]
+                gmap.add(used @ T[:3, :3].T + T[:3, 3])
+            if self.progress and k % 10 == 0:
+                bar.set_postfix(
+                    scans_per_s=f"{len(stats) / max(sum(s.time_s for s in stats), 1e-9):.1f}"
+                )
+        bar.close()
+        if n_dropped:
+            warnings.append(f"{n_dropped} NaN / infinite / zero points dropped")
+        if n_empty:
+            warnings.append(f"{n_empty} scans with fewer than 100 valid points skipped")
+        if n_outside:
+            warnings.append(f"{n_outside} scans outside the IMU's time span skipped")
+        n_nan = int(getattr(self.dataset, "n_nan_dropped", 0))
+        if n_nan:
+            warnings.append(f"{n_nan} NaN points dropped by the reader")
+        if n_back:
+            warnings.append(f"{n_back} scans out of time order skipped")
+        for w in warnings:
+            log.warning("%s: %s", self.dataset.name, w)
+        if span is not None and not poses and lidar_span:
+            raise InputError(
+                f"{self.dataset.name}: no overlap between IMU times [{span[0] * 1e-9:.3f}, {span[1] * 1e-9:.3f}] s "
+                f"and LiDAR times [{lidar_span[0] * 1e-9:.3f}, {lidar_span[1] * 1e-9:.3f}] s (a time offset "
+                "goes in the config's extrinsic.time_offset_s)"
+            )
+        if len(poses) < 2:
+            raise InputError(
+                f"{self.dataset.name}: {len(poses)} usable scans; at least 2 are needed"
+            )
+        P = np.array(poses)
+        n_pre = int(getattr(est, "n_before_filter", 0))
+        if n_pre:  # poses returned before the filter's world existed: move them into it
+            P[:n_pre] = est.T_w_i0 @ P[:n_pre]
+        traj = Trajectory(
+            np.array(t_ns, np.int64), P[:, :3, 3], P[:, :3, :3], f"imuslam lio {self.dataset.name}"
+        )
+        return LioResult(traj, stats, gmap.points, self.config, warnings,
+                         getattr(est, "peak_map_points", 0), time.perf_counter() - wall0)  # fmt: skip
+
+
+def write_results(
+    result: LioResult, out_dir: str | Path, gt: Trajectory | None = None
+) -> dict[str, Any]:
+    """Write the results folder atomically: trajectory.tum, map.ply, map.pcd, config.yaml, scans.csv,
+    trajectory.png and, with ``gt``, metrics.json. Returns the metrics (empty without ``gt``)."""
+    import json
+
+    import yaml
+
+    from imuslam.io.atomic import atomic_path
+    from imuslam.io.pointcloud import write_pcd, write_ply
+    from imuslam.io.trajectory import write_tum
+
+    metrics: dict[str, Any] = {}
+    with atomic_path(out_dir) as tmp:
+        tmp.mkdir(parents=True)
+        write_tum(result.trajectory, tmp / "trajectory.tum")
+        write_ply(tmp / "map.ply", result.map_points)
+        write_pcd(tmp / "map.pcd", result.map_points)
+        (tmp / "config.yaml").write_text(
+            yaml.safe_dump(result.config.model_dump(mode="json"), sort_keys=False)
+        )
+        rows = ["t_ns,n_points,n_dropped,n_used,iterations,n_corr,time_ms"] + [
+            f"{s.t_ns},{s.n_points},{s.n_dropped},{s.n_used},{s.iterations},{s.n_corr},{s.time_s * 1e3:.3f}"
+            for s in result.stats
+        ]
+        (tmp / "scans.csv").write_text("\n".join(rows) + "\n")
+        aligned = None
+        if gt is not None:
+            from imuslam.eval.metrics import KITTI_LENGTHS, evaluate
+
+            res, _r, aligned = evaluate(gt, result.trajectory, "se3", 1.0, "m", 0.02, KITTI_LENGTHS)
+            metrics = res.to_dict()
+            (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+        plot_top_view(result, tmp / "trajectory.png", gt)
+    return metrics
+
+
+def plot_top_view(result: LioResult, path: Path, gt: Trajectory | None = None) -> None:
+    """Top view (x-y) of the map points and the trajectory (PNG)."""
+    from matplotlib.figure import Figure
+
+    from imuslam.io.figures import save_figure
+
+    fig = Figure(figsize=(8, 7))
+    ax = fig.add_subplot(1, 1, 1)
+    m, p = result.map_points, result.trajectory.p_w
+    if gt is not None:  # everything in the reference frame, by the SE(3) alignment of the estimate
+        from imuslam.eval.align import align
+        from imuslam.eval.associate import associate
+
+        try:
+            r, e = associate(gt, result.trajectory, 0.02)
+            s, R, t = align(r, e, "se3")
+            m, p = s * m @ R.T + t, s * p @ R.T + t
+            ax.plot(gt.p_w[:, 0], gt.p_w[:, 1], "k--", lw=0.8, label="ground truth")
+        except InputError:
+            pass
+    if len(m):
+        z = m[:, 2]
+        sel = z > np.percentile(z, 10) + 0.3  # drop the ground for a readable view
+        ax.scatter(m[sel, 0], m[sel, 1], s=0.2, c="0.6", lw=0, rasterized=True)
+    ax.plot(p[:, 0], p[:, 1], "C1-", lw=1.2, label="imuslam lio")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(loc="upper right")
+    save_figure(fig, path)  # type: ignore[arg-type]

@@ -1,0 +1,224 @@
+"""The study file: what to simulate, how to degrade and correct the IMU, which estimators to run, which
+claims to test, over which seeds (YAML keys equal the field names; an unknown key is an error naming it).
+
+A study is a list of claims. Each claim expands into cells, the product of its scenarios x IMU conditions
+x alignment methods x estimator variants x the study's seeds; its report compares the levels of one
+factor (``compare``) in the order the claim states (``expect``, best first), paired by seed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from imuslam.errors import InputError
+
+ImuCondition = Literal["ideal", "raw", "offline", "online", "drifting"]
+IMU_CONDITIONS = ("ideal", "raw", "offline", "online", "drifting")
+AlignName = Literal["none", "kf", "stkf", "rwnn"]
+ALIGN_NAMES = ("none", "kf", "stkf", "rwnn")
+# navigation scenes of the simulator (sim/scenario.py); 'gimbal' is a calibration log, not a drive
+NAV_SCENARIOS = ("room", "square", "street", "corridor", "handheld")
+Factor = Literal["scenario", "imu", "alignment", "estimator"]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ScenarioSpec(_Strict):
+    """A simulated scene and how long the estimator runs on it (after the alignment window)."""
+
+    name: str
+    duration_s: float = Field(30.0, gt=0, le=3600, description="estimation run, s")
+
+    @field_validator("name")
+    @classmethod
+    def _known(cls, v: str) -> str:
+        if v == "gimbal":
+            raise ValueError(
+                "'gimbal' is the calibration log, not a navigation scene; expected one of "
+                + ", ".join(NAV_SCENARIOS)
+            )
+        if v not in NAV_SCENARIOS:
+            raise ValueError(f"unknown scenario '{v}'; expected one of {', '.join(NAV_SCENARIOS)}")
+        return v
+
+
+class EstimatorSpec(_Strict):
+    """One estimator variant: the estimator's name, a label for the report, and its options (checked
+    against the estimator's own options model when the study is loaded)."""
+
+    name: str
+    label: str | None = None
+    options: dict[str, Any] = Field(default_factory=dict)
+
+    @property
+    def variant(self) -> str:
+        return self.label or self.name
+
+
+class DriftSpec(_Strict):
+    """How the IMU's errors move with working time (seed 000: time and temperature), from seed 000's
+    table-2 errors. ``age_h``: hours between the offline calibration and the run."""
+
+    age_h: float = Field(4.0, ge=0)
+    accel_bias_per_h: tuple[float, float, float] = (0.01, -0.008, 0.012)  # m/s^2 per hour, raw
+    gyro_bias_per_h_dps: tuple[float, float, float] = (0.05, -0.04, 0.03)  # deg/s per hour, raw
+    scale_per_h: float = Field(5e-4, description="relative change of every scale factor per hour")
+
+
+class AlignSpec(_Strict):
+    """The alignment window before the run: position fixes (RTK / motion capture), and the initial
+    attitude error a coarse levelling and a rough heading leave (1-sigma roll, pitch, yaw)."""
+
+    duration_s: float = Field(60.0, gt=0)
+    fix_rate_hz: float = Field(10.0, gt=0)
+    fix_std_m: float = Field(0.02, gt=0)
+    init_attitude_err_deg: tuple[float, float, float] = (0.5, 0.5, 2.0)
+
+
+class ClaimSpec(_Strict):
+    """One claim and the cells that test it."""
+
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$")
+    seed_doc: str = Field("", description="the seed document that makes the claim, e.g. '001'")
+    statement: str = ""
+    scenarios: list[ScenarioSpec] = Field(min_length=1)
+    imu: list[ImuCondition] = Field(default_factory=lambda: ["online"], min_length=1)  # type: ignore[arg-type]
+    alignment: list[AlignName] = Field(default_factory=lambda: ["none"], min_length=1)  # type: ignore[arg-type]
+    estimators: list[EstimatorSpec] = Field(min_length=1)
+    compare: Factor
+    expect: list[str] = Field(
+        default_factory=list, description="levels of `compare`, best first (the claimed order)"
+    )
+    metric: str = "ape_rmse_m"
+    lower_is_better: bool = True
+    seeds: list[int] | None = Field(
+        None, description="this claim's seeds (a count or a list); default: the study's"
+    )
+    align: AlignSpec | None = Field(
+        None, description="this claim's alignment window; default: the study's"
+    )
+    eval_align: Literal["se3", "sim3", "yaw", "first", "none"] = "se3"
+
+    @field_validator("seeds", mode="before")
+    @classmethod
+    def _seed_count(cls, v: Any) -> Any:
+        return list(range(v)) if isinstance(v, int) else v
+
+    def levels(self) -> list[str]:
+        if self.compare == "scenario":
+            return [s.name for s in self.scenarios]
+        if self.compare == "imu":
+            return [str(x) for x in self.imu]
+        if self.compare == "alignment":
+            return [str(x) for x in self.alignment]
+        return [e.variant for e in self.estimators]
+
+    @model_validator(mode="after")
+    def _expect_levels(self) -> ClaimSpec:
+        lv = self.levels()
+        if len(set(lv)) != len(lv):
+            raise ValueError(f"claim '{self.name}': the levels of '{self.compare}' repeat: {lv}")
+        for e in self.expect:
+            if e not in lv:
+                raise ValueError(
+                    f"claim '{self.name}': expect names '{e}', which is not a level of "
+                    f"'{self.compare}' ({', '.join(lv)})"
+                )
+        labels = [e.variant for e in self.estimators]
+        if len(set(labels)) != len(labels):
+            raise ValueError(
+                f"claim '{self.name}': two estimator entries share the label {labels}; give each a label"
+            )
+        return self
+
+
+class StudyConfig(_Strict):
+    """A whole study (see the module docstring)."""
+
+    name: str = "study"
+    seeds: list[int] = Field(default_factory=lambda: [0, 1, 2], min_length=1)
+    drift: DriftSpec = Field(default_factory=DriftSpec)
+    align: AlignSpec = Field(default_factory=AlignSpec)
+    claims: list[ClaimSpec] = Field(min_length=1)
+
+    @field_validator("seeds", mode="before")
+    @classmethod
+    def _seed_count(cls, v: Any) -> Any:
+        return list(range(v)) if isinstance(v, int) else v
+
+    @field_validator("claims")
+    @classmethod
+    def _unique(cls, v: list[ClaimSpec]) -> list[ClaimSpec]:
+        names = [c.name for c in v]
+        dup = {n for n in names if names.count(n) > 1}
+        if dup:
+            raise ValueError(f"claim names repeat: {', '.join(sorted(dup))}")
+        return v
+
+
+def _where(loc: tuple[Any, ...], data: Any) -> str:
+    """'claims[1].estimators[0].name' with the claim's name where there is one."""
+    parts: list[str] = []
+    node = data
+    for p in loc:
+        if isinstance(p, int):
+            name = (
+                node[p].get("name")
+                if isinstance(node, list) and isinstance(node[p], dict)
+                else None
+            )
+            parts[-1] += f"[{p}]" + (f" ({name})" if name and parts[-1] == "claims" else "")
+        else:
+            parts.append(str(p))
+        try:
+            node = node[p]
+        except (KeyError, IndexError, TypeError):
+            node = None
+    return ".".join(parts)
+
+
+def parse_study(data: Any, source: str = "<study>") -> StudyConfig:
+    """Validate a study dict; the first problem becomes one InputError line naming the field."""
+    if not isinstance(data, dict):
+        raise InputError(f"{source}: a study is a mapping with 'claims' (and seeds, drift, align)")
+    try:
+        return StudyConfig.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = _where(tuple(err["loc"]), data)
+        msg = ": " + err["msg"].removeprefix("Value error, ")
+        if err["type"] == "extra_forbidden":
+            msg = ": unknown key"
+        elif err["type"] == "too_short":
+            what = (
+                "a study needs at least one seed"
+                if err["loc"][-1] == "seeds"
+                else "the study has no cells"
+            )
+            msg = f" is empty: {what}"
+        raise InputError(f"{source}: {where}{msg}") from None
+
+
+def load_study(path: str | Path) -> StudyConfig:
+    """Read and validate a study YAML."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such study file")
+    try:
+        data = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f" line {mark.line + 1}" if mark is not None else ""
+        raise InputError(f"{p}:{line} is not valid YAML") from None
+    return parse_study(data, str(p))
+
+
+def dump_study(study: StudyConfig) -> str:
+    """The effective study as YAML (every default written out)."""
+    return yaml.safe_dump(study.model_dump(mode="json"), sort_keys=False)

@@ -1,0 +1,348 @@
+"""Stereo visual odometry on rectified image pairs (seed 004's front end).
+
+Per frame: features of the left image (SIFT keypoints, ORB as an option) are matched into the right
+image along the rectified row by ZNCC and triangulated (``z = f b / d``); on the next frame the features
+are tracked in the left image by ZNCC on a two-level pyramid around a constant-velocity prediction; the
+motion between the frames comes from RANSAC on the 3D-2D correspondences (``cv2.solvePnPRansac``), then a
+Gauss-Newton refinement in which every point is weighted by its reprojection covariance: tracking noise
+plus its triangulation covariance carried through the projection (far points count less). The inverse
+normal matrix, scaled by the a-posteriori variance factor when that exceeds one, is the pose covariance;
+carried through to the body frame it gives the measurement: mean body angular rate and linear velocity
+over the frame interval with their 6x6 covariance (rotation first).
+
+Frames: ``r`` is the rectified left camera (x right, y down, z forward), ``b`` the body (IMU).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from imuslam.geometry import exp, hat, log
+from imuslam.vio.calib import Rectification
+from imuslam.vio.zncc import stereo_match, track
+
+FloatArray = NDArray[np.float64]
+log_ = logging.getLogger(__name__)
+
+
+class VoConfig(BaseModel):
+    """Front-end settings (pixels of the rectified images)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    detector: Literal["sift", "orb"] = "sift"
+    max_features: int = Field(300, ge=20, description="features kept per frame")
+    redetect_below: float = Field(
+        0.7, gt=0, le=1, description="detect when fewer tracks than this share"
+    )
+    cell_px: int = Field(16, ge=4, description="at most one new feature per cell of this size")
+    patch_half: int = Field(5, ge=2, description="ZNCC patch half-size at full resolution")
+    patch_half_coarse: int = Field(3, ge=2, description="ZNCC patch half-size at half resolution")
+    search_coarse_px: int = Field(8, ge=1, description="tracking search radius at half resolution")
+    search_fine_px: int = Field(2, ge=1, description="refinement radius at full resolution")
+    min_zncc: float = Field(0.8, gt=-1, lt=1, description="tracking acceptance")
+    stereo_min_zncc: float = Field(0.8, gt=-1, lt=1)
+    stereo_uniqueness: float = Field(0.97, gt=0, le=1, description="second peak below this x best")
+    min_disparity: float = Field(2.0, ge=0.5, description="px; nearer than f b / this")
+    max_disparity: float = Field(120.0, gt=2)
+    ransac_px: float = Field(2.0, gt=0)
+    min_inliers: int = Field(12, ge=6)
+    pixel_sigma: float = Field(
+        0.25, gt=0, description="prior 1-sigma of tracking and stereo matching, px (grows per pair)"
+    )
+    blur_sigma: float = Field(
+        1.0,
+        ge=0,
+        description="Gaussian pre-blur for matching, px: without it, interpolation averaging "
+        "the image noise pulls sub-pixel peaks toward half pixels (0.08 px of disparity measured)",
+    )
+
+
+@dataclass
+class VoMeasurement:
+    """Motion between frames at ``t0_ns`` and ``t1_ns``: mean body angular rate ``omega_b`` (rad/s) and
+    mean linear velocity ``vel_b`` (m/s, in the body frame at mid-interval), covariance (6, 6) of
+    ``[omega_b, vel_b]``; ``T_b0_b1`` the relative body pose; ``n_inliers`` RANSAC inliers."""
+
+    t0_ns: int
+    t1_ns: int
+    omega_b: FloatArray
+    vel_b: FloatArray
+    cov: FloatArray
+    T_b0_b1: FloatArray
+    n_inliers: int
+
+    @property
+    def t_mid_ns(self) -> int:
+        return (self.t0_ns + self.t1_ns) // 2
+
+    @property
+    def dt(self) -> float:
+        return (self.t1_ns - self.t0_ns) * 1e-9
+
+
+@dataclass
+class VoStats:
+    """Counts over a run."""
+
+    frames: int = 0
+    measurements: int = 0
+    skipped_few_features: int = 0
+    skipped_few_inliers: int = 0
+    tracked: list[int] = field(default_factory=list)
+    inliers: list[int] = field(default_factory=list)
+
+
+def _se3(R: FloatArray, t: FloatArray) -> FloatArray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def _inv(T: FloatArray) -> FloatArray:
+    return _se3(T[:3, :3].T, -T[:3, :3].T @ T[:3, 3])
+
+
+class StereoVO:
+    """Frame-to-frame stereo VO. Feed rectified pairs in time order with :meth:`process`."""
+
+    def __init__(self, rect: Rectification, cfg: VoConfig | None = None) -> None:
+        import cv2
+
+        self.rect = rect
+        self.cfg = cfg or VoConfig()
+        c = self.cfg
+        if c.detector == "sift":
+            self._det: Any = cv2.SIFT_create(  # type: ignore[attr-defined]
+                nfeatures=2 * c.max_features, contrastThreshold=0.02
+            )
+        else:
+            self._det = cv2.ORB_create(  # type: ignore[attr-defined]
+                nfeatures=2 * c.max_features, fastThreshold=10
+            )
+        self.stats = VoStats()
+        self.T_b_r = _se3(rect.R_b_r, rect.p_b_r)
+        self.T_r_b = _inv(self.T_b_r)
+        self._prev: dict[str, Any] | None = None
+        self._T_rel = np.eye(4)  # last T_{r_k, r_{k-1}}, the constant-velocity prediction
+
+    # -- features -------------------------------------------------------------------------------
+    def _detect(self, img_u8: NDArray[np.uint8], have: FloatArray, n_want: int) -> FloatArray:
+        import cv2
+
+        c = self.cfg
+        mask = np.full(img_u8.shape, 255, np.uint8)
+        m = c.patch_half + 3
+        mask[:m], mask[-m:], mask[:, :m], mask[:, -m:] = 0, 0, 0, 0
+        for u, v in have:
+            cv2.circle(mask, (int(u), int(v)), c.cell_px // 2 + 2, 0, -1)
+        # detection at half resolution: OpenCV's SIFT doubles its input first, so this costs what a
+        # full-resolution SIFT starting at octave 0 would; ZNCC then works at full resolution
+        half = cv2.pyrDown(img_u8)
+        kps = self._det.detect(
+            half, cv2.resize(mask, (half.shape[1], half.shape[0]), interpolation=cv2.INTER_NEAREST)
+        )
+        if not kps:
+            return np.zeros((0, 2))
+        pts = 2.0 * np.array([k.pt for k in kps], float)
+        resp = np.array([k.response for k in kps], float)
+        order = np.argsort(-resp)
+        pts = pts[order]
+        cell = (pts[:, 1] // c.cell_px).astype(np.int64) * 10_000 + (pts[:, 0] // c.cell_px).astype(
+            np.int64
+        )
+        _, first = np.unique(cell, return_index=True)
+        first.sort()
+        return pts[first[:n_want]]
+
+    def _triangulate(
+        self,
+        left: NDArray[Any],
+        right: NDArray[Any],
+        uv: FloatArray,
+        d_pred: FloatArray,
+    ) -> tuple[FloatArray, FloatArray]:
+        """Stereo-match and triangulate ``uv`` (N, 2); ``d_pred`` (N,) predicted disparity (NaN: search
+        the whole range). Returns [u, v, X, Y, Z] rows of the matched points and their 3x3 covariances."""
+        c, r = self.cfg, self.rect
+        known = np.isfinite(d_pred)
+        margin = np.maximum(3.0, 0.2 * np.where(known, d_pred, 0.0))
+        d_lo = np.where(known, np.maximum(d_pred - margin, c.min_disparity), c.min_disparity)
+        d_hi = np.where(known, np.minimum(d_pred + margin, c.max_disparity), c.max_disparity)
+        d, _ = stereo_match(
+            left, right, uv, c.patch_half, d_lo, d_hi, c.stereo_min_zncc, c.stereo_uniqueness
+        )
+        ok = np.isfinite(d) & (d >= c.min_disparity)
+        uv, d = uv[ok], d[ok]
+        f, cx, cy, b = r.K[0, 0], r.K[0, 2], r.K[1, 2], r.baseline
+        z = f * b / d
+        X = np.stack([(uv[:, 0] - cx) * z / f, (uv[:, 1] - cy) * z / r.K[1, 1], z], axis=1)
+        # triangulation covariance from (u, v, d) with sigma, sigma, sqrt(2) sigma (d = u_l - u_r)
+        s2 = c.pixel_sigma**2
+        J = np.zeros((len(d), 3, 3))
+        J[:, 0, 0] = b / d
+        J[:, 0, 2] = -(uv[:, 0] - cx) * b / d**2
+        J[:, 1, 1] = b / d
+        J[:, 1, 2] = -(uv[:, 1] - cy) * b / d**2
+        J[:, 2, 2] = -f * b / d**2
+        S = np.diag([s2, s2, 2 * s2])
+        cov = J @ S @ np.swapaxes(J, 1, 2)
+        return np.concatenate([uv, X], axis=1), cov
+
+    # -- motion ---------------------------------------------------------------------------------
+    def _refine(
+        self, X: FloatArray, covX: FloatArray, uv: FloatArray, R: FloatArray, t: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+        """Weighted Gauss-Newton on T_{r_k, r_{k-1}} (left perturbation [dtheta, dt]); returns R, t, the
+        6x6 covariance of the perturbation and the normalised chi-square."""
+        K = self.rect.K
+        f = np.array([K[0, 0], K[1, 1]])
+        cxy = K[:2, 2]
+        s2 = self.cfg.pixel_sigma**2
+        n = len(X)
+        cov = np.eye(6)
+        chi2 = 0.0
+        for it in range(4):
+            Y = X @ R.T + t
+            z = Y[:, 2:3]
+            p = f * Y[:, :2] / z + cxy
+            res = uv - p
+            Jp = np.zeros((n, 2, 3))
+            Jp[:, 0, 0] = f[0] / z[:, 0]
+            Jp[:, 0, 2] = -f[0] * Y[:, 0] / z[:, 0] ** 2
+            Jp[:, 1, 1] = f[1] / z[:, 0]
+            Jp[:, 1, 2] = -f[1] * Y[:, 1] / z[:, 0] ** 2
+            JR = Jp @ R
+            C = s2 * np.eye(2) + JR @ covX @ np.swapaxes(JR, 1, 2)
+            W = np.linalg.inv(C)
+            Jd = np.concatenate([Jp @ -hat(Y), Jp], axis=2)  # (n, 2, 6): d p / d [dtheta, dt]
+            JtW = np.swapaxes(Jd, 1, 2) @ W
+            A = np.einsum("nij,njk->ik", JtW, Jd)
+            g = np.einsum("nij,nj->i", JtW, res)
+            chi2 = float(np.einsum("ni,nij,nj->", res, W, res))
+            try:
+                cov = np.linalg.inv(A)
+            except np.linalg.LinAlgError:
+                break
+            if it == 3:
+                break
+            dx = cov @ g
+            dR = exp(dx[:3])
+            R, t = dR @ R, dR @ t + dx[3:]
+            if np.linalg.norm(dx) < 1e-10:
+                break
+        # a-posteriori variance factor: when the residuals say the pixels matched worse than the prior
+        # sigma (blur, weak texture, motion), the covariance grows with them; it never shrinks below the
+        # prior, which also covers what the residuals cannot show (sub-pixel biases shared by a frame)
+        dof = max(2 * n - 6, 1)
+        vf = chi2 / dof
+        return R, t, cov * max(vf, 1.0), vf
+
+    def _to_body(self, T_k_km1: FloatArray, dt: float) -> FloatArray:
+        """[omega_b, vel_b] (6,) from the rectified-camera motion T_{r_k, r_{k-1}}."""
+        T_bb = self.T_b_r @ _inv(T_k_km1) @ self.T_r_b  # T_{b_{k-1}, b_k}
+        rot = log(T_bb[:3, :3])
+        vel = exp(-0.5 * rot) @ T_bb[:3, 3] / dt  # displacement seen from mid-interval
+        return np.concatenate([rot / dt, vel])
+
+    def process(
+        self, t_ns: int, left_u8: NDArray[np.uint8], right_u8: NDArray[np.uint8]
+    ) -> VoMeasurement | None:
+        """One rectified stereo pair (uint8, H x W). Returns the motion since the previous pair, or None
+        (first frame, or a frame skipped for too few features / inliers: counted in :attr:`stats`)."""
+        import cv2
+
+        c = self.cfg
+        st = self.stats
+        st.frames += 1
+        left: Any = left_u8.astype(np.float32)
+        right: Any = right_u8.astype(np.float32)
+        if c.blur_sigma > 0:
+            left = cv2.GaussianBlur(left, (0, 0), c.blur_sigma)
+            right = cv2.GaussianBlur(right, (0, 0), c.blur_sigma)
+        left1 = cv2.pyrDown(left)
+        meas: VoMeasurement | None = None
+        uv_keep = np.zeros((0, 2))
+        d_keep = np.zeros(0)
+        prev = self._prev
+        if prev is not None:
+            X = prev["X"]
+            Tp = self._T_rel
+            Yp = X @ Tp[:3, :3].T + Tp[:3, 3]
+            K = self.rect.K
+            pred = np.where(
+                (Yp[:, 2:3] > 0.05),
+                Yp[:, :2] / np.maximum(Yp[:, 2:3], 0.05) * np.diag(K)[:2] + K[:2, 2],
+                prev["uv"],
+            )
+            uv_new, _ = track(
+                prev["img0"], prev["img1"], left, left1, prev["uv"], pred, c.patch_half,
+                c.patch_half_coarse, c.search_coarse_px, c.search_fine_px, c.min_zncc,
+            )  # fmt: skip
+            ok = np.isfinite(uv_new[:, 0])
+            st.tracked.append(int(ok.sum()))
+            dt = (t_ns - prev["t_ns"]) * 1e-9
+            if ok.sum() < c.min_inliers:
+                st.skipped_few_features += 1
+                self._T_rel = np.eye(4)
+            else:
+                Xo, uvo, covo = X[ok], uv_new[ok], prev["covX"][ok]
+                rvec0, _ = cv2.Rodrigues(Tp[:3, :3])
+                found, rvec, tvec, inl = cv2.solvePnPRansac(
+                    Xo, uvo, K, None, rvec0.copy(), Tp[:3, 3].reshape(3, 1).copy(),
+                    useExtrinsicGuess=True, iterationsCount=100, reprojectionError=c.ransac_px,
+                    confidence=0.999, flags=cv2.SOLVEPNP_ITERATIVE,
+                )  # fmt: skip
+                n_in = 0 if (not found or inl is None) else len(inl)
+                if n_in < c.min_inliers:
+                    st.skipped_few_inliers += 1
+                    self._T_rel = np.eye(4)
+                else:
+                    ii = inl.ravel()
+                    R0, _ = cv2.Rodrigues(rvec)
+                    R, t, cov_d, _ = self._refine(
+                        Xo[ii],
+                        covo[ii],
+                        uvo[ii],
+                        np.asarray(R0, float),
+                        np.asarray(tvec, float).ravel(),
+                    )
+                    T = _se3(R, t)
+                    self._T_rel = T
+                    z0 = self._to_body(T, dt)
+                    J = np.empty((6, 6))
+                    eps = 1e-6
+                    for j in range(6):
+                        dx = np.zeros(6)
+                        dx[j] = eps
+                        dR = exp(dx[:3])
+                        J[:, j] = (self._to_body(_se3(dR @ R, dR @ t + dx[3:]), dt) - z0) / eps
+                    T_bb = self.T_b_r @ _inv(T) @ self.T_r_b
+                    meas = VoMeasurement(
+                        prev["t_ns"], t_ns, z0[:3], z0[3:], J @ cov_d @ J.T, T_bb, n_in
+                    )
+                    st.measurements += 1
+                    st.inliers.append(n_in)
+                    keep = np.flatnonzero(ok)[ii]
+                    uv_keep = uv_new[keep]
+                    z_pred = X[keep] @ R[2] + t[2]
+                    d_keep = self.rect.f * self.rect.baseline / np.maximum(z_pred, 1e-3)
+        # next frame's features: the tracked inliers plus new detections, triangulated here
+        if len(uv_keep) < c.redetect_below * c.max_features:
+            new = self._detect(left_u8, uv_keep, c.max_features - len(uv_keep))
+            if len(new):
+                uv_keep = np.concatenate([uv_keep, new])
+                d_keep = np.concatenate([d_keep, np.full(len(new), np.nan)])
+        uvX, covX = self._triangulate(left, right, uv_keep, d_keep)
+        self._prev = {
+            "t_ns": t_ns, "img0": left, "img1": left1, "uv": uvX[:, :2].copy(),
+            "X": uvX[:, 2:].copy(), "covX": covX,
+        }  # fmt: skip
+        return meas

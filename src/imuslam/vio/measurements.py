@@ -1,0 +1,135 @@
+"""The VIO filter's measurements, each linearising itself for the shared inertial core
+(:class:`imuslam.ins.core.Measurement`): VO body velocity, VO body rate, the non-holonomic constraint and
+a wheel speed.
+
+The error state is the core's ``[dtheta, dp, dv, db_a, db_g]`` with the right perturbation
+``R_true = R exp(dtheta)``. Seed 004 writes the velocity measurement as ``v^b = C_n^b v^n``; with the right
+perturbation ``R^T v = exp(-dtheta)^ R_hat^T v ~ R_hat^T v + [R_hat^T v]x dtheta``, so
+``H_v = R^T`` and ``H_theta = [R^T v]x``. The vehicle frame ``v`` (x forward, y left, z up) is given in the
+body by ``R_b_v`` and its origin (the point that does not slide, e.g. the rear axle's centre) by
+``p_b_v``; its velocity is ``v_v = R_b_v^T (R^T v_n + omega_b x p_b_v)``, with ``omega_b`` the
+bias-corrected gyro rate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from imuslam.geometry import hat
+from imuslam.ins.core import ErrorLayout, InsState
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class VoVelocity:
+    """Mean body velocity over a frame interval, m/s, body frame at mid-interval, covariance (3, 3)."""
+
+    vel_b: FloatArray
+    cov: FloatArray
+    kind: str = "vo_velocity"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        vb = x.R_n_b.T @ x.v_n
+        H = np.zeros((3, layout.dim))
+        H[:, layout.V] = x.R_n_b.T
+        H[:, layout.TH] = hat(vb)
+        return self.vel_b - vb, H, self.cov
+
+
+@dataclass
+class VoRate:
+    """Mean body rate over a frame interval from VO, rad/s, covariance (3, 3), against the mean raw gyro
+    over the same interval ``gyro_mean`` (3,): ``gyro_mean - b_g`` is the true mean rate, so this observes
+    the gyro bias. ``gyro_var`` adds the gyro white noise averaged over the interval (density^2 / T)."""
+
+    omega_b: FloatArray
+    cov: FloatArray
+    gyro_mean: FloatArray
+    gyro_var: float
+    kind: str = "vo_rate"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        H = np.zeros((3, layout.dim))
+        H[:, layout.BG] = -np.eye(3)
+        r = self.omega_b - (self.gyro_mean - x.gyro_bias)
+        return r, H, self.cov + np.eye(3) * self.gyro_var
+
+
+def _vehicle_velocity(
+    x: InsState, layout: ErrorLayout, gyro: FloatArray, R_b_v: FloatArray, p_b_v: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Vehicle-frame velocity (3,) and its Jacobian (3, dim)."""
+    vb = x.R_n_b.T @ x.v_n
+    w = gyro - x.gyro_bias
+    vv = R_b_v.T @ (vb + np.cross(w, p_b_v))
+    H = np.zeros((3, layout.dim))
+    H[:, layout.V] = R_b_v.T @ x.R_n_b.T
+    H[:, layout.TH] = R_b_v.T @ hat(vb)
+    H[:, layout.BG] = R_b_v.T @ hat(p_b_v)  # d(w x p)/d(b_g) = -d(p x w)... = [p]x
+    return vv, H
+
+
+@dataclass
+class NonHolonomic:
+    """The vehicle neither slides nor jumps: lateral and vertical vehicle-frame velocity are zero with
+    1-sigma ``std`` m/s (seed 004). ``gyro`` (3,) is the raw rate at the time (for the lever arm)."""
+
+    std: float
+    gyro: FloatArray = field(default_factory=lambda: np.zeros(3))
+    R_b_v: FloatArray = field(default_factory=lambda: np.eye(3))
+    p_b_v: FloatArray = field(default_factory=lambda: np.zeros(3))
+    kind: str = "nhc"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        vv, H = _vehicle_velocity(x, layout, self.gyro, self.R_b_v, self.p_b_v)
+        return -vv[1:], H[1:], np.eye(2) * self.std**2
+
+
+@dataclass
+class WheelSpeed:
+    """Forward speed of the vehicle frame from wheel odometry, m/s, 1-sigma ``std``."""
+
+    speed: float
+    std: float
+    gyro: FloatArray = field(default_factory=lambda: np.zeros(3))
+    R_b_v: FloatArray = field(default_factory=lambda: np.eye(3))
+    p_b_v: FloatArray = field(default_factory=lambda: np.zeros(3))
+    kind: str = "wheel"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        vv, H = _vehicle_velocity(x, layout, self.gyro, self.R_b_v, self.p_b_v)
+        return np.array([self.speed - vv[0]]), H[:1], np.array([[self.std**2]])
+
+
+@dataclass
+class WheelYawRate:
+    """Yaw rate of the vehicle from wheel odometry, rad/s, 1-sigma ``std``, against the mean raw gyro
+    (3,) over the same interval: the vehicle-z component of ``gyro_mean - b_g`` (observes the gyro
+    bias about the vehicle's vertical, as VO's rate does about every axis)."""
+
+    yaw_rate: float
+    std: float
+    gyro_mean: FloatArray
+    R_b_v: FloatArray = field(default_factory=lambda: np.eye(3))
+    kind: str = "wheel_yaw_rate"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        ez = self.R_b_v[:, 2]  # vehicle z in the body
+        H = np.zeros((1, layout.dim))
+        H[0, layout.BG] = -ez
+        r = self.yaw_rate - ez @ (self.gyro_mean - x.gyro_bias)
+        return np.array([r]), H, np.array([[self.std**2]])

@@ -1,0 +1,523 @@
+"""Stereo VO + IMU fusion for a ground robot (seed 004): the filter driver and the pipeline.
+
+:class:`VioFilter` wraps the shared inertial core's :class:`~imuslam.ins.core.Eskf` (error state
+``[dtheta, dp, dv, db_a, db_g]``): it propagates with the core's kernel to any time (IMU samples
+interpolated at block ends), applies the measurements of :mod:`imuslam.vio.measurements` through the
+core's gated ``update`` (chi-square test per measurement kind, ``gate_prob``), counts accepted and rejected
+updates and keeps their NIS, and records the trajectory. :func:`run_vio` drives it from a stereo dataset:
+VO per frame pair, a VO velocity and a VO rate update at each pair's mid-time, and the non-holonomic
+pseudo-measurements at ``nhc_rate_hz``; beside it, VO alone (relative poses chained) and the IMU alone
+(the core's strapdown from the same initial state) for comparison.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from imuslam.errors import InputError
+from imuslam.geometry import exp
+from imuslam.ins.core import (
+    ErrorLayout,
+    Eskf,
+    InsState,
+    KfNoise,
+    Measurement,
+    gate,
+    integrate_nominal,
+)
+from imuslam.io.imulog import ImuLog
+from imuslam.io.trajectory import Trajectory
+from imuslam.vio.frontend import StereoVO, VoConfig, VoMeasurement, VoStats
+from imuslam.vio.measurements import NonHolonomic, VoRate, VoVelocity
+
+FloatArray = NDArray[np.float64]
+U8Image = NDArray[np.uint8]
+log_ = logging.getLogger(__name__)
+
+
+class NoiseConfig(BaseModel):
+    """IMU noise densities (per sqrt(Hz)) and bias random walks for the filter."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    accel: float = Field(2e-3, gt=0, description="m/s^2/sqrt(Hz)")
+    gyro: float = Field(1.7e-4, gt=0, description="rad/s/sqrt(Hz)")
+    accel_bias_rw: float = Field(1e-4, gt=0, description="m/s^3/sqrt(Hz)")
+    gyro_bias_rw: float = Field(2e-5, gt=0, description="rad/s^2/sqrt(Hz)")
+
+    def kf(self) -> KfNoise:
+        return KfNoise(self.accel, self.gyro, self.accel_bias_rw, self.gyro_bias_rw)
+
+
+class VioConfig(BaseModel):
+    """Everything the VIO pipeline reads; YAML keys equal the field names."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    vo: VoConfig = Field(default_factory=VoConfig)
+    noise: NoiseConfig = Field(default_factory=NoiseConfig)
+    g: float = Field(9.80665, gt=9.7, lt=9.9, description="local gravity, m/s^2")
+    noise_from_log: bool = Field(
+        True,
+        description="raise the noise densities to what the log shows (vibration; KfNoise.from_log)",
+    )
+    nhc: bool = Field(False, description="non-holonomic constraints (ground vehicles)")
+    nhc_std: float = Field(
+        0.02, gt=0, description="1-sigma of lateral / vertical vehicle velocity, m/s"
+    )
+    nhc_rate_hz: float = Field(20.0, gt=0, le=1000)
+    vehicle_rpy_deg: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="vehicle frame in the body (roll, pitch, yaw), deg"
+    )
+    vehicle_p_b: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="vehicle origin (non-sliding point) in the body, m"
+    )
+    gate_prob: float | None = Field(0.999, gt=0.5, lt=1.0, description="chi-square gate; None: off")
+    vo_cov_scale: float = Field(
+        1.0,
+        gt=0,
+        description="inflation of the VO covariance (the pose covariance takes the points' "
+        "triangulation errors as independent between frames, which they are not quite)",
+    )
+    vo_velocity: bool = True
+    vo_rate: bool = True
+    level_window_s: float = Field(
+        0.5, gt=0, description="IMU averaged for the initial roll and pitch"
+    )
+    init_std_theta: float = Field(0.02, gt=0, description="rad (roll, pitch; yaw is free: 1 rad)")
+    init_std_ba: float = Field(0.1, gt=0, description="m/s^2")
+    init_std_bg: float = Field(
+        0.002, gt=0, description="rad/s, added to the first VO rate's covariance (bias change)"
+    )
+    outlier_fraction: float = Field(
+        0.0, ge=0, lt=1, description="simulation: VO measurements corrupted"
+    )
+    outlier_vel: tuple[float, float] = Field((0.1, 0.5), description="m/s, uniform magnitude range")
+    outlier_rate: tuple[float, float] = Field(
+        (0.02, 0.1), description="rad/s, uniform magnitude range"
+    )
+    outlier_seed: int = 0
+
+
+@dataclass
+class GateStats:
+    """Accepted / rejected updates of one measurement kind and their NIS (all, gated or not)."""
+
+    dof: int
+    accepted: int = 0
+    rejected: int = 0
+    nis: list[float] = field(default_factory=list)
+    accepted_mask: list[bool] = field(default_factory=list)
+
+    def summary(self) -> dict[str, Any]:
+        from scipy.stats import chi2
+
+        nis = np.asarray(self.nis)
+        acc = np.asarray(self.accepted_mask, bool)
+        n = int(acc.sum())
+        out: dict[str, Any] = {
+            "dof": self.dof,
+            "accepted": self.accepted,
+            "rejected": self.rejected,
+        }
+        if n:
+            m = float(nis[acc].mean())
+            out["nis_mean_accepted"] = m
+            out["nis_mean_band_95"] = [
+                float(chi2.ppf(0.025, n * self.dof) / n),
+                float(chi2.ppf(0.975, n * self.dof) / n),
+            ]
+            lo, hi = chi2.ppf(0.025, self.dof), chi2.ppf(0.975, self.dof)
+            out["nis_share_in_95_band"] = float(np.mean((nis[acc] >= lo) & (nis[acc] <= hi)))
+        return out
+
+
+def _level(accel_b: FloatArray) -> FloatArray:
+    """R_n_b with zero yaw whose gravity matches the mean specific force (N, 3) (f_b = R^T [0, 0, g])."""
+    f = accel_b.mean(axis=0)
+    roll = np.arctan2(f[1], f[2])
+    pitch = np.arctan2(-f[0], np.hypot(f[1], f[2]))
+    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    return Ry @ Rx
+
+
+def rpy_matrix(rpy_deg: tuple[float, float, float]) -> FloatArray:
+    """R = Rz(yaw) Ry(pitch) Rx(roll) from degrees."""
+    r, p, y = np.deg2rad(rpy_deg)
+    return (
+        exp(np.array([0.0, 0.0, y])) @ exp(np.array([0.0, p, 0.0])) @ exp(np.array([r, 0.0, 0.0]))
+    )
+
+
+class VioFilter:
+    """The core's ESKF driven to arbitrary times, with per-kind gating statistics and a recorded track.
+
+    Times are float seconds since ``t_ref_ns``. IMU samples (SI, body frame) are interpolated linearly at
+    the ends of each prediction block, so an update happens exactly at its measurement's time.
+    """
+
+    def __init__(
+        self, imu: ImuLog, t_ref_ns: int, x0: InsState, P0: FloatArray, t0_s: float, cfg: VioConfig
+    ) -> None:
+        self.cfg = cfg
+        self.t_ref_ns = t_ref_ns
+        self.t_imu = (imu.t_ns - t_ref_ns).astype(float) * 1e-9
+        self.acc = imu.accel
+        self.gyr = imu.gyro
+        noise = cfg.noise.kf()
+        if cfg.noise_from_log:
+            sel = (self.t_imu >= t0_s) & (self.t_imu <= t0_s + 5.0)
+            if sel.sum() > 10:
+                noise = KfNoise.from_log(self.acc[sel], self.gyr[sel], imu.rate_hz, floor=noise)
+        self.noise = noise
+        self.kf = Eskf(x0, P=P0, noise=noise, layout=ErrorLayout.full())
+        self.t = t0_s
+        self.stats: dict[str, GateStats] = {}
+        self._t: list[FloatArray] = [np.array([t0_s])]
+        self._p: list[FloatArray] = [x0.p_n[None].copy()]
+        self._R: list[FloatArray] = [x0.R_n_b[None].copy()]
+        self._bias_t: list[float] = []
+        self._bias: list[FloatArray] = []
+        self._bias_std: list[FloatArray] = []
+
+    def sample_at(self, t: float) -> tuple[FloatArray, FloatArray]:
+        """Interpolated (accel, gyro) at time t."""
+        k = int(np.clip(np.searchsorted(self.t_imu, t) - 1, 0, len(self.t_imu) - 2))
+        w = (t - self.t_imu[k]) / (self.t_imu[k + 1] - self.t_imu[k])
+        return (1 - w) * self.acc[k] + w * self.acc[k + 1], (1 - w) * self.gyr[k] + w * self.gyr[
+            k + 1
+        ]
+
+    def gyro_mean(self, t0: float, t1: float) -> FloatArray:
+        """Mean raw gyro over [t0, t1] (trapezoid over the samples and the interpolated ends)."""
+        i0, i1 = np.searchsorted(self.t_imu, [t0, t1], side="right")
+        ts = np.concatenate([[t0], self.t_imu[i0:i1], [t1]])
+        g0, g1 = self.sample_at(t0)[1], self.sample_at(t1)[1]
+        gs = np.concatenate([g0[None], self.gyr[i0:i1], g1[None]])
+        dt = np.diff(ts)
+        return (0.5 * (gs[1:] + gs[:-1]) * dt[:, None]).sum(axis=0) / max(t1 - t0, 1e-12)
+
+    def advance(self, t: float) -> None:
+        """Predict from the current time to ``t`` (no-op when ``t`` is not later)."""
+        if t <= self.t:
+            return
+        i0, i1 = np.searchsorted(self.t_imu, [self.t, t], side="right")
+        a0, g0 = self.sample_at(self.t)
+        a1, g1 = self.sample_at(t)
+        ts = np.concatenate([[self.t], self.t_imu[i0:i1], [t]])
+        keep = np.concatenate([[True], np.diff(ts) > 1e-9])
+        acc = np.concatenate([a0[None], self.acc[i0:i1], a1[None]])[keep]
+        gyr = np.concatenate([g0[None], self.gyr[i0:i1], g1[None]])[keep]
+        ts = ts[keep]
+        if len(ts) < 2:
+            return
+        Ps, _, Rs = self.kf.predict(acc, gyr, ts)
+        self._t.append(ts[1:-1])
+        self._p.append(Ps[1:-1])
+        self._R.append(Rs[1:-1])
+        self.t = t
+
+    def mark(self) -> None:
+        """Record the current (posterior) state at the current time."""
+        x = self.kf.x
+        self._t.append(np.array([self.t]))
+        self._p.append(x.p_n[None].copy())
+        self._R.append(x.R_n_b[None].copy())
+        d = np.sqrt(np.diag(self.kf.P))
+        lay = self.kf.layout
+        self._bias_t.append(self.t)
+        self._bias.append(np.concatenate([x.accel_bias, x.gyro_bias]))
+        self._bias_std.append(np.concatenate([d[lay.BA], d[lay.BG]]))
+
+    def update(self, meas: Measurement, dof: int) -> bool:
+        """Gated update through the core; returns whether it was accepted."""
+        st = self.stats.setdefault(meas.kind, GateStats(dof))
+        if self.cfg.gate_prob is None:  # no gate: the NIS for the statistics, then the update
+            r, H, Rm = meas.linearize(self.kf.x, self.kf.layout)
+            nis = gate(r, H, Rm, self.kf.P, 0.5)[1]
+            res = self.kf.update(meas, None)
+        else:
+            res = self.kf.update(meas, self.cfg.gate_prob)
+            nis = res.nis
+        st.nis.append(nis)
+        st.accepted_mask.append(res.accepted)
+        if res.accepted:
+            st.accepted += 1
+        else:
+            st.rejected += 1
+        return res.accepted
+
+    def trajectory(self, source: str) -> Trajectory:
+        t = np.concatenate(self._t)
+        order = np.argsort(t, kind="stable")
+        t_ns = self.t_ref_ns + np.round(t[order] * 1e9).astype(np.int64)
+        # a time recorded twice (prior then posterior): keep the last
+        last = np.concatenate([t_ns[1:] != t_ns[:-1], [True]])
+        return Trajectory(
+            t_ns[last],
+            np.concatenate(self._p)[order][last],
+            np.concatenate(self._R)[order][last],
+            source,
+        )
+
+    def biases(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Times (s since t_ref), biases (N, 6) [accel, gyro] and their 1-sigma (N, 6) at each mark."""
+        return np.asarray(self._bias_t), np.asarray(self._bias), np.asarray(self._bias_std)
+
+
+class StereoImuDataset(Protocol):
+    """What :func:`run_vio` reads: an EuRoC folder, a bag, the simulator."""
+
+    imu: ImuLog
+    source: str
+
+    def __len__(self) -> int: ...
+
+    def rectification(self) -> Any: ...
+
+    def skipped_frames(self) -> dict[str, int]: ...
+
+    def frames(self) -> Iterator[tuple[int, U8Image | None, U8Image | None]]: ...
+
+
+@dataclass
+class VioResult:
+    """Fused, VO-only and IMU-only trajectories (body poses), statistics and the per-update records."""
+
+    fused: Trajectory
+    vo: Trajectory
+    imu: Trajectory
+    gating: dict[str, GateStats]
+    vo_stats: VoStats
+    frames: dict[str, int]
+    outliers: dict[str, int]
+    bias_t_s: FloatArray
+    bias: FloatArray
+    bias_std: FloatArray
+    config: VioConfig
+    vo_measurements: list[VoMeasurement] = field(default_factory=list, repr=False)
+    corrupted: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool), repr=False)
+    vel_accepted: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool), repr=False)
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "frames": self.frames,
+            "vo": {
+                "measurements": self.vo_stats.measurements,
+                "skipped_few_features": self.vo_stats.skipped_few_features,
+                "skipped_few_inliers": self.vo_stats.skipped_few_inliers,
+                "mean_tracked": float(np.mean(self.vo_stats.tracked))
+                if self.vo_stats.tracked
+                else 0.0,
+                "mean_inliers": float(np.mean(self.vo_stats.inliers))
+                if self.vo_stats.inliers
+                else 0.0,
+            },
+            "gating": {k: v.summary() for k, v in self.gating.items()},
+            "outliers": self.outliers,
+            "final_bias": {
+                "accel": self.bias[-1, :3].tolist() if len(self.bias) else None,
+                "gyro": self.bias[-1, 3:].tolist() if len(self.bias) else None,
+            },
+        }
+
+
+def _check_imu_span(imu: ImuLog, t_first: int, t_last: int, source: str) -> None:
+    if len(imu) < 2 or imu.t_ns[-1] <= t_first or imu.t_ns[0] >= t_last:
+        raise InputError(
+            f"{source}: no IMU samples in the image time span "
+            f"({t_first * 1e-9:.3f}-{t_last * 1e-9:.3f} s; IMU "
+            f"{imu.t_ns[0] * 1e-9 if len(imu) else float('nan'):.3f}-"
+            f"{imu.t_ns[-1] * 1e-9 if len(imu) else float('nan'):.3f} s)"
+        )
+
+
+@dataclass
+class VoRun:
+    """The front end's output over a run, reusable by several filter configurations: per used frame its
+    time and the measurement since the previous one (None: first frame or skipped), and the counts."""
+
+    frames: list[tuple[int, VoMeasurement | None]]
+    stats: VoStats
+    seen: int
+    unreadable: int
+
+
+def compute_vo(
+    data: StereoImuDataset, cfg: VoConfig, progress: Callable[[int], None] | None = None
+) -> VoRun:
+    """The whole front end at once (see :class:`VoRun`)."""
+    rect = data.rectification()
+    vo = StereoVO(rect, cfg)
+    frames: list[tuple[int, VoMeasurement | None]] = []
+    seen = unreadable = 0
+    for t_ns, left, right in data.frames():
+        seen += 1
+        if progress is not None:
+            progress(1)
+        if left is None or right is None:
+            unreadable += 1
+            continue
+        lr, rr = rect.rectify(left, right)
+        frames.append((t_ns, vo.process(t_ns, lr, rr)))
+    return VoRun(frames, vo.stats, seen, unreadable)
+
+
+def run_vio(
+    data: StereoImuDataset,
+    cfg: VioConfig | None = None,
+    progress: Callable[[int], None] | None = None,
+    vo_run: VoRun | None = None,
+) -> VioResult:
+    """VO on every stereo pair (or the given ``vo_run``) and the EKF over the IMU; ``progress(n)`` is
+    called per frame."""
+    cfg = cfg or VioConfig()
+    imu = data.imu.to_si()
+    if vo_run is None:
+        vo_run = compute_vo(data, cfg.vo, progress)
+    rng = np.random.default_rng(cfg.outlier_seed)
+    R_b_v = rpy_matrix(cfg.vehicle_rpy_deg)
+    p_b_v = np.asarray(cfg.vehicle_p_b, float)
+
+    filt: VioFilter | None = None
+    t_ref = 0
+    imu_track: Trajectory | None = None
+    T_vo = np.eye(4)
+    vo_t: list[int] = []
+    vo_T: list[FloatArray] = []
+    meas_all: list[VoMeasurement] = []
+    corrupted: list[bool] = []
+    vel_acc: list[bool] = []
+    next_nhc = 0.0
+    frames_seen = vo_run.seen
+    unreadable = vo_run.unreadable
+    if vo_run.frames:
+        _check_imu_span(imu, vo_run.frames[0][0], vo_run.frames[-1][0], data.source)
+    T_prev_rel = np.eye(4)
+
+    for t_ns, m in vo_run.frames:
+        # VO alone: chain the relative poses (a skipped pair keeps the last motion)
+        if m is not None:
+            T_prev_rel = m.T_b0_b1
+        if vo_t:
+            T_vo = T_vo @ T_prev_rel
+        vo_t.append(t_ns)
+        vo_T.append(T_vo.copy())
+        if m is None:
+            continue
+        if filt is None:
+            # initial state at the first pair's mid-time: roll and pitch from the mean specific force,
+            # yaw zero, velocity from the first VO velocity, the gyro bias from the first VO rate
+            # against the mean gyro over the pair (a MEMS gyro's bias can be several deg/s, far outside
+            # any gate around zero), the accelerometer bias zero
+            t_ref = m.t0_ns
+            t_imu = (imu.t_ns - t_ref) * 1e-9
+            t_mid = (m.t_mid_ns - t_ref) * 1e-9
+            win = (t_imu >= t_mid - cfg.level_window_s / 2) & (
+                t_imu <= t_mid + cfg.level_window_s / 2
+            )
+            if win.sum() < 2:
+                _check_imu_span(imu, m.t0_ns, m.t1_ns, data.source)
+                win = np.abs(t_imu - t_mid) == np.min(np.abs(t_imu - t_mid))
+            R0 = _level(imu.accel[win])
+            v0 = R0 @ m.vel_b
+            i0, i1 = np.searchsorted(imu.t_ns, [m.t0_ns, m.t1_ns])
+            bg0 = (imu.gyro[i0:i1].mean(axis=0) - m.omega_b) if i1 > i0 else np.zeros(3)
+            x0 = InsState(np.zeros(3), v0, R0, np.zeros(3), bg0, np.array([0.0, 0.0, -cfg.g]))
+            lay = ErrorLayout.full()
+            P0 = np.zeros((lay.dim, lay.dim))
+            P0[lay.TH, lay.TH] = np.diag([cfg.init_std_theta**2] * 2 + [1.0])
+            P0[lay.P, lay.P] = np.eye(3) * 1e-8
+            P0[lay.V, lay.V] = R0 @ m.cov[3:, 3:] @ R0.T + np.eye(3) * 1e-4
+            P0[lay.BA, lay.BA] = np.eye(3) * cfg.init_std_ba**2
+            P0[lay.BG, lay.BG] = m.cov[:3, :3] + np.eye(3) * (
+                cfg.init_std_bg**2 + cfg.noise.gyro**2 / max(m.dt, 1e-3)
+            )
+            filt = VioFilter(imu, t_ref, x0, P0, t_mid, cfg)
+            filt.mark()
+            next_nhc = t_mid + 1.0 / cfg.nhc_rate_hz
+            # the IMU alone from the same state
+            sel = (t_imu > t_mid) & (imu.t_ns <= vo_run.frames[-1][0] + 50_000_000)
+            a0, g0 = filt.sample_at(t_mid)
+            ts = np.concatenate([[t_mid], t_imu[sel]])
+            acc = np.concatenate([a0[None], imu.accel[sel]])
+            gyr = np.concatenate([g0[None], imu.gyro[sel]])
+            Pi, _, Ri = integrate_nominal(
+                acc, gyr, np.diff(ts), x0.p_n, x0.v_n, R0, np.zeros(3), bg0, x0.g_n, np.zeros(3)
+            )
+            imu_track = Trajectory(t_ref + np.round(ts * 1e9).astype(np.int64), Pi, Ri, "IMU only")
+            continue
+        # corrupt a share of the measurements (simulation studies of the gate)
+        bad = bool(cfg.outlier_fraction > 0 and rng.uniform() < cfg.outlier_fraction)
+        if bad:
+            dv = rng.normal(size=3)
+            dw = rng.normal(size=3)
+            m = VoMeasurement(
+                m.t0_ns, m.t1_ns, m.omega_b + dw / np.linalg.norm(dw) * rng.uniform(*cfg.outlier_rate),
+                m.vel_b + dv / np.linalg.norm(dv) * rng.uniform(*cfg.outlier_vel), m.cov, m.T_b0_b1,
+                m.n_inliers,
+            )  # fmt: skip
+        t_mid = (m.t_mid_ns - t_ref) * 1e-9
+        while cfg.nhc and next_nhc < t_mid:
+            filt.advance(next_nhc)
+            filt.update(NonHolonomic(cfg.nhc_std, filt.sample_at(next_nhc)[1], R_b_v, p_b_v), 2)
+            filt.mark()
+            next_nhc += 1.0 / cfg.nhc_rate_hz
+        filt.advance(t_mid)
+        ok_v = True
+        if cfg.vo_velocity:
+            ok_v = filt.update(VoVelocity(m.vel_b, cfg.vo_cov_scale * m.cov[3:, 3:]), 3)
+        if cfg.vo_rate:
+            t0 = (m.t0_ns - t_ref) * 1e-9
+            t1 = (m.t1_ns - t_ref) * 1e-9
+            g_mean = filt.gyro_mean(t0, t1)
+            gv = filt.noise.gyro**2 / (t1 - t0)
+            filt.update(VoRate(m.omega_b, cfg.vo_cov_scale * m.cov[:3, :3], g_mean, gv), 3)
+        filt.mark()
+        meas_all.append(m)
+        corrupted.append(bad)
+        vel_acc.append(ok_v)
+
+    if filt is None or imu_track is None:
+        raise InputError(
+            f"{data.source}: no VO measurement from {frames_seen} frames "
+            f"({unreadable} unreadable, {vo_run.stats.skipped_few_features} with too few features); "
+            "nothing to fuse"
+        )
+    # to the last frame
+    t_last = (vo_t[-1] - t_ref) * 1e-9
+    while cfg.nhc and next_nhc < t_last:
+        filt.advance(next_nhc)
+        filt.update(NonHolonomic(cfg.nhc_std, filt.sample_at(next_nhc)[1], R_b_v, p_b_v), 2)
+        filt.mark()
+        next_nhc += 1.0 / cfg.nhc_rate_hz
+    filt.advance(t_last)
+    filt.mark()
+    fused = filt.trajectory("fused")
+    # VO alone, expressed from the same initial state as the others (pose of the first mid-time)
+    vo_arr = np.asarray(vo_T)
+    vo_traj = Trajectory(np.asarray(vo_t), vo_arr[:, :3, 3] @ fused.R_w_b[0].T, fused.R_w_b[0] @ vo_arr[:, :3, :3],
+                         "VO only")  # fmt: skip
+    imu_end = imu_track.t_ns <= vo_t[-1]
+    imu_track = imu_track.subset(np.flatnonzero(imu_end))
+    cor = np.asarray(corrupted, bool)
+    va = np.asarray(vel_acc, bool)
+    skipped = data.skipped_frames()
+    bt, b, bs = filt.biases()
+    return VioResult(
+        fused, vo_traj, imu_track, filt.stats, vo_run.stats,
+        {"listed_or_rendered": frames_seen + skipped.get("missing", 0), "missing": skipped.get("missing", 0),
+         "unreadable": unreadable, "used": frames_seen - unreadable},
+        {"corrupted": int(cor.sum()), "corrupted_rejected": int((cor & ~va).sum()),
+         "good": int((~cor).sum()), "good_rejected": int((~cor & ~va).sum())},
+        bt, b, bs, cfg, meas_all, cor, va,
+    )  # fmt: skip

@@ -1,0 +1,210 @@
+"""LiDAR odometry kernels against slow references and known geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imuslam.geometry import exp
+from imuslam.io.pointcloud import pcd_points, read_ply, write_pcd, write_ply
+from imuslam.lio.deskew import deskew, deskew_constant_velocity, deskew_reference
+from imuslam.lio.features import (
+    FeatureParams,
+    loam_features,
+    ring_order,
+    smoothness_reference,
+    voxel_downsample,
+)
+from imuslam.lio.features import _smoothness as smoothness_kernel
+from imuslam.lio.residuals import (
+    fit_lines,
+    fit_planes,
+    fit_planes_reference,
+    point_to_plane_reference,
+    point_to_plane_system,
+)
+from imuslam.lio.voxelmap import KnnIndex, VoxelMap
+
+
+def _ring_scan(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two rings around a box corner room: walls at x = 5 and y = 4 (a corner = an edge)."""
+    pts, rings, ts = [], [], []
+    for r, el in enumerate((-0.05, 0.05)):
+        az = np.linspace(0.05, np.pi / 2 - 0.05, 400)
+        d = np.stack([np.cos(az), np.sin(az), np.full_like(az, np.tan(el))], axis=1)
+        t_x = 5.0 / d[:, 0]
+        t_y = 4.0 / d[:, 1]
+        rng_ = np.minimum(t_x, t_y) + rng.normal(size=az.size) * 1e-3
+        pts.append(d * rng_[:, None])
+        rings.append(np.full(az.size, r))
+        ts.append(az / (2 * np.pi) * 0.1)
+    return np.concatenate(pts), np.concatenate(rings), np.concatenate(ts)
+
+
+def test_smoothness_kernel_matches_reference_and_finds_the_corner() -> None:
+    rng = np.random.default_rng(0)
+    pts, ring, t = _ring_scan(rng)
+    order, starts = ring_order(ring, t)
+    curv, _ = smoothness_kernel(np.ascontiguousarray(pts[order]), starts, 0.05, 0.1)
+    for r in range(len(starts) - 1):
+        seg = slice(starts[r], starts[r + 1])
+        np.testing.assert_allclose(curv[seg], smoothness_reference(pts[order][seg]), rtol=1e-9)
+    edges, planes, _ = loam_features(pts, ring, t, FeatureParams(max_edges=1, sectors=1))
+    corner_az = np.arctan2(4.0, 5.0)
+    az_e = np.arctan2(pts[edges, 1], pts[edges, 0])
+    # one edge per ring, at the corner within the 5-point smoothing window (5 x 0.22 deg)
+    assert len(edges) == 2
+    assert np.all(np.abs(az_e - corner_az) < np.deg2rad(1.2))
+    az_p = np.arctan2(pts[planes, 1], pts[planes, 0])
+    assert len(planes) > 500 and np.all(np.abs(az_p - corner_az) > np.deg2rad(0.5))
+
+
+def test_deskew_recovers_the_scan_end_frame() -> None:
+    """A sensor turning at 1 rad/s and moving at 5 m/s with acceleration: points fired over 0.1 s are
+    moved into the scan-end frame; the truth is the world point seen from the end pose."""
+    rng = np.random.default_rng(1)
+    w = np.array([0.1, -0.2, 1.0])
+    v0, acc = np.array([5.0, 0.5, 0.0]), np.array([0.3, -0.2, 0.1])
+
+    def pose(t: float) -> tuple[np.ndarray, np.ndarray]:
+        return exp(w * t), v0 * t + 0.5 * acc * t * t
+
+    T_i_l = np.eye(4)
+    T_i_l[:3, :3] = exp(np.array([0.0, 0.0, 0.3]))
+    T_i_l[:3, 3] = [0.1, 0.0, 0.2]
+    n = 2000
+    t_pt = np.sort(rng.uniform(0.0, 0.1, n))
+    q_w = rng.uniform(-20, 20, size=(n, 3))
+    pts_l = np.empty((n, 3))
+    for j in range(n):  # the point as the sensor saw it at its firing time
+        R, p = pose(t_pt[j])
+        x_i = R.T @ (q_w[j] - p)
+        pts_l[j] = T_i_l[:3, :3].T @ (x_i - T_i_l[:3, 3])
+    R_e, p_e = pose(0.1)
+    truth = ((q_w - p_e) @ R_e - T_i_l[:3, 3]) @ T_i_l[:3, :3]
+    t_k = np.arange(0.0, 0.1001, 0.005)
+    R_k = np.array([pose(t)[0] for t in t_k])
+    p_k = np.array([pose(t)[1] for t in t_k])
+    v_k = v0[None] + acc[None] * t_k[:, None]
+    a_k = np.broadcast_to(acc, (len(t_k), 3))
+    w_k = np.broadcast_to(w, (len(t_k), 3))
+    out = deskew(pts_l, t_pt, t_k, R_k, p_k, v_k, a_k, w_k, T_i_l, 0.1)
+    assert np.max(np.linalg.norm(out - truth, axis=1)) < 1e-9
+    ref = deskew_reference(pts_l[:50], t_pt[:50], pose, T_i_l, 0.1)
+    np.testing.assert_allclose(out[:50], ref, atol=1e-9)
+    # without deskew the error is the motion over the sweep: half a metre at the start
+    assert np.max(np.linalg.norm(pts_l - truth, axis=1)) > 0.3
+
+
+def test_constant_velocity_deskew_is_exact_for_constant_twist() -> None:
+    rng = np.random.default_rng(2)
+    w, v = np.array([0.0, 0.0, 0.8]), np.array([3.0, 0.0, 0.0])
+    T_e = np.eye(4)
+    T_e[:3, :3], T_e[:3, 3] = exp(w * 0.1), v * 0.1  # R(t) = exp(w t), p(t) = v t
+    t_pt = rng.uniform(0, 0.1, 500)
+    q_w = rng.uniform(-10, 10, size=(500, 3))
+    pts = np.array([exp(w * t).T @ (q - v * t) for q, t in zip(q_w, t_pt, strict=True)])
+    out = deskew_constant_velocity(pts, t_pt, 0.1, T_e, w, v)
+    truth = (q_w - T_e[:3, 3]) @ T_e[:3, :3]
+    assert np.max(np.linalg.norm(out - truth, axis=1)) < 1e-9
+
+
+def test_plane_and_line_fits_against_eigh_and_truth() -> None:
+    rng = np.random.default_rng(3)
+    M, k = 300, 5
+    normals = rng.normal(size=(M, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    centres = rng.uniform(-30, 30, size=(M, 3))
+    pts = []
+    for n, c in zip(normals, centres, strict=True):
+        u = np.cross(n, [1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.cross(n, [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        vv = np.cross(n, u)
+        ab = rng.uniform(-0.5, 0.5, size=(k, 2))
+        pts.append(c + ab[:, :1] * u + ab[:, 1:] * vv + rng.normal(size=(k, 1)) * 0.005 * n)
+    map_pts = np.concatenate(pts)
+    nbr = np.arange(M * k).reshape(M, k)
+    d2 = np.zeros((M, k))
+    q = centres + 0.3 * normals
+    n_fit, c_fit, ok = fit_planes(q, nbr, d2, map_pts, 1.0, 0.1)
+    n_ref, c_ref = fit_planes_reference(nbr, map_pts)
+    assert ok.all()
+    np.testing.assert_allclose(np.abs(np.einsum("mk,mk->m", n_fit, n_ref)), 1.0, atol=1e-8)
+    np.testing.assert_allclose(c_fit, c_ref, atol=1e-12)
+    # noise 5 mm over a 1 m patch of 5 points: the normal within a few degrees of the truth
+    ang = np.degrees(np.arccos(np.clip(np.abs(np.einsum("mk,mk->m", n_fit, normals)), 0, 1)))
+    assert np.percentile(ang, 95) < 5.0
+    # lines: 5 points along a direction; the query 0.4 m off the line
+    dirs = normals
+    line_pts = (centres[:, None] + np.linspace(-1, 1, k)[None, :, None] * dirs[:, None]).reshape(
+        -1, 3
+    )
+    off = np.cross(dirs, rng.normal(size=(M, 3)))
+    off = 0.4 * off / np.linalg.norm(off, axis=1, keepdims=True)
+    n_l, c_l, ok_l = fit_lines(centres + off, nbr, d2, line_pts, 1.0, 3.0)
+    assert ok_l.all()
+    r = np.einsum("mk,mk->m", n_l, centres + off - c_l)
+    np.testing.assert_allclose(r, 0.4, atol=1e-9)
+
+
+def test_point_to_plane_jacobian_against_reference_and_finite_differences() -> None:
+    rng = np.random.default_rng(4)
+    M = 50
+    p_i = rng.uniform(-10, 10, size=(M, 3))
+    n = rng.normal(size=(M, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    c = rng.uniform(-10, 10, size=(M, 3))
+    R, p = exp(np.array([0.3, -0.2, 1.1])), np.array([1.0, 2.0, -0.5])
+    r, J = point_to_plane_system(p_i, n, c, R, p, np.ones(M))
+    r_ref, J_ref = point_to_plane_reference(p_i, n, c, R, p)
+    np.testing.assert_allclose(r, r_ref, atol=1e-12)
+    np.testing.assert_allclose(J, J_ref, atol=1e-12)
+    eps = 1e-6
+    for a in range(6):
+        dx = np.zeros(6)
+        dx[a] = eps
+        r1, _ = point_to_plane_system(p_i, n, c, R @ exp(dx[3:]), p + dx[:3], np.ones(M))
+        np.testing.assert_allclose((r1 - r) / eps, J[:, a], atol=1e-5)
+
+
+@pytest.mark.parametrize("backend", ["pykdtree", "small_gicp", "scipy"])
+def test_knn_backends_match_brute_force(backend: str) -> None:
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(-5, 5, size=(2000, 3))
+    q = rng.uniform(-5, 5, size=(100, 3))
+    idx, d2 = KnnIndex(pts, backend).query(q, 5)  # type: ignore[arg-type]
+    full = np.sum((q[:, None] - pts[None]) ** 2, axis=2)
+    ref = np.sort(full, axis=1)[:, :5]
+    np.testing.assert_allclose(np.sort(d2, axis=1), ref, rtol=1e-9)
+    np.testing.assert_allclose(np.sort(full[np.arange(100)[:, None], idx], axis=1), ref, rtol=1e-9)
+
+
+def test_voxel_map_caps_voxels_and_prunes_by_distance() -> None:
+    rng = np.random.default_rng(6)
+    vm = VoxelMap(voxel_size=1.0, max_per_voxel=2, max_range=10.0)
+    pts = rng.uniform(0, 3, size=(1000, 3))  # 27 voxels
+    assert vm.add(pts) == 54
+    assert vm.add(pts) == 0
+    far = np.array([[50.0, 0.0, 0.0]])
+    assert vm.add(far) == 1
+    assert vm.prune(np.zeros(3)) == 1
+    assert len(vm) == 54 and vm.add(far) == 1  # the pruned voxel is free again
+    idx = voxel_downsample(pts, 1.0)
+    assert len(idx) == 27
+
+
+def test_pcd_and_ply_round_trip(tmp_path: object) -> None:
+    from pathlib import Path
+
+    d = Path(str(tmp_path))
+    rng = np.random.default_rng(7)
+    pts = rng.normal(size=(100, 3)).astype(np.float32).astype(float)
+    write_pcd(d / "a.pcd", pts, np.arange(100.0))
+    write_ply(d / "a.ply", pts)
+    np.testing.assert_array_equal(pcd_points(d / "a.pcd"), pts)
+    np.testing.assert_array_equal(read_ply(d / "a.ply"), pts)
+    (d / "b.pcd").write_text(
+        "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\n"
+        "POINTS 2\nDATA ascii\n1 2 3\n4 5 6\n"
+    )
+    np.testing.assert_array_equal(pcd_points(d / "b.pcd"), [[1, 2, 3], [4, 5, 6]])
