@@ -131,6 +131,7 @@ def register(app: typer.Typer) -> None:
         from imuslam.hw.witmotion import WitMotionImu
         from imuslam.imu.online import Event
 
+        assert imu_port is not None  # checked above
         imu = WitMotionImu(imu_port)
         imu.configure(rate)
 
