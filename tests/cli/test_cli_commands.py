@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 from typer.testing import CliRunner
 
@@ -166,6 +167,38 @@ def test_online_sim_command(tmp_path: Path) -> None:
     assert "drift" in r.output and len(list((tmp_path / "history").glob("v*.yaml"))) >= 2
     r = runner.invoke(app, ["online"])
     assert r.exit_code == 2 and "--imu-port" in r.output
+
+
+@pytest.mark.slow
+def test_online_shorter_plan_prints_its_predicted_uncertainty(tmp_path: Path) -> None:
+    """Fewer poses than seed 000's 40 is an option: the command prints the plan's predicted 1-sigma next to
+    the default 40-pose plan's. The accelerometer's information grows with every pose (a sum of positive
+    semi-definite terms over a denser set), so each of its ratios exceeds 1; the gyro's depends on the order
+    of the moves, so only their mean is asked to."""
+    import re
+
+    r = runner.invoke(
+        app,
+        [
+            "online",
+            "--sim",
+            "--poses",
+            "24",
+            "--t-init",
+            "20",
+            "--duration-h",
+            "0.05",
+            "--out",
+            str(tmp_path),
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    assert "Predicted 1-sigma with 24 poses" in r.output
+    cells = [[c.strip() for c in ln.split("│")[1:-1]] for ln in r.output.splitlines() if "│" in ln]
+    rows = [c for c in cells if len(c) == 4 and re.fullmatch(r"[abgs]_[a-z]+", c[0])]
+    assert len(rows) == 18, rows
+    ratios = np.array([float(c[3]) for c in rows])
+    assert np.all(ratios[:9] > 1.0) and np.mean(ratios[9:]) > 1.0, ratios
 
 
 def test_align_command(tmp_path: Path) -> None:
