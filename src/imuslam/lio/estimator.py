@@ -213,7 +213,16 @@ class LioEstimator:
         t_end = float(np.max(t_s))
         k = self.n_scans
         if self.eskf is None:
-            T_l = self.lidar_only.register_scan(points_l, t_s, ring)
+            # before the filter: the gyro takes out the rotation within the scan (a platform turning a
+            # full circle per scan included), the LiDAR-only odometry's constant velocity the translation
+            from imuslam.ins.core import integrate_nominal
+
+            tk, _, gyr = self._samples(float(np.min(t_s)), t_end)
+            z = np.zeros((len(tk), 3))
+            _, _, Rk = integrate_nominal(z, gyr, np.diff(tk), np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3),
+                                         np.zeros(3), np.zeros(3), np.zeros(3))  # fmt: skip
+            pts_rot = deskew(points_l, t_s, tk, Rk, z, z, z, gyr, self.T_i_l, t_end)
+            T_l = self.lidar_only.register_scan(pts_rot, t_s, ring, rotation_compensated=True)
             self._init_scans.append((t_end, T_l))
             self.last_iterations, self.last_n_corr = (
                 self.lidar_only.last_iterations,
