@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 from imuslam.errors import FilterDivergence, InputError
-from imuslam.eval.lio_report import write_results
 from imuslam.eval.metrics import evaluate
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.interfaces import ImuLog, Trajectory
 from imuslam.lio.config import ExtrinsicConfig, FilterConfig, FrontEndConfig, LioConfig
 from imuslam.lio.datasets import MemoryDataset
 from imuslam.lio.pipeline import LioPipeline
+from imuslam.lio.report import write_results
 from imuslam.sim.drive import LidarDrive, simulate_lidar_drive
 from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO
 
