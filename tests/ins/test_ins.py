@@ -8,6 +8,7 @@ import pytest
 from imuslam.errors import InputError
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.coarse import coarse_align
+from imuslam.ins.core import ErrorLayout
 from imuslam.ins.kf import Eskf, FilterDivergence, KfNoise
 from imuslam.ins.strapdown import integrate
 from imuslam.interfaces.imu import ImuLog
@@ -283,7 +284,10 @@ class _ReferenceEskf(Eskf):
             )
             ** 2
         )
-        g_n = np.array([0.0, 0.0, -self.g])
+        g_n = self.x.g_n
+        L = self.layout
+        TH, Pp, V, BA, BG = L.TH, L.P, L.V, L.BA, L.BG
+        n = L.dim
         dts = np.diff(t_s)
         p, v, R = self.p.copy(), self.v.copy(), self.R.copy()
         Rs = [R]
@@ -302,19 +306,21 @@ class _ReferenceEskf(Eskf):
         fx = f_sum / max(len(dts), 1)
         Fx = np.array([[0.0, -fx[2], fx[1]], [fx[2], 0.0, -fx[0]], [-fx[1], fx[0], 0.0]])
         P = self.P.copy()
-        Qs = np.zeros((15, 15))
+        Qs = np.zeros((n, n))
+        qd = np.zeros(n)  # position has no noise
+        qd[V], qd[TH], qd[BA], qd[BG] = q[0], q[1], q[2], q[3]
         for k, h in enumerate(dts):
-            F = np.zeros((15, 15))
-            F[0:3, 3:6] = np.eye(3)
-            F[3:6, 6:9] = -Fx @ Rs[k]
-            F[3:6, 9:12] = -Rs[k]
-            F[6:9, 12:15] = -np.eye(3)
-            Phi = np.eye(15) + F * h
-            Phi[6:9, 6:9] = _rotvec(-(0.5 * (gyro[k] + gyro[k + 1]) - self.bg) * h)
-            Qd = np.diag(np.concatenate([np.zeros(3), np.repeat(q, 3)])) * h  # p has no noise
+            F = np.zeros((n, n))
+            F[Pp, V] = np.eye(3)
+            F[V, TH] = -Fx @ Rs[k]
+            F[V, BA] = -Rs[k]
+            F[TH, BG] = -np.eye(3)
+            Phi = np.eye(n) + F * h
+            Phi[TH, TH] = _rotvec(-(0.5 * (gyro[k] + gyro[k + 1]) - self.bg) * h)
+            Qd = np.diag(qd) * h
             P = Phi @ P @ Phi.T + Qd
             Qs = Phi @ Qs @ Phi.T + Qd
-        self.p, self.v, self.R, self.P = p, v, R, P
+        self.x.p_n, self.x.v_n, self.x.R_n_b, self.P = p, v, R, P
         assert self._Qsum is not None
         self._Qsum = self._Qsum + Qs
         self.n_samples += len(t_s) - 1
@@ -337,7 +343,7 @@ def test_batch_filter_equals_step_filter(kind: str, strong: bool) -> None:
         init = NavState(tr.p_w[0], tr.vel_w[0], tr.R_w_i[0])
     noise = KfNoise(3e-3, 2e-4, 1e-5, 1e-6)
     res = run_alignment(log, aid, init, "stkf" if strong else "kf", noise, g=G)
-    p0 = np.array([0.1] * 6 + [0.05] * 3 + [0.2] * 3 + [0.02] * 3) ** 2
+    p0 = ErrorLayout.full().diag(theta=0.05**2, p=0.1**2, v=0.1**2, ba=0.2**2, bg=0.02**2)
     kf = _ReferenceEskf(init.p_n.copy(), init.v_n.copy(), init.R_n_b.copy(), np.diag(p0), noise=noise, g=G,
                         strong_tracking=strong)  # fmt: skip
     t = log.t_s
