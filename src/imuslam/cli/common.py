@@ -7,7 +7,7 @@ import json
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar, cast
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 import numpy as np
 import typer
@@ -15,9 +15,11 @@ from rich.console import Console
 from rich.table import Table
 
 from imuslam.errors import ImuslamError, InputError
-from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
 from imuslam.io.atomic import write_atomic
-from imuslam.io.load import FORMATS, ImuFormat, load_imu
+
+if TYPE_CHECKING:  # the readers (rosbags, scipy) load only when a command reads a log
+    from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
+    from imuslam.io.load import ImuFormat
 
 console = Console()
 err_console = Console(stderr=True)
@@ -82,6 +84,8 @@ def load_log(
     columns: str | None,
 ) -> ImuLog:
     """Load a log from the command-line options (see :func:`imuslam.io.load.load_imu`)."""
+    from imuslam.io.load import FORMATS, load_imu
+
     if accel_unit is not None and accel_unit not in ("m/s^2", "g", "counts"):
         raise InputError(f"--accel-unit: '{accel_unit}'; expected m/s^2, g or counts")
     if gyro_unit is not None and gyro_unit not in ("rad/s", "deg/s", "counts"):
@@ -91,10 +95,10 @@ def load_log(
     return load_imu(
         acc,
         gyro,
-        cast(ImuFormat, fmt),
+        cast("ImuFormat", fmt),
         topic,
-        cast(AccelUnit | None, accel_unit),
-        cast(GyroUnit | None, gyro_unit),
+        cast("AccelUnit | None", accel_unit),
+        cast("GyroUnit | None", gyro_unit),
         parse_columns(columns),
     )
 

@@ -10,10 +10,7 @@ from imuslam.cli import validate
 from imuslam.cli.common import console, friendly_errors, table, write_json
 from imuslam.errors import InputError
 from imuslam.eval.align import ALIGN_METHODS
-from imuslam.eval.metrics import KITTI_LENGTHS, evaluate
-from imuslam.eval.plots import plot_evaluation
-from imuslam.io.results import results_folder
-from imuslam.io.trajectory import TRAJ_FORMATS, read_trajectory, write_tum
+from imuslam.io.trajectory import TRAJ_FORMATS
 
 
 def register(app: typer.Typer) -> None:
@@ -54,6 +51,11 @@ def register(app: typer.Typer) -> None:
         ),
     ) -> None:
         """APE and RPE with SE(3)/Sim(3)/yaw-only alignment; metrics.json, plots, aligned TUM."""
+        from imuslam.eval.metrics import KITTI_LENGTHS, evaluate
+        from imuslam.eval.plots import plot_evaluation
+        from imuslam.io.results import results_folder
+        from imuslam.io.trajectory import read_trajectory, write_tum
+
         if align not in ALIGN_METHODS:
             raise InputError(f"--align: '{align}'; expected one of {', '.join(ALIGN_METHODS)}")
         ef = est_format or fmt
