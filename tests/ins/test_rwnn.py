@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from test_ins import BA, BG, G, _biased, _moving_case
 
 from imuslam.errors import InputError
 from imuslam.ins.align import Aiding, run_alignment
@@ -9,7 +10,6 @@ from imuslam.ins.rwnn import RwnnConfig, observer_matrix, run_rwnn
 from imuslam.interfaces.nav import NavState
 from imuslam.sim.imu import simulate_imu
 from imuslam.sim.trajectory import Static
-from test_ins import BA, BG, G, _biased, _moving_case
 
 
 @pytest.mark.parametrize("position", [True, False])
