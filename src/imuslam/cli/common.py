@@ -3,19 +3,15 @@
 from __future__ import annotations
 
 import functools
-import json
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar, cast
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
 
 from imuslam.errors import ImuslamError, InputError
-from imuslam.io.atomic import write_atomic
 
 if TYPE_CHECKING:  # the readers (rosbags, scipy) load only when a command reads a log
     from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
@@ -103,25 +99,11 @@ def load_log(
     )
 
 
-def _json_safe(x: Any) -> Any:
-    """NaN and infinities as null (JSON has no Infinity); numpy scalars and arrays as plain values."""
-    if isinstance(x, dict):
-        return {k: _json_safe(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _json_safe(x.tolist())
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
-
-
 def write_json(path: Path, data: Any) -> None:
     """Standard JSON (a non-finite number is written as null), atomically."""
-    text = json.dumps(_json_safe(data), indent=2, default=float, allow_nan=False)
-    write_atomic(path, text + "\n")
+    from imuslam.io.results import write_json as _write
+
+    _write(path, data)
 
 
 def table(title: str, columns: list[str], rows: list[list[str]]) -> Table:
