@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 from typer.testing import CliRunner
 
@@ -20,9 +21,10 @@ def test_calibrate_xsens_writes_everything(shared_data: Path, tmp_path: Path) ->
     r = runner.invoke(
         app,
         ["calibrate", str(d / "xsens_acc.mat"), str(d / "xsens_gyro.mat"), "--g", "9.81744",
-         "--t-init", "50", "--bias-sign", "minus", "--out", str(out)],
+         "--t-init", "50", "--bias-sign", "minus", "--method", "tedaldi", "--out", str(out)],
     )  # fmt: skip
     assert r.exit_code == 0, r.output
+    assert "held out" in (out / "report.html").read_text()  # the cross-validation section
     for f in (
         "calibration.yaml",
         "acc.calib",
@@ -111,6 +113,12 @@ def test_demo(tmp_path: Path) -> None:
 
     runs = {r["variant"]: r for r in json.loads((tmp_path / "d" / "ins_benefit.json").read_text())}
     assert (tmp_path / "d" / "ins_benefit.png").exists() and len(runs) == 5
+    # progress is shown before the long steps, and the report shows the INS result it computed
+    assert r.output.index("compiles the numerical kernels") < r.output.index("Accelerometer")
+    report = (tmp_path / "d" / "report.html").read_text()
+    assert "What the calibration buys an INS" in report and 'src="ins_benefit.png"' in report
+    for v in runs.values():
+        assert f"<td>{v['position_err_m']:.2f}</td>" in report
     # the raw BWT901CL's gyro biases (1.6, 2.9, 0.6 deg/s) and misalignments (up to 5 deg) wreck a free INS
     # within 30 s; calibrated, its residual errors are ~100x smaller; after the same KF alignment the
     # calibrated IMU still keeps its attitude several times better (the filter models biases only)
@@ -159,6 +167,38 @@ def test_online_sim_command(tmp_path: Path) -> None:
     assert "drift" in r.output and len(list((tmp_path / "history").glob("v*.yaml"))) >= 2
     r = runner.invoke(app, ["online"])
     assert r.exit_code == 2 and "--imu-port" in r.output
+
+
+@pytest.mark.slow
+def test_online_shorter_plan_prints_its_predicted_uncertainty(tmp_path: Path) -> None:
+    """Fewer poses than seed 000's 40 is an option: the command prints the plan's predicted 1-sigma next to
+    the default 40-pose plan's. The accelerometer's information grows with every pose (a sum of positive
+    semi-definite terms over a denser set), so each of its ratios exceeds 1; the gyro's depends on the order
+    of the moves, so only their mean is asked to."""
+    import re
+
+    r = runner.invoke(
+        app,
+        [
+            "online",
+            "--sim",
+            "--poses",
+            "24",
+            "--t-init",
+            "20",
+            "--duration-h",
+            "0.05",
+            "--out",
+            str(tmp_path),
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    assert "Predicted 1-sigma with 24 poses" in r.output
+    cells = [[c.strip() for c in ln.split("│")[1:-1]] for ln in r.output.splitlines() if "│" in ln]
+    rows = [c for c in cells if len(c) == 4 and re.fullmatch(r"[abgs]_[a-z]+", c[0])]
+    assert len(rows) == 18, rows
+    ratios = np.array([float(c[3]) for c in rows])
+    assert np.all(ratios[:9] > 1.0) and np.mean(ratios[9:]) > 1.0, ratios
 
 
 def test_align_command(tmp_path: Path) -> None:

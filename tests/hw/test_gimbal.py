@@ -73,3 +73,21 @@ def test_rplidar_binning() -> None:
     assert s.ranges[front] == pytest.approx(1.0)
     assert s.ranges[right] == pytest.approx(1.5)  # nearest return wins the bin
     assert np.isfinite(s.ranges).sum() == 2  # quality 0 and below range_min dropped
+
+
+def test_pca9685_resolution_is_about_044_deg_per_count() -> None:
+    """One count of the 12-bit counter is 1/4096 of the 20 ms period (4.883 us); a 500-2500 us servo spans
+    180 deg, so a count is 4.883 / 2000 x 180 = 0.4395 deg (0.879 deg for a joint mapped over 360 deg),
+    5x-10x coarser than seed 000's 0.088 deg; the pose planner predicts at the angles it can reach."""
+    from imuslam.imu.poseplan import PlanModel
+
+    g = Pca9685Gimbal(ServoSpec(0), ServoSpec(1, min_deg=-180, max_deg=180), bus=FakeBus())
+    assert g.servos[0].resolution_deg(50.0) == pytest.approx(20000 / 4096 / 2000 * 180, rel=1e-12)
+    assert g.resolution_deg == pytest.approx(20000 / 4096 / 2000 * 360, rel=1e-12)
+    model = PlanModel.seed000()
+    coarse = PlanModel(model.nominal, resolution_deg=g.resolution_deg)
+    reached = coarse.reachable(np.array([[10.3, -47.2]]))
+    np.testing.assert_allclose(
+        reached / g.resolution_deg, np.round(reached / g.resolution_deg), atol=1e-9
+    )
+    assert np.all(np.abs(reached - [[10.3, -47.2]]) <= g.resolution_deg / 2)

@@ -69,6 +69,11 @@ def test_trigger_above_threshold_and_track_truth(tmp_path: Path) -> None:
         assert c.cov_accel is not None and e @ np.linalg.solve(c.cov_accel, e) < CHI2_9_999
         eg = c.gyro_params - tr.gyro_params
         assert c.cov_gyro is not None and eg @ np.linalg.solve(c.cov_gyro, eg) < CHI2_9_999
+        # Each version carries its cross-validated score: held-out poses at the BWT901CL noise floor
+        # (~0.03 deg per pair, ~0.002 m/s^2 per pose; twice that for the parameters' own error).
+        cv = c.notes["cross_validation"]
+        assert cv["folds"] == 5 and cv["poses"] >= 20
+        assert 0 < cv["direction_rms_deg"] < 0.1 and 0 < cv["norm_rms_mps2"] < 0.005
 
 
 def test_streaming_detector_equals_batch() -> None:

@@ -35,18 +35,17 @@ def test_bag_round_trip_and_replace(tmp_path: Path, name: str) -> None:
     again = read_imu_bag(out, "/imu")
     np.testing.assert_array_equal(again.accel, corrected.accel)
     assert list_topics(out) == {"/imu": "sensor_msgs/msg/Imu"}
-    # each container is what its name asks for: a ROS 1 bag file, or a ROS 2 bag folder (metadata.yaml)
-    # holding an sqlite3 database or an MCAP file (format magics: rosbag "#ROSBAG V2.0", SQLite
-    # "SQLite format 3", MCAP "\x89MCAP0\r\n")
+    # each container is what its name asks for: a ROS 1 bag file, a standalone MCAP file (x.mcap is a
+    # file, as ROS 2 tools and Foxglove open it), or a ROS 2 bag folder (metadata.yaml) holding an
+    # sqlite3 database (format magics: rosbag "#ROSBAG V2.0", MCAP "\x89MCAP0\r\n", SQLite
+    # "SQLite format 3")
     for p in (path, out):
         if kind == "ros1":
             assert p.is_file() and p.read_bytes()[:13] == b"#ROSBAG V2.0\n"
-            continue
-        assert p.is_dir() and (p / "metadata.yaml").is_file()
-        if kind == "mcap":
-            (f,) = p.glob("*.mcap")
-            assert f.read_bytes()[:8] == b"\x89MCAP0\r\n"
+        elif kind == "mcap":
+            assert p.is_file() and p.read_bytes()[:8] == b"\x89MCAP0\r\n"
         else:
+            assert p.is_dir() and (p / "metadata.yaml").is_file()
             (f,) = p.glob("*.db3")
             assert f.read_bytes()[:16] == b"SQLite format 3\x00"
 

@@ -265,6 +265,7 @@ def test_laserscan_angle_fields_must_match_ranges() -> None:
         rosmsg.scan2d_from_msg(bad)
 
 
+@pytest.mark.slow
 def test_backpack_bag_reads_multiecho_scans_and_imu(shared_data: Path) -> None:
     """Cartographer's 2D backpack bag: 10 s of MultiEchoLaserScan (1079 beams, +-134.75 deg) and a 200 Hz
     IMU; with two laser topics the reader asks for one by name."""
@@ -348,3 +349,28 @@ def test_tilted_scans_are_rejected_by_gravity() -> None:
     # 20 scans in the 2 s; the gravity direction is averaged over 1 s, which moves the edges by <= 0.5 s
     assert 10 <= res.rejected_tilt <= 30
     assert res.warnings["scans rejected by the IMU tilt (pose from the prior)"] == res.rejected_tilt
+
+
+def test_carmen_robotlaser1_and_compressed(tmp_path: Path) -> None:
+    """ROBOTLASER1 lines (angles from the line's own fields) in a .gz file; a field of view that disagrees
+    with the number of readings is an error naming the line."""
+    import gzip
+
+    from imuslam.io.carmen import read_carmen
+
+    def line(n: int, t: float, x: float) -> str:
+        r = " ".join(["2.5"] * n)
+        return (f"ROBOTLASER1 0 -1.5708 3.14159 {3.14159 / (181 - 1):.7f} 81.9 0.01 0 {n} {r} 0 "
+                f"{x + 0.1} 0 0 {x} 0 0 0 0 0 0 0 {t} host {t}\n")  # fmt: skip
+
+    f = tmp_path / "r.log.gz"
+    f.write_bytes(gzip.compress((line(181, 10.0, 0.0) + line(181, 10.2, 0.05)).encode()))
+    c = read_carmen(f)
+    assert len(c.laser) == 2 and c.laser.n_beams == 181
+    assert c.laser.angle_increment == pytest.approx(np.pi / 180, rel=1e-5)
+    assert np.allclose(c.laser.odom_xy_yaw[:, 0], [0.0, 0.05])
+    assert np.allclose(c.laser_pose_xy_yaw[:, 0], [0.1, 0.15])
+    assert c.laser.t_ns[1] - c.laser.t_ns[0] == pytest.approx(0.2e9, abs=1e3)
+    f.write_bytes(gzip.compress(line(100, 10.0, 0.0).encode()))
+    with pytest.raises(InputError, match=r"r.log.gz:1: field of view .* and 100 readings disagree"):
+        read_carmen(f)

@@ -80,6 +80,7 @@ def test_cli_writes_the_results_folder_and_counts_bad_frames(
         ("no_imu", r"no IMU samples in the image time span"),
         ("all_blank", r"no VO measurement from 6 frames"),
         ("bad_config", r"config.yaml: .*nhc_std"),
+        ("bag_without_camchain", r"a bag needs --camchain, --left-topic and --right-topic"),
     ],
 )
 def test_bad_inputs_are_one_line_errors(
@@ -118,6 +119,9 @@ def test_bad_inputs_are_one_line_errors(
         for cam in ("cam0", "cam1"):
             for f in (m / cam / "data").iterdir():
                 cv2.imwrite(str(f), np.full((480, 752), 100, np.uint8))
+    elif case == "bag_without_camchain":
+        (tmp_path / "x.mcap").write_bytes(b"")
+        args = [str(tmp_path / "x.mcap")]
     elif case == "bad_config":
         p = tmp_path / "config.yaml"
         p.write_text("nhc_std: -1\n")

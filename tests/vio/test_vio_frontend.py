@@ -197,3 +197,52 @@ def test_vo_velocity_on_rendered_images_within_its_covariance() -> None:
     assert 1.5 < nees.mean() < 9.0
     assert np.sqrt(np.mean(e[:, 3:] ** 2)) < 0.06
     assert np.sqrt(np.mean(e[:, :3] ** 2)) < 0.02
+
+
+def test_bag_stereo_equals_the_euroc_folder(shared_data: Path, tmp_path: Path) -> None:
+    """A ROS 2 MCAP with the excerpt's first 12 pairs (left as mono8 Image, right as PNG CompressedImage)
+    and its IMU gives the same images and the same VO measurements as the folder; one right image is
+    dropped (counted missing)."""
+    import cv2
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from imuslam.io import rosmsg
+    from imuslam.vio.dataset import BagStereo
+
+    ds = EurocStereo(shared_data / EUROC)
+    pairs = list(ds.frames())[:12]
+    ts = rosmsg.typestore("ros2")
+    bag = tmp_path / "stereo.mcap"
+    with Writer(bag, version=8, storage_plugin=StoragePlugin.MCAP) as w:
+        cl = w.add_connection("/cam0/image_raw", rosmsg.IMAGE, typestore=ts)
+        cr = w.add_connection("/cam1/image_raw/compressed", rosmsg.COMPRESSED_IMAGE, typestore=ts)
+        ci = w.add_connection("/imu0", rosmsg.IMU, typestore=ts)
+        sel = (ds.imu.t_ns >= pairs[0][0] - 10**8) & (ds.imu.t_ns <= pairs[-1][0] + 10**8)
+        events = [
+            (int(t), "imu", i) for i, t in zip(np.flatnonzero(sel), ds.imu.t_ns[sel], strict=True)
+        ]
+        events += [(t, "img", k) for k, (t, _, _) in enumerate(pairs)]
+        for t, kind, k in sorted(events):
+            if kind == "imu":
+                m = rosmsg.imu_message(t, ds.imu.accel[k], ds.imu.gyro[k])
+                w.write(ci, t, ts.serialize_cdr(m, rosmsg.IMU))
+                continue
+            _, a, b = pairs[k]
+            w.write(cl, t, ts.serialize_cdr(rosmsg.image_message(t, a), rosmsg.IMAGE))
+            if k == 7:
+                continue  # the right image of pair 7 is lost
+            T = ts.types[rosmsg.COMPRESSED_IMAGE]
+            ok, png = cv2.imencode(".png", b)
+            cm = T(
+                header=rosmsg.header(t, "cam1"),
+                format="png",
+                data=np.frombuffer(png.tobytes(), np.uint8),
+            )
+            w.write(cr, t, ts.serialize_cdr(cm, rosmsg.COMPRESSED_IMAGE))
+    bs = BagStereo(bag, ds.calibration, "/cam0/image_raw", "/cam1/image_raw/compressed", "/imu0")
+    got = list(bs.frames())
+    assert len(got) == 11 and bs.counts.missing == 1
+    want = [p for k, p in enumerate(pairs) if k != 7]
+    for (t, a, b), (tw, aw, bw) in zip(got, want, strict=True):
+        assert t == tw and np.array_equal(a, aw) and np.array_equal(b, bw)
+    assert len(bs.imu) == int(sel.sum())

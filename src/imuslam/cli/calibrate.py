@@ -74,11 +74,11 @@ def print_cv(res: CalibrationResult, cv: CrossValidation) -> None:
     console.print(
         table(
             f"{cv.k_folds}-fold cross-validation over {len(cv.poses)} static poses ({cv.method})",
-            ["quantity", "fit", "held out RMS", "held out worst", "unit"],
+            ["quantity", "fit on all poses", "held out RMS", "held out worst", "unit"],
             [
-                ["gravity norm error", f"{res.accel_rms:.5f}", f"{cv.norm_rms:.5f}",
+                ["gravity norm error per pose", f"{cv.fit_norm_rms:.5f}", f"{cv.norm_rms:.5f}",
                  f"{cv.norm_worst:.5f}", "m/s^2"],
-                ["gravity direction error", f"{res.gyro_rms_deg:.3f}",
+                ["gravity direction error per pair", f"{cv.fit_direction_rms_deg:.3f}",
                  f"{cv.direction_rms_deg:.3f}", f"{cv.direction_worst_deg:.3f}", "deg"],
             ],
         )
@@ -194,7 +194,9 @@ def register(app: typer.Typer) -> None:
         log = load_log(acc, gyro, fmt, topic, accel_unit, gyro_unit, columns)
         res = calibrate(log, cfg)
         print_result(res)
-        cv = cross_validate(log, cfg, res.intervals, cv_folds) if cv_folds else None
+        cv = (
+            cross_validate(log, cfg, res.intervals, cv_folds, res.calibration) if cv_folds else None
+        )
         if cv is not None:
             print_cv(res, cv)
         with results_folder(out) as tmp:

@@ -15,7 +15,6 @@ from imuslam.cli.common import (
     friendly_errors,
     load_log,
 )
-from imuslam.errors import InputError
 from imuslam.imu.model import ImuCalibration
 from imuslam.io.load import FORMATS, detect_format, write_imu
 from imuslam.io.results import check_out_dir, results_file, results_folder
@@ -69,8 +68,6 @@ def register(app: typer.Typer) -> None:
         f = detect_format(log_path) if fmt == "auto" else fmt
         if f == "bag":
             t = topic or log.source.rsplit(":", 1)[-1]
-            if Path(out).exists():
-                raise InputError(f"--out {out}: exists; choose a new output bag")
             with results_file(out) as tmp:
                 write_imu(corrected, tmp, "bag", template=log_path, topic=t)
             written = [out]

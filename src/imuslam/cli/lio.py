@@ -47,7 +47,8 @@ def register(app: typer.Typer) -> None:
         from imuslam.config import load_config
         from imuslam.errors import InputError
         from imuslam.lio.config import LioConfig
-        from imuslam.lio.pipeline import LioPipeline, write_results
+        from imuslam.lio.pipeline import LioPipeline
+        from imuslam.lio.report import write_results
 
         cfg = load_config(config, LioConfig) if config is not None else LioConfig()
         upd: dict[str, object] = {}

@@ -19,6 +19,7 @@ from typing import TypeVar
 import typer
 
 from imuslam.errors import InputError
+from imuslam.io.results import OutKind, check_out_dir
 
 T = TypeVar("T")
 
@@ -106,14 +107,12 @@ def choice(values: Iterable[T]) -> Callable[[T | None], T | None]:
     return check
 
 
-def _out(kind: str) -> Callable[[Path | None], Path | None]:
-    from imuslam.io.results import check_out_dir
-
+def _out(kind: OutKind) -> Callable[[Path | None], Path | None]:
     def check(value: Path | None) -> Path | None:
         if value is None:
             return None
         try:
-            check_out_dir(value, kind, option="")  # type: ignore[arg-type]
+            check_out_dir(value, kind, option="")
         except InputError as exc:
             raise typer.BadParameter(str(exc)) from None
         return value

@@ -16,8 +16,12 @@ def register(app: typer.Typer) -> None:
     def vio_cmd(
         dataset: str = typer.Argument(
             ...,
-            help="EuRoC folder (mav0/cam0, cam1, imu0), or 'sim' for the rendered simulated robot",
+            help="EuRoC folder (mav0/cam0, cam1, imu0), a bag (.bag, .mcap, ROS 2 folder) with "
+            "--camchain and the topics, or 'sim' for the rendered simulated robot",
         ),
+        left_topic: str | None = typer.Option(None, help="bag: left Image / CompressedImage topic"),
+        right_topic: str | None = typer.Option(None, help="bag: right image topic"),
+        imu_topic: str | None = typer.Option(None, help="bag: Imu topic (default: the only one)"),
         out: Path = typer.Option(Path("vio_out"), "--out", help="results folder"),
         camchain: Path | None = typer.Option(
             None, help="Kalibr camchain YAML (instead of sensor.yaml)"
@@ -90,11 +94,20 @@ def register(app: typer.Typer) -> None:
             times = data.t_frames_ns
         else:
             from imuslam.vio.calib import read_kalibr_camchain
-            from imuslam.vio.dataset import EurocStereo
+            from imuslam.vio.dataset import BagStereo, EurocStereo
 
             cal = read_kalibr_camchain(camchain) if camchain is not None else None
-            data = EurocStereo(Path(dataset), cal)  # type: ignore[assignment]
-            times = data.t_ns  # type: ignore[attr-defined]
+            p = Path(dataset)
+            if p.suffix in (".bag", ".mcap", ".db3") or (p / "metadata.yaml").is_file():
+                if cal is None or left_topic is None or right_topic is None:
+                    raise InputError(
+                        f"{p}: a bag needs --camchain, --left-topic and --right-topic (image topics)"
+                    )
+                data = BagStereo(p, cal, left_topic, right_topic, imu_topic)  # type: ignore[assignment]
+                times = None
+            else:
+                data = EurocStereo(p, cal)  # type: ignore[assignment]
+                times = data.t_ns  # type: ignore[attr-defined]
         if calib is not None:
             from imuslam.imu.model import ImuCalibration
 
@@ -113,7 +126,8 @@ def register(app: typer.Typer) -> None:
         tracks = {"fused": res.fused, "vo": res.vo, "imu": res.imu}
         metrics = None
         if truth is not None:
-            ev = compare_tracks(truth, tracks, np.asarray(times), align=align)
+            tt = np.asarray(times) if times is not None else res.vo.t_ns
+            ev = compare_tracks(truth, tracks, tt, align=align)
             metrics = {k: v.to_dict() for k, v in ev.items()}
             rows = [
                 [k, f"{v.ape_trans.rmse:.4g}", f"{v.rpe_trans.rmse:.4g}", f"{v.ape_rot_deg.rmse:.3g}", str(v.n_pairs)]

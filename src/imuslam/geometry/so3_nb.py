@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["exp_nb", "hat_nb", "log_nb", "right_jacobian_nb"]
+__all__ = ["exp_into_nb", "exp_nb", "hat_nb", "log_nb", "right_jacobian_nb"]
 
 
 @numba.njit(cache=True, inline="always")
@@ -28,9 +28,11 @@ def hat_nb(w: FloatArray) -> FloatArray:  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
-def exp_nb(w: FloatArray) -> FloatArray:  # pragma: no cover - compiled
-    """Rotation vector (3,) rad -> rotation matrix (3, 3) (Rodrigues, Taylor terms below 1e-8 rad)."""
-    wx, wy, wz = w[0], w[1], w[2]
+def exp_into_nb(
+    wx: float, wy: float, wz: float, R: FloatArray
+) -> None:  # pragma: no cover - compiled
+    """Rotation vector (wx, wy, wz) rad -> rotation matrix written into ``R`` (3, 3), no allocation
+    (Rodrigues, Taylor terms below 1e-8 rad): for per-point loops."""
     th2 = wx * wx + wy * wy + wz * wz
     th = np.sqrt(th2)
     if th < 1e-8:
@@ -39,7 +41,6 @@ def exp_nb(w: FloatArray) -> FloatArray:  # pragma: no cover - compiled
     else:
         a = np.sin(th) / th
         b = (1.0 - np.cos(th)) / th2
-    R = np.empty((3, 3))
     R[0, 0] = 1.0 - b * (wy * wy + wz * wz)
     R[0, 1] = -a * wz + b * wx * wy
     R[0, 2] = a * wy + b * wx * wz
@@ -49,6 +50,13 @@ def exp_nb(w: FloatArray) -> FloatArray:  # pragma: no cover - compiled
     R[2, 0] = -a * wy + b * wx * wz
     R[2, 1] = a * wx + b * wy * wz
     R[2, 2] = 1.0 - b * (wx * wx + wy * wy)
+
+
+@numba.njit(cache=True, inline="always")
+def exp_nb(w: FloatArray) -> FloatArray:  # pragma: no cover - compiled
+    """Rotation vector (3,) rad -> rotation matrix (3, 3) (Rodrigues, Taylor terms below 1e-8 rad)."""
+    R = np.empty((3, 3))
+    exp_into_nb(w[0], w[1], w[2], R)
     return R
 
 

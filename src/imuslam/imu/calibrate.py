@@ -10,6 +10,10 @@
    predicted gravity direction with the measured one (eq. 13): ``r = R^T u_0 - u_1``.
 4. Covariance ``s^2 (J^T J)^-1`` at the solution with ``s^2`` the residual variance, and an
    observability verdict.
+5. ``method="joint"`` (the default): steps 2-3 only start a joint weighted least squares of both triads,
+   the gyro bias and its g-sensitivity over every pose's accelerometer mean, every rotation's predicted
+   gravity direction and every pose's rate at rest (``imu/joint.py``), whose covariance replaces theirs.
+   ``method="tedaldi"`` stops after step 4 (imu_tk's result, for reproduction).
 """
 
 from __future__ import annotations

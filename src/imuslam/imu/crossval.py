@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.imu.calibrate import CalibrationConfig, calibrate
+from imuslam.imu.model import ImuCalibration
 from imuslam.imu.score import detect_poses, pose_errors, rms, worst
 from imuslam.io.imulog import ImuLog, InputError
 
@@ -42,6 +43,8 @@ class CrossValidation:
     norm_error: FloatArray
     direction_error_deg: FloatArray
     pair: IntArray
+    fit_norm_rms: float = float("nan")  # the full calibration on the same poses (in-sample), m/s^2
+    fit_direction_rms_deg: float = float("nan")
 
     @property
     def norm_rms(self) -> float:
@@ -75,11 +78,13 @@ def cross_validate(
     config: CalibrationConfig,
     intervals: IntArray,
     k_folds: int = 5,
+    calibration: ImuCalibration | None = None,
 ) -> CrossValidation:
     """K-fold cross-validation of ``config``'s method on ``log``.
 
     intervals: (L, 2) the static intervals the full calibration used (its threshold sweep's choice);
         each fold refits on those that do not overlap its held-out poses.
+    calibration: the calibration fitted on all poses, whose in-sample score is recorded beside.
     """
     if k_folds < 2:
         raise InputError(f"cross-validation needs at least 2 folds, got {k_folds}")
@@ -104,6 +109,7 @@ def cross_validate(
         touched = np.flatnonzero((fold[:-1] == f) | (fold[1:] == f))
         dirs.append(pe.direction_error_deg[touched])
         pair_ids.append(touched)
+    fit = None if calibration is None else pose_errors(log, calibration, poses, config.g)
     return CrossValidation(
         config.method,
         k_folds,
@@ -112,4 +118,6 @@ def cross_validate(
         norm,
         np.concatenate(dirs),
         np.concatenate(pair_ids).astype(np.int64),
+        rms(fit.norm_error) if fit is not None else float("nan"),
+        rms(fit.direction_error_deg) if fit is not None else float("nan"),
     )

@@ -265,6 +265,7 @@ class OnlineCalibrator:
                     self.cfg.calibration,
                     res.intervals,
                     self.cfg.cv_folds,
+                    new,
                 )
                 new.notes["cross_validation"] = {
                     "method": cv.method,
@@ -274,6 +275,8 @@ class OnlineCalibrator:
                     "norm_worst_mps2": cv.norm_worst,
                     "direction_rms_deg": cv.direction_rms_deg,
                     "direction_worst_deg": cv.direction_worst_deg,
+                    "fit_norm_rms_mps2": cv.fit_norm_rms,
+                    "fit_direction_rms_deg": cv.fit_direction_rms_deg,
                 }
             except InputError as exc:  # too few poses for the folds: say so in the version's notes
                 new.notes["cross_validation"] = {"not_run": str(exc)}

@@ -134,9 +134,9 @@ def write_report(
 detector (pose i in fold i mod {cv.k_folds}): each fold refits the calibration ({html.escape(cv.method)})
 without its poses and scores them, and every pair of poses with a held-out end.</p>
 <table><tr><th>quantity</th><th>fit (all poses)</th><th>held out: RMS</th><th>held out: worst</th></tr>
-<tr><td>gravity norm error [m/s^2]</td><td>{res.accel_rms:.5f} (per sample)</td>
+<tr><td>gravity norm error per pose [m/s^2]</td><td>{cv.fit_norm_rms:.5f}</td>
 <td>{cv.norm_rms:.5f}</td><td>{cv.norm_worst:.5f}</td></tr>
-<tr><td>gravity direction error [deg]</td><td>{res.gyro_rms_deg:.3f}</td>
+<tr><td>gravity direction error per pair [deg]</td><td>{cv.fit_direction_rms_deg:.3f}</td>
 <td>{cv.direction_rms_deg:.3f}</td><td>{cv.direction_worst_deg:.3f}</td></tr></table>"""
     )
     g_sens = (

@@ -238,7 +238,7 @@ def load_calibrations(
                     f"{p}: an imu_tk .calib file must be followed by its gyroscope .calib file"
                 )
             cal = ImuCalibration.import_imutk(p, paths[i + 1], accel_unit, gyro_unit)
-            out.append((f"{p.parent.name}/{p.stem}+{Path(paths[i + 1]).stem}", cal))
+            out.append((f"{p.parent.name}/{p.name}+{Path(paths[i + 1]).name}", cal))
             i += 2
         else:
             raise InputError(

@@ -35,6 +35,7 @@ each iterate, gain in state dimension K = (H^T R^-1 H + P^-1)^-1 H^T R^-1, stop 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -450,8 +451,10 @@ def kalman_update(
     return dx, P, V, fading
 
 
+@functools.lru_cache(maxsize=256)
 def chi2_threshold(prob: float, dof: int) -> float:
-    """The chi-square quantile: P(chi2_dof <= threshold) = prob (2 * gammaincinv(dof / 2, prob))."""
+    """The chi-square quantile: P(chi2_dof <= threshold) = prob (2 * gammaincinv(dof / 2, prob)).
+    Cached: a filter gates every update with the same few (prob, dof) pairs."""
     from scipy.special import gammaincinv
 
     if not 0.0 < prob < 1.0:

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from imuslam.errors import InputError
-from imuslam.io.atomic import write_atomic
+from imuslam.io.atomic import atomic_path, write_atomic
 
 if TYPE_CHECKING:
     from imuslam.interfaces.trajectory import Trajectory
@@ -141,24 +141,20 @@ def results_folder(out: str | Path, option: str = "--out") -> Iterator[Path]:
 
 @contextmanager
 def results_file(out: str | Path, option: str = "--out") -> Iterator[Path]:
-    """Yield a temporary path beside ``out``; on success it replaces ``out`` (a file, or a folder bag
-    written there), on any error it is removed."""
+    """:func:`imuslam.io.atomic.atomic_path` after the preflight of ``out``: a temporary path beside it
+    that replaces ``out`` (a file, or a folder bag written there) on success and is removed on any
+    error, with the parents it had to create."""
     o = Path(out)
     check_out_dir(o, "any", option)
     p = o.absolute()
     if p.is_dir():
         raise InputError(f"{option} {out}: exists; choose a new name")
     with _parents(p):
-        tmp_dir = Path(tempfile.mkdtemp(dir=p.parent, prefix=f".{p.name}.partial-"))
         try:
-            try:
-                tmp = tmp_dir / p.name
+            with atomic_path(p) as tmp:
                 yield tmp
-                os.replace(tmp, p)
-            except OSError as exc:
-                raise _as_input_error(exc, o, option) from exc
-        finally:
-            shutil.rmtree(tmp_dir, ignore_errors=True)
+        except OSError as exc:
+            raise _as_input_error(exc, o, option) from exc
 
 
 def json_safe(x: Any) -> Any:

@@ -64,6 +64,9 @@ class MapConfig(BaseModel):
 class FilterConfig(BaseModel):
     """state: reduced [p, v, theta, g] (12) for a corrected IMU or full with biases (18); noise densities
     of the IMU (continuous, per sqrt(Hz)) and bias random walks; lidar_std: point-to-plane 1-sigma, m;
+    lidar_dof: independent residuals a scan is worth (map and plane-fit errors are shared by many points,
+    so thousands of residuals do not carry thousands of independent errors; R is scaled by M / lidar_dof
+    when a scan has M > lidar_dof residuals, which keeps the covariance consistent, see NEES in the tests);
     max_iterations and the convergence threshold of the iterated update (on |dx|); max_speed /
     max_rate bound a physically possible state (divergence check)."""
 
@@ -74,6 +77,7 @@ class FilterConfig(BaseModel):
     accel_bias_rw: float = Field(1e-3, ge=0)
     gyro_bias_rw: float = Field(1e-4, ge=0)
     lidar_std: float = Field(0.05, gt=0)
+    lidar_dof: float = Field(30.0, gt=0)
     max_iterations: int = Field(5, ge=1)
     converge: float = Field(1e-3, gt=0)
     max_speed: float = Field(60.0, gt=0)

@@ -15,27 +15,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.geometry import exp, log
+from imuslam.geometry.so3_nb import exp_into_nb
 
 FloatArray = NDArray[np.float64]
-
-
-@numba.njit(cache=True, inline="always")
-def _exp3(wx: float, wy: float, wz: float, out: FloatArray) -> None:  # pragma: no cover - compiled
-    th2 = wx * wx + wy * wy + wz * wz
-    if th2 < 1e-16:
-        a, b = 1.0, 0.5
-    else:
-        th = np.sqrt(th2)
-        a, b = np.sin(th) / th, (1.0 - np.cos(th)) / th2
-    out[0, 0] = 1.0 - b * (wy * wy + wz * wz)
-    out[0, 1] = -a * wz + b * wx * wy
-    out[0, 2] = a * wy + b * wx * wz
-    out[1, 0] = a * wz + b * wx * wy
-    out[1, 1] = 1.0 - b * (wx * wx + wz * wz)
-    out[1, 2] = -a * wx + b * wy * wz
-    out[2, 0] = -a * wy + b * wx * wz
-    out[2, 1] = a * wx + b * wy * wz
-    out[2, 2] = 1.0 - b * (wx * wx + wy * wy)
 
 
 @numba.njit(cache=True)
@@ -52,7 +34,7 @@ def _deskew(pts_l: FloatArray, t_pt: FloatArray, t_k: FloatArray, R_k: FloatArra
         k = np.searchsorted(t_k, t_pt[j], side="right") - 1
         k = min(max(k, 0), K - 1)
         dt = t_pt[j] - t_k[k]
-        _exp3(w_k[k, 0] * dt, w_k[k, 1] * dt, w_k[k, 2] * dt, E)
+        exp_into_nb(w_k[k, 0] * dt, w_k[k, 1] * dt, w_k[k, 2] * dt, E)
         for a in range(3):
             for b in range(3):
                 R[a, b] = R_k[k, a, 0] * E[0, b] + R_k[k, a, 1] * E[1, b] + R_k[k, a, 2] * E[2, b]

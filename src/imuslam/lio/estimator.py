@@ -59,12 +59,13 @@ class LidarMeasurement:
     kind = "lidar"
 
     def __init__(self, local_map: LocalMap, surf_i: FloatArray, edge_i: FloatArray, std: float,
-                 huber: float) -> None:  # fmt: skip
+                 huber: float, dof: float = np.inf) -> None:  # fmt: skip
         self.map = local_map
         self.surf_i = surf_i
         self.edge_i = edge_i
         self.var = std * std
         self.huber = huber
+        self.dof = dof
         self.n_corr = 0
         self.n_calls = 0
 
@@ -78,7 +79,10 @@ class LidarMeasurement:
         H = np.zeros((len(r), layout.dim))
         H[:, layout.P] = J[:, :3]
         H[:, layout.TH] = J[:, 3:]
-        return -r, H, self.var / huber_weights(r, self.huber)
+        scale = max(
+            1.0, len(r) / self.dof
+        )  # correlated residuals: M rows worth ``dof`` independent ones
+        return -r, H, scale * self.var / huber_weights(r, self.huber)
 
 
 class LioEstimator:
@@ -209,7 +213,16 @@ class LioEstimator:
         t_end = float(np.max(t_s))
         k = self.n_scans
         if self.eskf is None:
-            T_l = self.lidar_only.register_scan(points_l, t_s, ring)
+            # before the filter: the gyro takes out the rotation within the scan (a platform turning a
+            # full circle per scan included), the LiDAR-only odometry's constant velocity the translation
+            from imuslam.ins.core import integrate_nominal
+
+            tk, _, gyr = self._samples(float(np.min(t_s)), t_end)
+            z = np.zeros((len(tk), 3))
+            _, _, Rk = integrate_nominal(z, gyr, np.diff(tk), np.zeros(3), np.zeros(3), np.eye(3), np.zeros(3),
+                                         np.zeros(3), np.zeros(3), np.zeros(3))  # fmt: skip
+            pts_rot = deskew(points_l, t_s, tk, Rk, z, z, z, gyr, self.T_i_l, t_end)
+            T_l = self.lidar_only.register_scan(pts_rot, t_s, ring, rotation_compensated=True)
             self._init_scans.append((t_end, T_l))
             self.last_iterations, self.last_n_corr = (
                 self.lidar_only.last_iterations,
@@ -238,7 +251,8 @@ class LioEstimator:
         surf_l, edge_l = select_points(pts_l, t_s, ring, self.config.frontend)
         R_i_l, p_i_l = self.T_i_l[:3, :3], self.T_i_l[:3, 3]
         surf_i, edge_i = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
-        meas = LidarMeasurement(self.map, surf_i, edge_i, self.config.filter.lidar_std, 0.2)
+        meas = LidarMeasurement(self.map, surf_i, edge_i, self.config.filter.lidar_std, 0.2,
+                                self.config.filter.lidar_dof)  # fmt: skip
         fc = self.config.filter
         # at least as many rows as states, else the IMU carries the filter through (corridors, fog)
         meas.linearize(eskf.x, self.layout)

@@ -82,8 +82,12 @@ class LidarOdometry:
         points_l: FloatArray,
         t_s: FloatArray,
         ring: NDArray[np.integer] | None = None,
+        rotation_compensated: bool = False,
     ) -> FloatArray:
         """Register one scan; returns ``T_w_l`` (4, 4) at the scan end ``max(t_s)``.
+
+        ``rotation_compensated``: the points were already rotated into the scan-end frame (e.g. from a
+        gyro); the constant-velocity model then only removes the translation.
 
         points_l: (N, 3) LiDAR frame at each point's time; t_s: (N,) point times, s (any origin, the
         same clock for every scan); ring: (N,) beam index or None.
@@ -96,6 +100,8 @@ class LidarOdometry:
         T_pred = self.T_w_l @ D
         if self.n_scans < 2:
             omega, vel = np.zeros(3), np.zeros(3)
+        if rotation_compensated:
+            omega = np.zeros(3)
         pts = deskew_constant_velocity(points_l, t_s, t_end, T_pred, omega, vel)
         surf, edge = select_points(pts, t_s, ring, self.config.frontend)
         if len(self.map) == 0:

@@ -1,7 +1,7 @@
 """The LiDAR(-inertial) odometry pipeline: reads a dataset, cleans each scan, drives the pure estimator
 (:class:`~imuslam.lio.lidar_only.LidarOdometry` or :class:`~imuslam.lio.estimator.LioEstimator`), keeps
 timing, builds the global map and returns a :class:`LioResult` (KISS-ICP's ``OdometryPipeline`` beside
-``KissICP``). Writing the results folder is :func:`write_results`.
+``KissICP``). The results folder is written by :func:`imuslam.lio.report.write_results`.
 """
 
 from __future__ import annotations
@@ -9,7 +9,6 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -225,73 +224,3 @@ class LioPipeline:
         )
         return LioResult(traj, stats, gmap.points, self.config, warnings,
                          getattr(est, "peak_map_points", 0), time.perf_counter() - wall0)  # fmt: skip
-
-
-def write_results(
-    result: LioResult, out_dir: str | Path, gt: Trajectory | None = None
-) -> dict[str, Any]:
-    """Write the results folder atomically: trajectory.tum, map.ply, map.pcd, config.yaml, scans.csv,
-    trajectory.png and, with ``gt``, metrics.json. Returns the metrics (empty without ``gt``)."""
-    import json
-
-    import yaml
-
-    from imuslam.io.atomic import atomic_path
-    from imuslam.io.pointcloud import write_pcd, write_ply
-    from imuslam.io.trajectory import write_tum
-
-    metrics: dict[str, Any] = {}
-    with atomic_path(out_dir) as tmp:
-        tmp.mkdir(parents=True)
-        write_tum(result.trajectory, tmp / "trajectory.tum")
-        write_ply(tmp / "map.ply", result.map_points)
-        write_pcd(tmp / "map.pcd", result.map_points)
-        (tmp / "config.yaml").write_text(
-            yaml.safe_dump(result.config.model_dump(mode="json"), sort_keys=False)
-        )
-        rows = ["t_ns,n_points,n_dropped,n_used,iterations,n_corr,time_ms"] + [
-            f"{s.t_ns},{s.n_points},{s.n_dropped},{s.n_used},{s.iterations},{s.n_corr},{s.time_s * 1e3:.3f}"
-            for s in result.stats
-        ]
-        (tmp / "scans.csv").write_text("\n".join(rows) + "\n")
-        aligned = None
-        if gt is not None:
-            from imuslam.eval.metrics import KITTI_LENGTHS, evaluate
-
-            res, _r, aligned = evaluate(gt, result.trajectory, "se3", 1.0, "m", 0.02, KITTI_LENGTHS)
-            metrics = res.to_dict()
-            (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
-        plot_top_view(result, tmp / "trajectory.png", gt)
-    return metrics
-
-
-def plot_top_view(result: LioResult, path: Path, gt: Trajectory | None = None) -> None:
-    """Top view (x-y) of the map points and the trajectory (PNG)."""
-    from matplotlib.figure import Figure
-
-    from imuslam.io.figures import save_figure
-
-    fig = Figure(figsize=(8, 7))
-    ax = fig.add_subplot(1, 1, 1)
-    m, p = result.map_points, result.trajectory.p_w
-    if gt is not None:  # everything in the reference frame, by the SE(3) alignment of the estimate
-        from imuslam.eval.align import align
-        from imuslam.eval.associate import associate
-
-        try:
-            r, e = associate(gt, result.trajectory, 0.02)
-            s, R, t = align(r, e, "se3")
-            m, p = s * m @ R.T + t, s * p @ R.T + t
-            ax.plot(gt.p_w[:, 0], gt.p_w[:, 1], "k--", lw=0.8, label="ground truth")
-        except InputError:
-            pass
-    if len(m):
-        z = m[:, 2]
-        sel = z > np.percentile(z, 10) + 0.3  # drop the ground for a readable view
-        ax.scatter(m[sel, 0], m[sel, 1], s=0.2, c="0.6", lw=0, rasterized=True)
-    ax.plot(p[:, 0], p[:, 1], "C1-", lw=1.2, label="imuslam lio")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.legend(loc="upper right")
-    save_figure(fig, path)  # type: ignore[arg-type]

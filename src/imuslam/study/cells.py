@@ -113,7 +113,7 @@ def expand(study: StudyConfig) -> list[Cell]:
                     estimator=est,
                     seed=seed,
                     drift=study.drift,
-                    align=study.align,
+                    align=c.align or study.align,
                     eval_align=c.eval_align,
                 )  # fmt: skip
             )

@@ -21,7 +21,7 @@ IMU_CONDITIONS = ("ideal", "raw", "offline", "online", "drifting")
 AlignName = Literal["none", "kf", "stkf", "rwnn"]
 ALIGN_NAMES = ("none", "kf", "stkf", "rwnn")
 # navigation scenes of the simulator (sim/scenario.py); 'gimbal' is a calibration log, not a drive
-NAV_SCENARIOS = ("room", "street", "corridor", "handheld")
+NAV_SCENARIOS = ("room", "square", "street", "corridor", "handheld")
 Factor = Literal["scenario", "imu", "alignment", "estimator"]
 
 
@@ -99,6 +99,9 @@ class ClaimSpec(_Strict):
     lower_is_better: bool = True
     seeds: list[int] | None = Field(
         None, description="this claim's seeds (a count or a list); default: the study's"
+    )
+    align: AlignSpec | None = Field(
+        None, description="this claim's alignment window; default: the study's"
     )
     eval_align: Literal["se3", "sim3", "yaw", "first", "none"] = "se3"
 

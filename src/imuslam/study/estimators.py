@@ -28,7 +28,7 @@ from imuslam.interfaces import ImuLog, NavState, Trajectory
 from imuslam.sim.imu import ImuTruth
 from imuslam.sim.trajectory import EulerTrajectory
 from imuslam.sim.world import World
-from imuslam.study.cells import Cell
+from imuslam.study.cells import Cell, digest
 from imuslam.study.config import NAV_SCENARIOS, StudyConfig
 
 FloatArray = NDArray[np.float64]
@@ -243,12 +243,9 @@ def _vio_front_end(cell_d: dict[str, Any], image_hz: float, vo_cfg: dict[str, An
 def _vio_prepare(cell: Cell) -> tuple[str, Callable[..., Any], tuple[Any, ...]]:
     o = VioOptions.model_validate(cell.estimator.options)
     vo_cfg = o.config.get("vo", {})
-    key = (
-        f"vo-{cell.world_seed():x}-{cell.scenario.name}-{cell.scenario.duration_s:g}-{o.image_hz:g}-"
-        + str(abs(hash(repr(sorted(vo_cfg.items())))))
-    )
     # only what decides the images: the scene, the window, the seed (not the IMU, not the filter)
     base = cell.model_copy(update={"imu": "ideal", "alignment": "none", "claim": ""})
+    key = "vo-" + digest([base.world_seed(), o.image_hz, vo_cfg])
     return key, _vio_front_end, (base.model_dump(mode="json"), o.image_hz, vo_cfg)
 
 
@@ -309,11 +306,13 @@ def run_map2d_cell(inp: CellInput) -> Estimate:
     k0 = int(np.searchsorted(sim.log.t_ns, int(round(inp.t_start_s * 1e9))))
     log_ = with_imu(sim.log.slice(k0, len(sim.log)), inp.imu)
     res = run_slam2d(log_, cfg)
-    truth = planar(inp.traj, log_.t_ns * 1e-9)
+    truth = planar(inp.traj, log_.t_ns.astype(np.float64) * 1e-9)
 
     def occupied(poses_w: FloatArray) -> FloatArray:
         g = render_map(log_, poses_w, cfg)
-        return occupied_centres(g.prob, g.known(), g.x0, g.y0, g.params.resolution)
+        return occupied_centres(
+            g.prob.astype(np.float64), g.known(), g.x0, g.y0, g.params.resolution
+        )
 
     q = map_quality(res.pose_xy_yaw, truth, occupied, inp.world, sim.scan_height)
     P = res.pose_xy_yaw
@@ -341,4 +340,94 @@ if _available("imuslam.slam2d.slam", "imuslam.sim.robot2d", "imuslam.eval.mapqua
     )
 else:
     planned("map2d", "2D SLAM (imuslam.slam2d) has no pipeline in this build")
-planned("lio", "LiDAR-inertial odometry (imuslam.lio) has no pipeline in this build")
+
+
+# ---------------------------------------------------------------------------------------------
+# lio: LiDAR-inertial odometry with its own INS alignment (seed 001), imuslam.lio
+
+LIDAR_P_B_L = {"street": (0.0, 0.0, 0.2), "corridor": (0.0, 0.0, 0.6)}  # the LiDAR above the IMU, m
+
+
+class LioOptions(BaseModel):
+    """``imuslam.lio.pipeline.LioPipeline`` on a simulated VLP-16 (``columns`` per turn at 10 Hz) with
+    the cell's IMU. The cell's alignment method is the LIO's own (``LioConfig.align``: over the first
+    ``align_seconds`` of the run, aided by the LiDAR-only poses), as in seed 001's system."""
+
+    model_config = ConfigDict(extra="forbid")
+    state: Literal["reduced", "full"] = "full"
+    use_imu: bool = True
+    align_seconds: float = Field(5.0, gt=0)
+    columns: int = Field(
+        900, ge=90, description="LiDAR columns per turn (1800: a VLP-16 at 0.2 deg)"
+    )
+    config: dict[str, Any] = Field(
+        default_factory=dict, description="further LioConfig fields (imuslam.lio.config)"
+    )
+
+
+def _lio_scans(cell_d: dict[str, Any], columns: int) -> list[Any]:
+    """The LiDAR scans over the cell's estimation window (shared by every IMU and alignment level)."""
+    from imuslam.sim.lidar import Lidar3dConfig, simulate_lidar3d_scan
+    from imuslam.study.pipeline import scene
+
+    cell = Cell.model_validate(cell_d)
+    traj, world, _ = scene(cell.scenario.name)
+    p_b_l = np.asarray(LIDAR_P_B_L[cell.scenario.name])
+
+    def pose_w_l(t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        st = traj.state(t)
+        return st.R_w_b, st.p_w + st.R_w_b @ p_b_l
+
+    cfg = Lidar3dConfig(columns=columns)
+    rng = cell.world_rng("lidar3d")
+    t0, t1 = cell.align.duration_s, cell.align.duration_s + cell.scenario.duration_s
+    ks = np.arange(int(np.ceil(t0 * cfg.rate_hz - 1e-9)), int(np.floor(t1 * cfg.rate_hz + 1e-9)))
+    return [simulate_lidar3d_scan(world, pose_w_l, k / cfg.rate_hz, cfg, rng) for k in ks[:-1]]
+
+
+def _lio_prepare(cell: Cell) -> tuple[str, Callable[..., Any], tuple[Any, ...]]:
+    o = LioOptions.model_validate(cell.estimator.options)
+    base = cell.model_copy(update={"imu": "ideal", "alignment": "none", "claim": ""})
+    return "lidar-" + digest([base.world_seed(), o.columns]), _lio_scans, (
+        base.model_dump(mode="json"), o.columns)  # fmt: skip
+
+
+@dataclass
+class _LidarRun:
+    name: str
+    scans: list[Any]
+    log: ImuLog
+
+    def lidar_scans(self) -> Any:
+        return iter(self.scans)
+
+    def imu(self) -> ImuLog:
+        return self.log
+
+    def __len__(self) -> int:
+        return len(self.scans)
+
+
+def run_lio_cell(inp: CellInput) -> Estimate:
+    from imuslam.lio.config import LioConfig
+    from imuslam.lio.pipeline import LioPipeline
+
+    o = inp.options
+    assert isinstance(o, LioOptions)
+    c = dict(o.config)
+    c["extrinsic"] = {**c.get("extrinsic", {}), "p_i_l": LIDAR_P_B_L[inp.cell.scenario.name]}
+    c["filter"] = {**c.get("filter", {}), "state": o.state}
+    c.update(align=inp.cell.alignment, align_seconds=o.align_seconds, use_imu=o.use_imu)
+    cfg = LioConfig.model_validate(c)
+    res = LioPipeline(_LidarRun("sim", inp.shared, inp.imu), cfg, imu=inp.imu, progress=False).run()
+    tr = res.trajectory
+    return Estimate(
+        Trajectory(tr.t_ns, tr.p_w, tr.R_w_b, "lio"), {"lio_scans_per_s": res.scans_per_s}
+    )
+
+
+if _available("imuslam.lio.pipeline", "imuslam.lio.estimator"):
+    register("lio", LioOptions, ("street", "corridor"), "LiDAR-inertial odometry", _lio_prepare,
+             own_alignment=True)(run_lio_cell)  # fmt: skip
+else:
+    planned("lio", "LiDAR-inertial odometry (imuslam.lio) has no pipeline in this build")

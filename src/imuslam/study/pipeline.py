@@ -32,6 +32,7 @@ from imuslam.sim.trajectory import (
     DiffDriveFigureEight,
     EulerTrajectory,
     Handheld,
+    SquareLoopCcwCw,
 )
 from imuslam.sim.world import World, corridor, room_8x8, urban_block
 from imuslam.study.cells import Cell
@@ -49,6 +50,8 @@ def scene(name: str) -> tuple[EulerTrajectory, World, float]:
     """Trajectory, world and IMU rate of a navigation scenario (as ``sim/scenario.py``)."""
     if name == "room":
         return DiffDriveFigureEight(), room_8x8(), 100.0
+    if name == "square":  # seed 000's validation drive: round the room CCW, turn at A, CW back
+        return SquareLoopCcwCw(), room_8x8(), 100.0
     if name == "street":
         return CarLoop(), urban_block(), 200.0
     if name == "corridor":

@@ -147,3 +147,96 @@ class EurocStereo:
                         f"({cal.source}) says {cam.width}x{cam.height}"
                     )
             yield t, a, b
+
+
+class BagStereo:
+    """A ROS 1 / ROS 2 / MCAP bag with two image topics (``sensor_msgs/Image`` mono8 / bgr8, or
+    ``CompressedImage``) and an IMU topic, calibrated by a Kalibr camchain. Left and right images pair by
+    equal header stamps (within ``max_dt_ns``); an image without its partner is counted as missing, one
+    that cannot be decoded as unreadable."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        calibration: StereoCalibration,
+        left_topic: str,
+        right_topic: str,
+        imu_topic: str | None = None,
+        imu: ImuLog | None = None,
+        max_dt_ns: int = 1_000_000,
+    ) -> None:
+        from imuslam.io.bag import Bag
+
+        self.path = Path(path)
+        self.source = str(path)
+        self.calibration = calibration
+        self.left_topic, self.right_topic, self.max_dt_ns = left_topic, right_topic, max_dt_ns
+        types = ["sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage"]
+        with Bag(self.path) as b:
+            b.connections_of([left_topic, right_topic], types)
+            self.imu = imu if imu is not None else b.imu(imu_topic)
+            self._n = min(b.count(left_topic), b.count(right_topic))
+            listed = b.count(left_topic) + b.count(right_topic)
+        self.counts = FrameCounts(listed=listed)
+
+    def __len__(self) -> int:
+        return self._n
+
+    def rectification(self) -> Rectification:
+        return self.calibration.rectification()
+
+    def skipped_frames(self) -> dict[str, int]:
+        return {"missing": self.counts.missing, "unreadable": self.counts.unreadable}
+
+    def _gray(self, msg: object, t_ns: int) -> U8Image | None:
+        import cv2
+
+        from imuslam.io.rosmsg import image_from_msg
+
+        try:
+            _, img = image_from_msg(msg)
+        except InputError:
+            return None
+        if img.dtype != np.uint8:
+            return None
+        if img.ndim == 3:
+            img = cv2.cvtColor(img[:, :, :3], cv2.COLOR_BGR2GRAY)
+        return np.ascontiguousarray(img)
+
+    def frames(self) -> Iterator[tuple[int, U8Image | None, U8Image | None]]:
+        from imuslam.io.bag import Bag
+        from imuslam.io.rosmsg import stamp_ns
+
+        cal = self.calibration
+        pending: dict[str, dict[int, object]] = {self.left_topic: {}, self.right_topic: {}}
+        with Bag(self.path) as b:
+            for topic, _, msg in b.messages([self.left_topic, self.right_topic]):
+                t = stamp_ns(msg)
+                other = self.right_topic if topic == self.left_topic else self.left_topic
+                match = next((k for k in pending[other] if abs(k - t) <= self.max_dt_ns), None)
+                if match is None:
+                    pending[topic][t] = msg
+                    continue
+                partner = pending[other].pop(match)
+                lm, rm = (msg, partner) if topic == self.left_topic else (partner, msg)
+                # older unmatched images will not find a partner any more
+                for tp in pending:
+                    for k in [k for k in pending[tp] if k < t - 10 * self.max_dt_ns]:
+                        del pending[tp][k]
+                        self.counts.missing += 1
+                a, c = self._gray(lm, t), self._gray(rm, t)
+                if a is None or c is None:
+                    self.counts.unreadable += 1
+                    yield t, None, None
+                    continue
+                for img, cam, tp in (
+                    (a, cal.left, self.left_topic),
+                    (c, cal.right, self.right_topic),
+                ):
+                    if img.shape != (cam.height, cam.width):
+                        raise InputError(
+                            f"{self.path}: {tp} image at {t} ns is {img.shape[1]}x{img.shape[0]}; the "
+                            f"calibration ({cal.source}) says {cam.width}x{cam.height}"
+                        )
+                yield t, a, c
+        self.counts.missing += sum(len(v) for v in pending.values())

@@ -446,7 +446,7 @@ def run_vio(
             filt.mark()
             next_nhc = t_mid + 1.0 / cfg.nhc_rate_hz
             # the IMU alone from the same state
-            sel = t_imu > t_mid
+            sel = (t_imu > t_mid) & (imu.t_ns <= vo_run.frames[-1][0] + 50_000_000)
             a0, g0 = filt.sample_at(t_mid)
             ts = np.concatenate([[t_mid], t_imu[sel]])
             acc = np.concatenate([a0[None], imu.accel[sel]])

@@ -1,0 +1,159 @@
+"""LiDAR-inertial odometry on the simulated street drive (seed 001's car loop, VLP-16, 200 Hz IMU with
+seed 000's table-2 errors), against the simulator's truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imuslam.errors import FilterDivergence, InputError
+from imuslam.eval.metrics import evaluate
+from imuslam.imu.model import ImuCalibration, TriadModel
+from imuslam.interfaces import ImuLog, Trajectory
+from imuslam.lio.config import ExtrinsicConfig, FilterConfig, FrontEndConfig, LioConfig
+from imuslam.lio.datasets import MemoryDataset
+from imuslam.lio.pipeline import LioPipeline
+from imuslam.lio.report import write_results
+from imuslam.sim.drive import LidarDrive, simulate_lidar_drive
+from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO
+
+
+@pytest.fixture(scope="module")
+def street() -> LidarDrive:
+    return simulate_lidar_drive("street", 6.0, seed=11)
+
+
+def _calibrated(d: LidarDrive) -> ImuLog:
+    a, g = SEED000_ACCEL, SEED000_GYRO
+    cal = ImuCalibration(
+        TriadModel(a.T, a.K, a.b, a.bias_sign), TriadModel(g.T, g.K, g.b, g.bias_sign)
+    )
+    return cal.correct(d.imu)
+
+
+def _config(d: LidarDrive, **kw: object) -> LioConfig:
+    return LioConfig(extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])), **kw)  # type: ignore[arg-type]
+
+
+def _truth(d: LidarDrive) -> Trajectory:
+    return Trajectory(d.gt_t_ns, d.gt_p_w, d.gt_R_w_b, "truth")
+
+
+@pytest.mark.parametrize(("mode", "state"), [("features", "full"), ("direct", "reduced")])
+def test_lio_on_the_street_drive(
+    street: LidarDrive, mode: str, state: str, tmp_path: object
+) -> None:
+    """The issue's accuracy targets (KITTI drift <= 0.5 %, rotation RMSE <= 0.5 deg) as bounds on this
+    48 m excerpt: ATE within 0.5 % of the path, rotation RMSE within 0.5 deg. Range noise is 2 cm on
+    thousands of planes per scan, so a working filter is far inside both; a wrong Jacobian, deskew or
+    extrinsic is not."""
+    cfg = _config(street, frontend=FrontEndConfig(mode=mode), filter=FilterConfig(state=state))  # type: ignore[arg-type]
+    res = LioPipeline(
+        MemoryDataset(street.scans, _calibrated(street), "sim"), cfg, progress=False
+    ).run()
+    gt = _truth(street)
+    ev, _, _ = evaluate(gt, res.trajectory, "se3", 1.0, "frames", 0.02)
+    assert len(res.trajectory) == len(street.scans)
+    assert ev.ape_trans.rmse < 0.005 * gt.path_length
+    assert ev.ape_rot_deg.rmse < 0.5
+    from pathlib import Path
+
+    out = Path(str(tmp_path)) / "res"
+    m = write_results(res, out, gt)
+    assert {p.name for p in out.iterdir()} >= {"trajectory.tum", "map.ply", "map.pcd", "config.yaml", "scans.csv",
+                                                "trajectory.png", "metrics.json"}  # fmt: skip
+    assert m["ape_trans"]["rmse"] == pytest.approx(ev.ape_trans.rmse, rel=0.05)
+
+
+def test_lidar_only_on_the_street_drive(street: LidarDrive) -> None:
+    cfg = _config(street, frontend=FrontEndConfig(mode="direct"), use_imu=False)
+    res = LioPipeline(MemoryDataset(street.scans, None, "sim"), cfg, progress=False).run()
+    ev, _, _ = evaluate(_truth(street), res.trajectory, "se3", 1.0, "frames", 0.02)
+    assert ev.ape_trans.rmse < 0.01 * _truth(street).path_length
+    assert ev.ape_rot_deg.rmse < 0.5
+
+
+def test_no_overlap_between_imu_and_lidar_is_named(street: LidarDrive) -> None:
+    imu = _calibrated(street)
+    late = ImuLog(imu.t_ns + 100_000_000_000, imu.accel, imu.gyro, "m/s^2", "rad/s", "late imu")
+    with pytest.raises(InputError, match="no overlap between IMU times"):
+        LioPipeline(
+            MemoryDataset(street.scans[:5], late, "sim"), _config(street), progress=False
+        ).run()
+
+
+def test_divergence_names_the_scan(street: LidarDrive) -> None:
+    """An accelerometer that jumps to 150 m/s^2 along x after 2 s drives the speed past any car's."""
+    imu = _calibrated(street)
+    acc = imu.accel.copy()
+    acc[imu.t_s > 2.0, 0] += 150.0
+    bad = ImuLog(imu.t_ns, acc, imu.gyro, "m/s^2", "rad/s", "bad imu")
+    cfg = _config(street, filter=FilterConfig(max_speed=40.0))
+    with pytest.raises(FilterDivergence, match=r"scan \d+ \(t = "):
+        LioPipeline(MemoryDataset(street.scans, bad, "sim"), cfg, progress=False).run()
+
+
+def test_nan_and_empty_scans_are_counted(street: LidarDrive) -> None:
+    from dataclasses import replace
+
+    scans = [replace(s) for s in street.scans[:12]]
+    pts = scans[3].points_l.copy()
+    pts[:100] = np.nan
+    scans[3] = replace(scans[3], points_l=pts)
+    scans[5] = replace(scans[5], points_l=scans[5].points_l[:0], t_offset_s=scans[5].t_offset_s[:0],
+                       ring=scans[5].ring[:0], intensity=scans[5].intensity[:0])  # fmt: skip
+    cfg = _config(street, frontend=FrontEndConfig(mode="direct"), use_imu=False)
+    res = LioPipeline(MemoryDataset(scans, None, "sim"), cfg, progress=False).run()
+    assert "100 NaN / infinite / zero points dropped" in res.warnings
+    assert "1 scans with fewer than 100 valid points skipped" in res.warnings
+    assert len(res.trajectory) == 11
+
+
+@pytest.mark.xfail(
+    strict=True, reason="known: the LIO covariance is overconfident (NEES ~1e3 over 6 s, README)"
+)
+def test_covariance_is_not_overconfident(street: LidarDrive) -> None:
+    """NEES of the [attitude, position] error against the filter's own 6 x 6 covariance block, per scan
+    after the filter started, with the truth expressed in the filter's world (the levelled first IMU frame). A consistent filter gives NEES ~ chi2(6); an overconfident
+    one far more. Bound: the mean over scans below the 99.9 % quantile of chi2(6 n) / n."""
+    from scipy.stats import chi2
+
+    from imuslam.geometry import log
+    from imuslam.lio.estimator import LioEstimator
+
+    cfg = _config(street, frontend=FrontEndConfig(mode="direct"))
+    est = LioEstimator(cfg, _calibrated(street))
+    t_ref = street.imu.t_ns[0]
+    t_end, R_e, p_e, covs = [], [], [], []
+    for s in street.scans:
+        t = (s.t_ns - t_ref) * 1e-9 + s.t_offset_s.astype(np.float64)
+        T = est.register_scan(s.points_l.astype(np.float64), t, s.ring)
+        if est.covariance is not None:
+            lay = est.layout
+            idx = np.r_[lay.TH, lay.P]
+            covs.append(est.covariance[np.ix_(idx, idx)])
+            t_end.append(t_ref + int(round(t.max() * 1e9)))
+            R_e.append(T[:3, :3])
+            p_e.append(T[:3, 3])
+    gi = np.searchsorted(street.gt_t_ns, np.array(t_end))
+    gi = np.clip(gi, 0, len(street.gt_t_ns) - 1)
+    R_t, p_t = street.gt_R_w_b[gi], street.gt_p_w[gi]
+    # the truth in the filter's world: w is the first IMU frame (first scan end) levelled by the filter's
+    # own rotation R_w_i0, a definition rather than an estimate
+    t0 = t_ref + int(
+        round(((street.scans[0].t_ns - t_ref) * 1e-9 + street.scans[0].t_offset_s.max()) * 1e9)
+    )
+    g0 = int(np.clip(np.searchsorted(street.gt_t_ns, t0), 0, len(street.gt_t_ns) - 1))
+    R_a = est.T_w_i0[:3, :3] @ street.gt_R_w_b[g0].T
+    t_a = -R_a @ street.gt_p_w[g0]
+    nees = []
+    for k in range(len(covs)):
+        e_th = log(R_e[k].T @ (R_a @ R_t[k]))
+        e_p = (R_a @ p_t[k] + t_a) - p_e[k]
+        e = np.r_[e_th, e_p]
+        nees.append(float(e @ np.linalg.solve(covs[k], e)))
+
+    n = len(nees)
+    print("NEES per scan:", np.round(nees, 1))
+    assert n > 30
+    assert np.mean(nees) < chi2.ppf(0.999, 6 * n) / n
