@@ -11,8 +11,20 @@ the I/O boundary and float seconds inside the maths. Quaternions are Hamilton, s
 (``quat_wxyz``) everywhere inside the package; ``io/`` converts from and to other orders.
 Lie tangent vectors are ordered rotation first, then translation (see ``imuslam.geometry``).
 
-Layers, lowest first; a module never imports a higher one:
-geometry -> io -> sim -> imu -> ins -> lio / vio / slam2d -> eval -> hw -> config -> cli.
+Layers, lowest first; a module never imports a higher one (``lint-imports`` checks it):
+geometry -> interfaces / errors -> io / config -> sim / imu / ins / hw -> lio / vio / slam2d -> eval ->
+study -> cli (docs/architecture.md).
+
+Threads: numba's parallel kernels run on OpenMP (GNU libgomp), whose idle threads spin by default. When
+other processes hold the cores (a study runs several workers per machine) the spinning thread competes
+with them and a 0.12 s calibration call takes 0.36 s. Importing imuslam therefore makes OpenMP threads
+wait passively (``OMP_WAIT_POLICY=PASSIVE``) unless the variable is already set: the two-thread gain is
+kept on an idle machine and a busy one costs about what one thread would (``bench/threads.py``). It
+takes effect only if no OpenMP runtime was loaded before imuslam (libgomp reads it once, when loaded).
 """
+
+import os as _os
+
+_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 __version__ = "0.1.0"

@@ -1,19 +1,117 @@
 """The ``imuslam`` command line: thin typer commands over library functions.
 
-Each command lives in its own module of this package and is registered here.
+Each command lives in its own module of this package (a ``register(app)`` function) and is loaded only
+when it runs: ``imuslam --help`` lists the commands from :data:`COMMANDS` without importing any of them,
+so neither numba, scipy, matplotlib nor rosbags is loaded to print the help. A new command is one line
+in :data:`COMMANDS` (``tests/cli/test_startup.py`` checks that its help line matches the command's).
 """
 
 from __future__ import annotations
 
+import importlib
 import logging
+from typing import Any
 
 import typer
+from typer.core import TyperCommand, TyperGroup
+
+# name -> (module in imuslam.cli, one-line help as the command's docstring starts), in the help's order.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "calibrate": (
+        "calibrate",
+        "Calibrate accelerometer and gyroscope from a log of static poses (Tedaldi 2014, imu_tk's method).",
+    ),
+    "correct": (
+        "correct",
+        "Write the corrected IMU (m/s^2, rad/s, body frame); a bag keeps every other message untouched.",
+    ),
+    "allan": (
+        "allan",
+        "Overlapped Allan deviation per axis: noise density, bias instability, random walk, Kalibr yaml.",
+    ),
+    "align": (
+        "align",
+        "Estimate attitude and the IMU's remaining biases; write them, plots and the corrected IMU.",
+    ),
+    "eval": (
+        "evaluate",
+        "APE and RPE with SE(3)/Sim(3)/yaw-only alignment; metrics.json, plots, aligned TUM.",
+    ),
+    "simulate": (
+        "simulate",
+        "Simulate a robot (room, street, corridor, handheld, gimbal) with every sensor and the truth.",
+    ),
+    "online": (
+        "online",
+        "Calibrate with the gimbal, publish, watch for drift in still moments, recalibrate.",
+    ),
+    "demo": (
+        "demo",
+        "A simulated robot IMU with seed 000's errors, turned through gimbal poses and calibrated.",
+    ),
+    "score": (
+        "score",
+        "Score calibrations on a log: gravity-norm error per static pose, gyro-predicted gravity-direction "
+        "error per pair of poses (RMS and worst), on poses found without any calibration.",
+    ),
+    "study": ("study", "Run a study: cells on Dask, results.parquet/.csv, report.html per claim."),
+    "vio": (
+        "vio",
+        "Stereo VO + IMU EKF: trajectory.tum (fused), vo.tum, imu.tum, gating.json, plots.",
+    ),
+    "map2d": (
+        "map2d",
+        "Map a 2D laser log: trajectory.tum, map.pgm/map.yaml (map_server), map.png, config.yaml.",
+    ),
+    "lio": (
+        "lio",
+        "LiDAR-inertial odometry (iterated ESKF) with a voxel map; LiDAR-only without an IMU.",
+    ),
+}
+
+
+def load_command(name: str) -> Any:
+    """Import the module of command ``name`` and return its click command (built once per call)."""
+    module = importlib.import_module(f"imuslam.cli.{COMMANDS[name][0]}")
+    sub = typer.Typer(add_completion=False)
+    module.register(sub)
+    return typer.main.get_command(sub)
+
+
+class _LazyGroup(TyperGroup):
+    """A typer group whose commands are imported when one is run or asked for its own help.
+
+    Listing (``imuslam --help``) sees placeholders carrying the name and the help line; resolving a
+    command on the command line swaps in the real one.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._loaded: dict[str, Any] = {}
+
+    def list_commands(self, ctx: Any) -> list[str]:
+        return list(COMMANDS)
+
+    def get_command(self, ctx: Any, cmd_name: str) -> Any:
+        if cmd_name in self._loaded:
+            return self._loaded[cmd_name]
+        if cmd_name not in COMMANDS:
+            return None
+        return TyperCommand(cmd_name, help=COMMANDS[cmd_name][1])
+
+    def resolve_command(self, ctx: Any, args: list[str]) -> Any:
+        name, cmd, rest = super().resolve_command(ctx, args)
+        if name is not None and name not in self._loaded:
+            self._loaded[name] = load_command(name)
+        return name, (self._loaded[name] if name is not None else cmd), rest
+
 
 app = typer.Typer(
     name="imuslam",
     help="IMU calibration without external equipment, INS alignment and IMU-aided SLAM.",
     no_args_is_help=True,
     add_completion=False,
+    cls=_LazyGroup,
 )
 
 
@@ -25,25 +123,6 @@ def _root(
         level=logging.DEBUG if verbose else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",
     )
-
-
-# Command registrations (one line per command module).
-from imuslam.cli import align as _align  # noqa: E402
-from imuslam.cli import allan as _allan  # noqa: E402
-from imuslam.cli import calibrate as _calibrate  # noqa: E402
-from imuslam.cli import correct as _correct  # noqa: E402
-from imuslam.cli import demo as _demo  # noqa: E402
-from imuslam.cli import evaluate as _evaluate  # noqa: E402
-from imuslam.cli import online as _online  # noqa: E402
-from imuslam.cli import simulate as _simulate  # noqa: E402
-
-for _m in (_calibrate, _correct, _allan, _align, _evaluate, _simulate, _online, _demo):
-    _m.register(app)
-__import__("imuslam.cli.score", fromlist=["register"]).register(app)
-__import__("imuslam.cli.study", fromlist=["register"]).register(app)
-__import__("imuslam.cli.vio", fromlist=["register"]).register(app)
-__import__("imuslam.cli.map2d", fromlist=["register"]).register(app)
-__import__("imuslam.cli.lio", fromlist=["register"]).register(app)
 
 
 def main() -> None:

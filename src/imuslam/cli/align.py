@@ -4,10 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import typer  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
@@ -301,7 +297,10 @@ def register(app: typer.Typer) -> None:
                     row += [f.format(tru[-1, j]), f"{abs(est[-1, j] - tru[-1, j]) / sd[-1, j]:.1f}"]
                 rows.append(row + [unit])
         console.print(table(f"Alignment ({method}, {aid.kind} aiding)", cols, rows))
-        fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(10, 6))
+        axes = fig.subplots(2, 1, sharex=True)
         for ax, b, s_, tru, name in ((axes[0], ba, sa, tb, "accel bias [m/s^2]"),
                                      (axes[1], bg, sg, tbg, "gyro bias [rad/s]")):  # fmt: skip
             for j in range(3):
@@ -322,7 +321,8 @@ def register(app: typer.Typer) -> None:
             save_figure(fig, tmp / "biases.png")
             files = ["alignment.json", "estimates.csv", "biases.png"]
             if Rt is not None:
-                fig, ax = plt.subplots(figsize=(10, 4))
+                fig = Figure(figsize=(10, 4))
+                ax = fig.subplots()
                 for j, lab in enumerate(("x (roll)", "y (pitch)", "z (heading)")):
                     ax.plot(tt, att_err[:, j], label=lab)
                 ax.set_xlabel("time [s]")

@@ -3,12 +3,8 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import typer  # noqa: E402
 import yaml  # noqa: E402
@@ -30,9 +26,15 @@ from imuslam.io.figures import save_figure  # noqa: E402
 from imuslam.io.load import FORMATS  # noqa: E402
 from imuslam.io.results import results_folder  # noqa: E402
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
-def plot_allan(res: AllanResult) -> plt.Figure:
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+
+def plot_allan(res: AllanResult) -> Figure:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(12, 5))
+    axes = fig.subplots(1, 2)
     for ax, adev, terms, unit, name in (
         (axes[0], res.accel_adev, res.accel_terms, res.accel_unit, "accelerometer"),
         (axes[1], res.gyro_adev, res.gyro_terms, res.gyro_unit, "gyroscope"),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import typer
@@ -17,14 +18,15 @@ from imuslam.cli.common import (
     load_log,
     table,
 )
-from imuslam.config import dump_config, load_config
-from imuslam.imu.calibrate import CalibrationConfig, CalibrationResult, calibrate
-from imuslam.imu.crossval import CrossValidation, cross_validate
 from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
-from imuslam.imu.report import write_report
-from imuslam.interfaces.imu import ImuLog
 from imuslam.io.load import FORMATS
-from imuslam.io.results import results_folder
+
+if (
+    TYPE_CHECKING
+):  # numba, scipy, pydantic and matplotlib load when the command runs, not at start-up
+    from imuslam.imu.calibrate import CalibrationResult
+    from imuslam.imu.crossval import CrossValidation
+    from imuslam.interfaces.imu import ImuLog
 
 
 def print_result(
@@ -92,6 +94,9 @@ def write_outputs(
     extra_html: str = "",
     **truth: np.ndarray | None,
 ) -> None:
+    from imuslam.config import dump_config
+    from imuslam.imu.report import write_report
+
     c = res.calibration
     c.save_yaml(out / "calibration.yaml")
     c.export_imutk(out / "acc.calib", out / "gyro.calib")
@@ -169,6 +174,11 @@ def register(app: typer.Typer) -> None:
         ),
     ) -> None:
         """Calibrate accelerometer and gyroscope from a log of static poses (Tedaldi 2014, imu_tk's method)."""
+        from imuslam.config import load_config
+        from imuslam.imu.calibrate import CalibrationConfig, calibrate
+        from imuslam.imu.crossval import cross_validate
+        from imuslam.io.results import results_folder
+
         cfg = load_config(config, CalibrationConfig) if config else CalibrationConfig()
         upd = {
             k: v

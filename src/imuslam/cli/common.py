@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import functools
-import json
 import logging
-import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar, cast
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 import numpy as np
 import typer
@@ -16,9 +14,10 @@ from rich.console import Console
 from rich.table import Table
 
 from imuslam.errors import ImuslamError, InputError
-from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
-from imuslam.io.atomic import write_atomic
-from imuslam.io.load import FORMATS, ImuFormat, load_imu
+
+if TYPE_CHECKING:  # the readers (rosbags, scipy) load only when a command reads a log
+    from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
+    from imuslam.io.load import ImuFormat
 
 console = Console()
 err_console = Console(stderr=True)
@@ -87,6 +86,8 @@ def load_log(
     columns: str | None,
 ) -> ImuLog:
     """Load a log from the command-line options (see :func:`imuslam.io.load.load_imu`)."""
+    from imuslam.io.load import FORMATS, load_imu
+
     if accel_unit is not None and accel_unit not in ("m/s^2", "g", "counts"):
         raise InputError(f"--accel-unit: '{accel_unit}'; expected m/s^2, g or counts")
     if gyro_unit is not None and gyro_unit not in ("rad/s", "deg/s", "counts"):
@@ -96,33 +97,19 @@ def load_log(
     return load_imu(
         acc,
         gyro,
-        cast(ImuFormat, fmt),
+        cast("ImuFormat", fmt),
         topic,
-        cast(AccelUnit | None, accel_unit),
-        cast(GyroUnit | None, gyro_unit),
+        cast("AccelUnit | None", accel_unit),
+        cast("GyroUnit | None", gyro_unit),
         parse_columns(columns),
     )
 
 
-def _json_safe(x: Any) -> Any:
-    """NaN and infinities as null (JSON has no Infinity); numpy scalars and arrays as plain values."""
-    if isinstance(x, dict):
-        return {k: _json_safe(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _json_safe(x.tolist())
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
-
-
 def write_json(path: Path, data: Any) -> None:
     """Standard JSON (a non-finite number is written as null), atomically."""
-    text = json.dumps(_json_safe(data), indent=2, default=float, allow_nan=False)
-    write_atomic(path, text + "\n")
+    from imuslam.io.results import write_json as _write
+
+    _write(path, data)
 
 
 def table(title: str, columns: list[str], rows: list[list[str]]) -> Table:

@@ -6,17 +6,13 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import typer  # noqa: E402
 
 from imuslam.cli import validate
 from imuslam.cli.calibrate import print_result, write_outputs
 from imuslam.cli.common import console, friendly_errors, table, write_json
-from imuslam.eval.ins_benefit import ins_benefit
+from imuslam.demo import ins_benefit
 from imuslam.imu.calibrate import CalibrationConfig, calibrate
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.io.figures import save_figure
@@ -62,7 +58,10 @@ def register(app: typer.Typer) -> None:
         cols = ["IMU, start of the free run", "attitude error [deg]", "position error [m]"]
         rows = [[r.name, f"{r.attitude_err_deg:.2f}", f"{r.position_err_m:.2f}"] for r in runs]
         console.print(table(title, cols, rows))
-        fig, ax = plt.subplots(figsize=(9, 5))
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(9, 5))
+        ax = fig.subplots()
         for r in runs:
             ax.semilogy(r.t_s, np.maximum(r.err_m, 1e-3), label=r.name)
         ax.set_xlabel("time without fixes [s]")

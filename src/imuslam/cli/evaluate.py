@@ -7,13 +7,10 @@ from pathlib import Path
 import typer
 
 from imuslam.cli import validate
-from imuslam.cli.common import console, friendly_errors, table, write_json
+from imuslam.cli.common import console, friendly_errors, table
 from imuslam.errors import InputError
 from imuslam.eval.align import ALIGN_METHODS
-from imuslam.eval.metrics import KITTI_LENGTHS, evaluate
-from imuslam.eval.plots import plot_evaluation
-from imuslam.io.results import results_folder
-from imuslam.io.trajectory import TRAJ_FORMATS, read_trajectory, write_tum
+from imuslam.io.trajectory import TRAJ_FORMATS
 
 
 def register(app: typer.Typer) -> None:
@@ -52,18 +49,29 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(
             Path("eval_out"), "--out", help="results folder", callback=validate.out_folder()
         ),
+        plots: bool = typer.Option(
+            True, "--plots/--no-plots", help="write trajectories.png and ape.png"
+        ),
     ) -> None:
         """APE and RPE with SE(3)/Sim(3)/yaw-only alignment; metrics.json, plots, aligned TUM."""
+        from imuslam.eval.pipeline import EvalConfig, EvalPipeline
+        from imuslam.io.trajectory import read_trajectory
+
         if align not in ALIGN_METHODS:
             raise InputError(f"--align: '{align}'; expected one of {', '.join(ALIGN_METHODS)}")
         ef = est_format or fmt
         ref = read_trajectory(gt, fmt, topic, gt_times)
         e = read_trajectory(est, ef, topic)
-        by_index = fmt == "kitti" and ef == "kitti" and gt_times is None
-        res, r, ea = evaluate(
-            ref, e, align, rpe_delta, rpe_unit, max_diff,  # type: ignore[arg-type]
-            KITTI_LENGTHS if kitti else None, by_index=by_index,
-        )  # fmt: skip
+        cfg = EvalConfig(
+            align=align,  # type: ignore[arg-type]
+            rpe_delta=rpe_delta,
+            rpe_unit=rpe_unit,  # type: ignore[arg-type]
+            max_diff_s=max_diff,
+            kitti=kitti,
+            by_index=fmt == "kitti" and ef == "kitti" and gt_times is None,
+        )
+        pipeline = EvalPipeline(ref, e, cfg)
+        res = pipeline.run()
         rows = []
         for name, st, unit in (
             ("APE translation", res.ape_trans, "m"),
@@ -77,11 +85,6 @@ def register(app: typer.Typer) -> None:
             rows.append([f"KITTI drift {L:g} m ({n} segments)", f"{tp:.4g}", "", "", "", "", "%"])
         console.print(table(f"{est} vs {gt}: {res.n_pairs} pairs, {res.align} (scale {res.scale:.6g})",
                             ["quantity", "rmse", "mean", "median", "std", "max", "unit"], rows))  # fmt: skip
-        with results_folder(out) as tmp:
-            write_json(tmp / "metrics.json", res.to_dict())
-            write_json(tmp / "config.json", {"gt": str(gt), "est": str(est), "format": fmt, "est_format": ef,
-                                             "align": align, "rpe_delta": rpe_delta, "rpe_unit": rpe_unit,
-                                             "max_diff_s": max_diff, "kitti": kitti})  # fmt: skip
-            write_tum(ea, tmp / "estimate_aligned.tum")
-            plot_evaluation(res, r, ea, tmp)
-        console.print(f"wrote {out}/metrics.json, trajectories.png, ape.png, estimate_aligned.tum")
+        pipeline.save(res, out, plots, gt=str(gt), est=str(est), format=fmt, est_format=ef)
+        pngs = "trajectories.png, ape.png, " if plots else ""
+        console.print(f"wrote {out}/metrics.json, config.yaml, {pngs}estimate_aligned.tum")

@@ -10,7 +10,8 @@ relative pose error over the first frame that lies that far along the reference 
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from typing import Any
 
 import numba
@@ -141,7 +142,11 @@ def kitti_drift(
 
 @dataclass
 class EvalResult:
-    """Metrics of an estimate against a reference."""
+    """Metrics of an estimate against a reference, with the trajectories they were computed on (as evo's
+    ``Result``: stats, the error series and the associated reference / aligned estimate).
+
+    Unpacking it as ``res, ref, est_aligned = evaluate(...)`` (the former tuple) still works.
+    """
 
     align: str
     scale: float
@@ -156,11 +161,25 @@ class EvalResult:
     kitti: dict[float, tuple[float, float, int]] = field(default_factory=dict)
     ape_trans_series: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
     t_s: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
+    reference: Trajectory | None = field(default=None, repr=False)
+    estimate_aligned: Trajectory | None = field(default=None, repr=False)
+
+    def __iter__(self) -> Iterator[Any]:
+        """The former return value of :func:`evaluate`: (result, reference, aligned estimate)."""
+        return iter((self, self.reference, self.estimate_aligned))
+
+    def __getitem__(self, i: int) -> Any:
+        return tuple(self)[i]
 
     def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d.pop("ape_trans_series")
-        d.pop("t_s")
+        """The metrics (no series, no trajectories), as metrics.json holds them."""
+        skip = ("ape_trans_series", "t_s", "reference", "estimate_aligned")
+        d = {
+            f.name: asdict(v) if is_dataclass(v) and not isinstance(v, type) else v
+            for f in fields(self)
+            if f.name not in skip
+            for v in (getattr(self, f.name),)
+        }
         d["kitti"] = {
             f"{k:g}": {"trans_pct": v[0], "rot_deg_per_m": v[1], "segments": v[2]}
             for k, v in self.kitti.items()
@@ -179,10 +198,10 @@ def evaluate(
     max_diff_s: float = 0.01,
     kitti_lengths: tuple[float, ...] | None = None,
     by_index: bool = False,
-) -> tuple[EvalResult, Trajectory, Trajectory]:
+) -> EvalResult:
     """Associate (or pair by index), align, and compute APE, RPE and, optionally, KITTI drift.
 
-    Returns the result and the associated reference and aligned estimate.
+    Returns the result, which holds the associated reference and the aligned estimate.
     """
     if by_index:
         if len(ref) != len(est):
@@ -202,6 +221,6 @@ def evaluate(
     kd = kitti_drift(r, ea, kitti_lengths) if kitti_lengths else {}
     res = EvalResult(
         align_method, s, len(r), r.path_length, Stats.of(et), Stats.of(er), rpe_delta, rpe_unit,
-        Stats.of(rt), Stats.of(rr), kd, et, r.t_s - r.t_s[0],
+        Stats.of(rt), Stats.of(rr), kd, et, r.t_s - r.t_s[0], r, ea,
     )  # fmt: skip
-    return res, r, ea
+    return res

@@ -4,14 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from imuslam.eval.metrics import EvalResult  # noqa: E402
-from imuslam.interfaces.trajectory import Trajectory  # noqa: E402
-from imuslam.io.figures import save_figure  # noqa: E402
+from imuslam.eval.metrics import EvalResult
+from imuslam.interfaces.trajectory import Trajectory
+from imuslam.io.figures import save_figure
 
 
 def plot_evaluation(
@@ -19,7 +16,8 @@ def plot_evaluation(
 ) -> list[Path]:
     """``trajectories.png`` (x-y top view) and ``ape.png`` (translation error over time)."""
     out = Path(out_dir)
-    fig, ax = plt.subplots(figsize=(7, 7))
+    fig = Figure(figsize=(7, 7))
+    ax = fig.subplots()
     ax.plot(ref.p_w[:, 0], ref.p_w[:, 1], "k-", lw=1, label="reference")
     ax.plot(est.p_w[:, 0], est.p_w[:, 1], "C1-", lw=1, label=f"estimate ({res.align} aligned)")
     ax.set_aspect("equal")
@@ -27,7 +25,8 @@ def plot_evaluation(
     ax.set_ylabel("y [m]")
     ax.legend()
     save_figure(fig, out / "trajectories.png")
-    fig, ax = plt.subplots(figsize=(10, 4))
+    fig = Figure(figsize=(10, 4))
+    ax = fig.subplots()
     ax.plot(res.t_s, res.ape_trans_series, "C0-", lw=0.8)
     ax.axhline(
         res.ape_trans.rmse, color="k", ls="--", lw=0.8, label=f"RMSE {res.ape_trans.rmse:.4g} m"

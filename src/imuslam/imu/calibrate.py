@@ -424,7 +424,7 @@ def _gyro_M(theta: FloatArray) -> FloatArray:
     return T * theta[6:9][None, :]
 
 
-def _gyro_residuals(
+def gyro_residuals(
     theta_stack: FloatArray,
     w: FloatArray,
     t_s: FloatArray,
@@ -432,7 +432,14 @@ def _gyro_residuals(
     u0: FloatArray,
     u1: FloatArray,
 ) -> FloatArray:
-    """Residuals (P, 3S) ``R^T u0 - u1`` for each parameter vector of ``theta_stack`` (P, 9 or 12)."""
+    """Gravity-direction residuals (P, 3S) ``R^T u0 - u1`` for each parameter vector of ``theta_stack``.
+
+    ``theta_stack`` (P, 9 or 12): gyro misalignment (6), scale (3) and optionally a bias refinement (3);
+    ``w`` (N, 3) raw rates at ``t_s``; ``segs`` (S, 2) sample ranges of the rotations between static
+    poses; ``u0`` / ``u1`` (S, 3) the unit gravity directions measured before and after each one. ``R``
+    is the rotation integrated with the corrected rates (Tedaldi 2014, eq. 16-17). Used by the fit and
+    by the pose planner (``imu.poseplan``).
+    """
     P = theta_stack.shape[0]
     Ms = np.stack([_gyro_M(th) for th in theta_stack])
     if theta_stack.shape[1] == 12:
@@ -457,12 +464,12 @@ def _gyro_solve(
         step = np.concatenate([step, np.full(3, 1e-7) / np.maximum(np.abs(theta0[6:9]), 1e-12)])
 
     def fun(th: FloatArray) -> FloatArray:
-        return _gyro_residuals(th[None], w, t_s, segs, u0, u1)[0]
+        return gyro_residuals(th[None], w, t_s, segs, u0, u1)[0]
 
     def jac(th: FloatArray) -> FloatArray:
         stack = np.repeat(th[None], n + 1, axis=0)
         stack[1:] += np.diag(step)
-        r = _gyro_residuals(stack, w, t_s, segs, u0, u1)
+        r = gyro_residuals(stack, w, t_s, segs, u0, u1)
         return ((r[1:] - r[0]) / step[:, None]).T
 
     x_scale = np.concatenate([np.full(6, 1e-2), np.abs(theta0[6:9])])
@@ -767,9 +774,7 @@ def calibrate(
     cands = s_g0 * np.linspace(0.8, 1.25, 10)
     cost = [
         np.sum(
-            _gyro_residuals(
-                np.concatenate([np.zeros(6), np.full(3, c)])[None], w, t_s, segs, u0, u1
-            )
+            gyro_residuals(np.concatenate([np.zeros(6), np.full(3, c)])[None], w, t_s, segs, u0, u1)
             ** 2
         )
         for c in cands

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.imu.calibrate import _gyro_residuals, accel_residual_jacobian
+from imuslam.imu.calibrate import accel_residual_jacobian, gyro_residuals
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.sim.imu_errors import (
     BWT901CL_ACCEL_DENSITY,
@@ -98,7 +98,7 @@ class PlanModel:
             u0, u1 = f[:1] / self.g, f[-1:] / self.g
             stack = np.repeat(th[None], 10, axis=0)
             stack[1:] += np.diag(step)
-            r = _gyro_residuals(stack, w_raw, t, np.array([[0, len(t) - 1]]), u0, u1)
+            r = gyro_residuals(stack, w_raw, t, np.array([[0, len(t) - 1]]), u0, u1)
             J = ((r[1:] - r[0]) / step[:, None]).T  # (3, 9)
             # D: measured directions from the calibrated accelerometer means, rotation fixed
             R01 = R[0].T @ R[-1]

@@ -1,22 +1,23 @@
-"""Writing matplotlib figures as PNG, atomically (the Agg backend: no display needed)."""
+"""Writing matplotlib figures as PNG, atomically.
+
+Figures are built as ``matplotlib.figure.Figure`` objects (no pyplot: no global state, no backend to
+choose, nothing to close) and rendered here by the Agg canvas that ``savefig`` attaches.
+"""
 
 from __future__ import annotations
 
 import io
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import matplotlib
+from imuslam.io.atomic import write_atomic
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-
-from imuslam.io.atomic import write_atomic  # noqa: E402
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 def save_figure(fig: Figure, path: str | Path) -> None:
-    """Render ``fig`` to PNG in memory, write it atomically and close it."""
+    """Render ``fig`` to PNG in memory and write it atomically."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
     write_atomic(path, buf.getvalue())

@@ -11,7 +11,6 @@ from imuslam.errors import InputError
 from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
 from imuslam.io.atomic import write_atomic
 from imuslam.io.readers import TimeUnit, read_csv, read_euroc, read_imutk
-from imuslam.io.rosbag import read_imu_bag, replace_imu_topic, write_imu_bag
 
 ImuFormat = Literal["auto", "imutk", "euroc", "csv", "bag"]
 FORMATS = ("auto", "imutk", "euroc", "csv", "bag")
@@ -57,6 +56,8 @@ def load_imu(
         raise InputError(f"{acc_path}: no such file")
     f = detect_format(acc_path) if fmt == "auto" else fmt
     if f == "bag":
+        from imuslam.io.rosbag import read_imu_bag  # rosbags loads only for a bag
+
         return read_imu_bag(acc_path, topic)
     if f == "euroc":
         return read_euroc(acc_path)
@@ -126,6 +127,8 @@ def write_imu(
         write_atomic(o, head + body + "\n")
         return [o]
     if fmt == "bag":
+        from imuslam.io.rosbag import replace_imu_topic, write_imu_bag
+
         if template is not None:
             if topic is None:
                 raise InputError(f"{template}: name the IMU topic to replace (--topic)")

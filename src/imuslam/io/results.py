@@ -13,16 +13,21 @@ A file on its own (``correct --out x.mcap``) goes through :func:`results_file` t
 from __future__ import annotations
 
 import errno
+import json
+import math
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from imuslam.errors import InputError
-from imuslam.io.atomic import atomic_path
+from imuslam.io.atomic import atomic_path, write_atomic
+
+if TYPE_CHECKING:
+    from imuslam.interfaces.trajectory import Trajectory
 
 OutKind = Literal["folder", "file", "any"]
 
@@ -150,3 +155,63 @@ def results_file(out: str | Path, option: str = "--out") -> Iterator[Path]:
                 yield tmp
         except OSError as exc:
             raise _as_input_error(exc, o, option) from exc
+
+
+def json_safe(x: Any) -> Any:
+    """NaN and infinities as null (JSON has no Infinity); numpy scalars and arrays as plain values;
+    a pydantic model or an object with ``to_dict`` as its dictionary."""
+    import numpy as np
+
+    if hasattr(x, "model_dump"):
+        return json_safe(x.model_dump(mode="json"))
+    if hasattr(x, "to_dict"):
+        return json_safe(x.to_dict())
+    if isinstance(x, dict):
+        return {str(k): json_safe(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [json_safe(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return json_safe(x.tolist())
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, Path):
+        return str(x)
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def write_json(path: Path, data: Any) -> None:
+    """Standard JSON (a non-finite number is written as null), atomically."""
+    text = json.dumps(json_safe(data), indent=2, default=float, allow_nan=False)
+    write_atomic(path, text + "\n")
+
+
+def write_results(
+    out: str | Path,
+    *,
+    config: Any,
+    metrics: Any,
+    trajectories: dict[str, Trajectory] | None = None,
+    extra: Callable[[Path], Any] | None = None,
+    option: str = "--out",
+) -> Path:
+    """THE results folder of a command, all or nothing (:func:`results_folder`).
+
+    Writes ``config.yaml`` (the effective configuration: a pydantic model or a mapping),
+    ``metrics.json``, one ``<name>.tum`` per trajectory (stamps with 9 decimals, exact from ``t_ns``),
+    then calls ``extra(folder)`` for what is the command's own (plots, reports, maps).
+    """
+    import yaml
+
+    from imuslam.io.trajectory import write_tum
+
+    with results_folder(out, option) as tmp:
+        cfg = json_safe(config)
+        write_atomic(tmp / "config.yaml", yaml.safe_dump(cfg, sort_keys=False))
+        write_json(tmp / "metrics.json", metrics)
+        for name, traj in (trajectories or {}).items():
+            write_tum(traj, tmp / f"{name}.tum")
+        if extra is not None:
+            extra(tmp)
+    return Path(out)

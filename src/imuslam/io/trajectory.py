@@ -214,10 +214,14 @@ def read_trajectory(
 
 
 def write_tum(traj: Trajectory, path: str | Path) -> None:
-    """Write ``t x y z qx qy qz qw`` (s, m), atomically."""
+    """Write ``t x y z qx qy qz qw`` (s with 9 decimals, exact from ``t_ns``; m), atomically."""
     q = traj.quat_wxyz
-    rows = np.column_stack([traj.t_s, traj.p_w, q[:, 1:], q[:, :1]])
-    body = "\n".join(f"{r[0]:.9f} " + " ".join(f"{v:.9g}" for v in r[1:]) for r in rows)
+    rows = np.column_stack([traj.p_w, q[:, 1:], q[:, :1]])
+    sec, frac = np.divmod(traj.t_ns, 1_000_000_000)  # no float64 rounding of epoch stamps
+    body = "\n".join(
+        f"{s}.{f:09d} " + " ".join(f"{v:.9g}" for v in r)
+        for s, f, r in zip(sec, frac, rows, strict=True)
+    )
     write_atomic(path, "# t x y z qx qy qz qw\n" + body + "\n")
 
 

@@ -8,6 +8,9 @@ heading is barely observable from position fixes: its centripetal acceleration, 
 looks like an accelerometer bias; every alignment there leaves heading errors of several degrees.) Each variant starts its free run from the true position and velocity at the end
 of the fixes, with the attitude it has there (the truth for the raw and calibrated runs, which had no
 alignment; its own estimate for the aligned runs) and reports the attitude and position error at the end.
+
+An experiment on the simulator, not a metric: it lives above ``eval`` (which computes metrics of
+trajectories and imports no estimator or simulator) and under the ``demo`` command that shows it.
 """
 
 from __future__ import annotations

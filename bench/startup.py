@@ -1,0 +1,130 @@
+"""Whole processes as a user times them: start-up, calibrate, eval, against evo_ape in the same run.
+
+Each round runs every case once, in a rotated order (paired runs: a load change hits all cases alike);
+the table gives the median wall time over the rounds. ``--before SRC`` adds the imuslam cases run from
+another source tree (e.g. ``git archive main src | tar -x -C /tmp/before``) for a before/after in one
+run; ``--imutk EXE`` adds imu_tk's calibration program (``EXE acc.mat gyro.mat``, built as in
+bench/calibrate_vs_imutk.py); ``--all-commands`` adds ``imuslam <command> --help`` for every command
+(the time a command needs before its body starts working).
+
+Run: python bench/startup.py [--rounds N] [--before SRC] [--imutk EXE] [--all-commands]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+XSENS = DATA / "imu_tk_xsens"
+KITTI = DATA / "evo_testdata"
+CALIBRATE = [str(XSENS / "xsens_acc.mat"), str(XSENS / "xsens_gyro.mat"), "--g", "9.81744",
+             "--t-init", "50", "--bias-sign", "minus"]  # fmt: skip
+EVAL = [str(KITTI / "KITTI_00_gt.txt"), str(KITTI / "KITTI_00_ORB.txt"), "--format", "kitti",
+        "--align", "sim3"]  # fmt: skip
+IMUSLAM = [
+    sys.executable,
+    "-c",
+    "from imuslam.cli import main; main()",
+]  # the console script's body
+
+
+def _cases(
+    before: Path | None, imutk: str | None, all_commands: bool
+) -> list[tuple[str, list[str], Path | None]]:
+    """(label, argv with {out} for a fresh output folder, src tree on PYTHONPATH)."""
+    trees: list[tuple[str, Path | None]] = [("", ROOT / "src")]
+    if before is not None:
+        trees.insert(0, ("before: ", before))
+    out: list[tuple[str, list[str], Path | None]] = []
+    for tag, src in trees:
+        out += [
+            (f"{tag}imuslam --help", IMUSLAM + ["--help"], src),
+            (f"{tag}imuslam calibrate --help", IMUSLAM + ["calibrate", "--help"], src),
+            (f"{tag}imuslam eval --help", IMUSLAM + ["eval", "--help"], src),
+            (
+                f"{tag}imuslam calibrate xsens --no-plots",
+                IMUSLAM + ["calibrate", *CALIBRATE, "--no-plots", "--out", "{out}"],
+                src,
+            ),  # fmt: skip
+            (
+                f"{tag}imuslam calibrate xsens (plots, report)",
+                IMUSLAM + ["calibrate", *CALIBRATE, "--out", "{out}"],
+                src,
+            ),  # fmt: skip
+            (f"{tag}imuslam eval KITTI 00 sim3", IMUSLAM + ["eval", *EVAL, "--out", "{out}"], src),
+        ]
+    if all_commands:
+        from imuslam.cli import COMMANDS
+
+        out += [(f"imuslam {c} --help", IMUSLAM + [c, "--help"], ROOT / "src") for c in COMMANDS]
+    evo = shutil.which("evo_ape") or str(Path(sys.executable).parent / "evo_ape")
+    if Path(evo).exists():
+        kitti = [str(KITTI / "KITTI_00_gt.txt"), str(KITTI / "KITTI_00_ORB.txt")]
+        out.append(("evo_ape kitti -as (Sim(3))", [evo, "kitti", *kitti, "-as"], None))
+        out.append(("evo_ape kitti -as --save_plot", [evo, "kitti", *kitti, "-as", "--plot_mode", "xz",
+                                                       "--save_plot", "{out}/ape.png"], None))  # fmt: skip
+    if imutk:
+        out.append(("imu_tk calibration program", [imutk, *CALIBRATE[:2]], None))
+    return out
+
+
+def _run(argv: list[str], src: Path | None, tmp: Path) -> float:
+    d = Path(tempfile.mkdtemp(dir=tmp))
+    args = [a.replace("{out}", str(d / "out")) for a in argv]
+    (d / "out").mkdir()  # evo saves into an existing folder; imuslam accepts an empty one
+    env = dict(os.environ, MPLBACKEND="Agg")
+    env.pop("PYTHONPATH", None)
+    if src is not None:
+        env["PYTHONPATH"] = str(src)
+    t = time.perf_counter()
+    r = subprocess.run(args, env=env, capture_output=True, text=True, cwd=d)
+    dt = time.perf_counter() - t
+    if r.returncode != 0:
+        raise SystemExit(f"{' '.join(args)} failed ({r.returncode}):\n{r.stderr[-2000:]}")
+    shutil.rmtree(d)
+    return dt
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--before", type=Path, default=None, help="a src/ tree to time as 'before'")
+    ap.add_argument("--imutk", default=None, help="imu_tk's calibration program")
+    ap.add_argument("--all-commands", action="store_true")
+    a = ap.parse_args()
+    from rich.console import Console
+    from rich.table import Table
+
+    cases = _cases(a.before, a.imutk, a.all_commands)
+    times: dict[str, list[float]] = {c[0]: [] for c in cases}
+    with open("/proc/loadavg") as f:
+        load_start = f.read().split()[0]
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(a.rounds):
+            k = r % len(cases)
+            for label, argv, src in cases[k:] + cases[:k]:
+                times[label].append(_run(argv, src, Path(tmp)))
+    with open("/proc/loadavg") as f:
+        load_end = f.read().split()[0]
+    table = Table(
+        title=f"Whole processes, median of {a.rounds} paired rounds; 1-min load average {load_start} "
+        f"at the start, {load_end} at the end on {os.cpu_count()} cores"
+    )
+    for c in ("process", "median [s]", "min [s]", "max [s]"):
+        table.add_column(c, justify="left" if c == "process" else "right")
+    for label, ts in times.items():
+        table.add_row(label, f"{statistics.median(ts):.2f}", f"{min(ts):.2f}", f"{max(ts):.2f}")
+    Console().print(table)
+
+
+if __name__ == "__main__":
+    main()
