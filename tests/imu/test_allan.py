@@ -76,6 +76,7 @@ def test_too_short_is_an_error() -> None:
         allan(log)
 
 
+@pytest.mark.slow  # Monte Carlo over seeds
 def test_random_walk_uncertainty_matches_its_spread() -> None:
     """White noise + rate random walk, logs of 2e5 samples: the spread of the fitted K over 100 seeded logs
     (known to ~7 %) against the 1-sigma the analysis reports for 5 of them (its parametric bootstrap, 5 x 40

@@ -1,12 +1,14 @@
 """The optimised pose order gives lower covariance than the standard 40-pose plan with the same poses."""
 
 import numpy as np
+import pytest
 
 from imuslam.imu.calibrate import CalibrationConfig, calibrate
 from imuslam.imu.poseplan import PlanModel, optimise_order
 from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
 
 
+@pytest.mark.slow  # 10 paired simulated calibrations per plan
 def test_optimised_order_lowers_every_gyro_std_measured() -> None:
     """Predicted: the accelerometer's stds are unchanged (same poses) and every gyro std is lower.
     Measured: 10 paired simulated calibrations (same noise seeds) of both plans; the mean ratio of the
