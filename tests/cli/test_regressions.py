@@ -126,7 +126,7 @@ def _full_disk(after: int):  # type: ignore[no-untyped-def]
 @pytest.mark.parametrize("after", [1, 3])
 def test_full_disk_leaves_nothing_eval(after: int, tmp_path: Path, tums: tuple[Path, Path]) -> None:
     """eval wrote metrics.json and died on a plot: now the whole set is gone, exit 2 naming --out."""
-    targets = ["imuslam.cli.common.write_atomic", "imuslam.io.figures.write_atomic",
+    targets = ["imuslam.io.results.write_atomic", "imuslam.io.figures.write_atomic",
                "imuslam.io.trajectory.write_atomic"]  # fmt: skip
     fake = _full_disk(after)
     with mock.patch(targets[0], fake), mock.patch(targets[1], fake), mock.patch(targets[2], fake):
