@@ -28,9 +28,10 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, Field, field_validator
 from scipy.optimize import least_squares
+from scipy.stats import chi2
 
 from imuslam.errors import InputError
-from imuslam.imu.joint import joint_refine
+from imuslam.imu.joint import JointFit, joint_refine, measured_noise
 from imuslam.imu.model import (
     ACCEL_PARAM_NAMES,
     GYRO_PARAM_NAMES,
@@ -102,6 +103,18 @@ class CalibrationConfig(BaseModel):
         False,
         description="joint method: let the accelerometer bias drift linearly over the session in the fit "
         "(a nuisance; the calibration keeps the bias at the middle of the session)",
+    )
+    joint_weights: Literal["measured", "variance_components"] = Field(
+        "measured",
+        description="joint method: measured: each residual weighted by the noise measured in the still "
+        "period (white noise of the pose means, angle random walk over each rotation), covariance "
+        "widened only where the misfit exceeds it significantly; variance_components: each group's noise "
+        "estimated from its own residuals",
+    )
+    g_sensitivity_test: bool = Field(
+        True,
+        description="joint method: keep the g-sensitivity G only if it differs from zero significantly "
+        "(Wald test, chi-square 9 dof, 99.9 %); otherwise refit without it",
     )
     min_intervals: int = Field(12, ge=9, description="fewest static intervals a threshold may give")
     gyro_margin_s: float = Field(
@@ -862,18 +875,43 @@ def calibrate(
             pose_means = np.stack([acc[s : e + 1].mean(axis=0) for s, e in still])
         raw_means = pose_means
         gyro_means = np.stack([w[s : e + 1].mean(axis=0) for s, e in still])
-        jf = joint_refine(
-            pose_means, gyro_means, w, f_c, t_s, segs, pairs, theta_a, theta_g[:9], cfg.g, sign,
-            cfg.estimate_gyro_bias, use_g, integrate_segments,
-            pose_t=t_s[(iv[:, 0] + iv[:, 1]) // 2] if cfg.accel_bias_drift else None,
-            pose_n=(still[:, 1] - still[:, 0] + 1).astype(float) if cfg.weigh_by_length else None,
-        )  # fmt: skip
+        pose_n = (still[:, 1] - still[:, 0] + 1).astype(float)
+        noise = None
+        if cfg.joint_weights == "measured":
+            sig_a = np.std(acc[: n_init + 1], axis=0, ddof=1) * np.abs(theta_a[3:6])
+            sig_w = np.std(log_.gyro[: n_init + 1], axis=0, ddof=1) * np.abs(theta_g[6:9])
+            noise = measured_noise(
+                sig_a, sig_w, pose_n, t_s[segs[:, 1]] - t_s[segs[:, 0]], 1.0 / rate
+            )
+
+        def run_joint(with_g: bool) -> JointFit:
+            return joint_refine(
+                pose_means, gyro_means, w, f_c, t_s, segs, pairs, theta_a, theta_g[:9], cfg.g, sign,
+                cfg.estimate_gyro_bias or cfg.gyro_g_sensitivity, with_g, integrate_segments,
+                pose_t=t_s[(iv[:, 0] + iv[:, 1]) // 2] if cfg.accel_bias_drift else None,
+                pose_n=pose_n if cfg.weigh_by_length else None, noise=noise,
+            )  # fmt: skip
+
+        jf = run_joint(use_g)
+        if use_g and cfg.g_sensitivity_test:
+            # Wald test of G = 0 (9 dof): an insignificant G only adds variance to the gyro parameters.
+            nb = 3
+            cG = jf.cov[18 + nb : 27 + nb, 18 + nb : 27 + nb]
+            gv = jf.G.ravel()
+            try:
+                wald = float(gv @ np.linalg.solve(cG, gv))
+            except np.linalg.LinAlgError:
+                wald = np.inf
+            if wald < float(chi2.ppf(0.999, 9)):
+                use_g = False
+                jf = run_joint(False)
+                log.debug("g-sensitivity not significant (Wald %.1f): left out", wald)
         theta_a, theta_g, db = jf.theta_a, jf.theta_g, jf.db
         G = jf.G if use_g else None
         bias_total = gyro_bias + db
         cov_a = jf.cov[:9, :9]
         cov_g_full = jf.cov[9:18, 9:18]
-        if cfg.estimate_gyro_bias or use_g:
+        if cfg.estimate_gyro_bias or cfg.gyro_g_sensitivity:
             cov_bias = jf.cov[18:21, 18:21]
         log.debug("joint fit noise levels: %s", jf.sigmas)
         accel_model = TriadModel(
