@@ -231,7 +231,11 @@ def joint_refine(
     def stack(rn: FloatArray, rd: FloatArray, rw: FloatArray) -> FloatArray:
         rw = rw * wr if rw.size else rw
         return np.concatenate(
-            [(rn * wp).ravel() * weights[0], (rd * wd).ravel() * weights[1], rw.ravel() * weights[2]]
+            [
+                (rn * wp).ravel() * weights[0],
+                (rd * wd).ravel() * weights[1],
+                rw.ravel() * weights[2],
+            ]
         )
 
     def fun_jac(z: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -400,4 +404,8 @@ def measured_noise(
     sa = float(np.sqrt(np.mean(np.square(sigma_accel))))
     sw = float(np.sqrt(np.mean(np.square(sigma_gyro))))
     n = np.maximum(np.asarray(pose_n, dtype=np.float64), 1.0)
-    return sa / np.sqrt(n), sw * np.sqrt(dt_s * np.asarray(seg_duration_s, np.float64)), sw / np.sqrt(n)
+    return (
+        sa / np.sqrt(n),
+        sw * np.sqrt(dt_s * np.asarray(seg_duration_s, np.float64)),
+        sw / np.sqrt(n),
+    )
