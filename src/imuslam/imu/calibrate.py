@@ -13,6 +13,8 @@
 5. ``method="joint"`` (the default): steps 2-3 only start a joint weighted least squares of both triads,
    the gyro bias and its g-sensitivity over every pose's accelerometer mean, every rotation's predicted
    gravity direction and every pose's rate at rest (``imu/joint.py``), whose covariance replaces theirs.
+   Each residual is weighted by the noise measured in the initial still period; the g-sensitivity and a
+   linear accelerometer bias drift are fitted and kept only when their Wald test is significant.
    ``method="tedaldi"`` stops after step 4 (imu_tk's result, for reproduction).
 """
 
@@ -99,10 +101,11 @@ class CalibrationConfig(BaseModel):
         True,
         description="joint method: weigh each pose by the square root of its length (white noise)",
     )
-    accel_bias_drift: bool = Field(
-        False,
+    accel_bias_drift: bool | Literal["auto"] = Field(
+        "auto",
         description="joint method: let the accelerometer bias drift linearly over the session in the fit "
-        "(a nuisance; the calibration keeps the bias at the middle of the session)",
+        "(a nuisance; the calibration keeps the bias at the middle of the session); auto: fit it and keep "
+        "it only if it differs from zero significantly (Wald test, chi-square 3 dof, 99.9 %)",
     )
     joint_weights: Literal["measured", "variance_components"] = Field(
         "measured",
@@ -884,28 +887,41 @@ def calibrate(
                 sig_a, sig_w, pose_n, t_s[segs[:, 1]] - t_s[segs[:, 0]], 1.0 / rate
             )
 
-        def run_joint(with_g: bool) -> JointFit:
+        pose_t = t_s[(iv[:, 0] + iv[:, 1]) // 2]
+
+        def run_joint(with_g: bool, with_drift: bool) -> JointFit:
             return joint_refine(
                 pose_means, gyro_means, w, f_c, t_s, segs, pairs, theta_a, theta_g[:9], cfg.g, sign,
                 cfg.estimate_gyro_bias or cfg.gyro_g_sensitivity, with_g, integrate_segments,
-                pose_t=t_s[(iv[:, 0] + iv[:, 1]) // 2] if cfg.accel_bias_drift else None,
+                pose_t=pose_t if with_drift else None,
                 pose_n=pose_n if cfg.weigh_by_length else None, noise=noise,
             )  # fmt: skip
 
-        jf = run_joint(use_g)
-        if use_g and cfg.g_sensitivity_test:
-            # Wald test of G = 0 (9 dof): an insignificant G only adds variance to the gyro parameters.
-            nb = 3
-            cG = jf.cov[18 + nb : 27 + nb, 18 + nb : 27 + nb]
-            gv = jf.G.ravel()
+        def wald(jf: JointFit, a: int, b: int, x: FloatArray) -> float:
+            """Wald statistic x^T C^-1 x of the parameters [a, b) of the fit (Koch 1999, sec. 4.2)."""
             try:
-                wald = float(gv @ np.linalg.solve(cG, gv))
+                return float(x @ np.linalg.solve(jf.cov[a:b, a:b], x))
             except np.linalg.LinAlgError:
-                wald = np.inf
-            if wald < float(chi2.ppf(0.999, 9)):
+                return float("inf")
+
+        # Optional terms are fitted and kept only if significant (Wald test at 99.9 %): an insignificant
+        # g-sensitivity or bias drift only adds variance to the parameters that matter.
+        with_drift = cfg.accel_bias_drift is not False
+        jf = run_joint(use_g, with_drift)
+        n_b = 3 if (cfg.estimate_gyro_bias or cfg.gyro_g_sensitivity) else 0
+        if use_g and cfg.g_sensitivity_test:
+            w_G = wald(jf, 18 + n_b, 27 + n_b, jf.G.ravel())
+            if w_G < float(chi2.ppf(0.999, 9)):
                 use_g = False
-                jf = run_joint(False)
-                log.debug("g-sensitivity not significant (Wald %.1f): left out", wald)
+                log.debug("g-sensitivity not significant (Wald %.1f): left out", w_G)
+                jf = run_joint(False, with_drift)
+        if with_drift and cfg.accel_bias_drift == "auto":
+            a = 18 + n_b + (9 if use_g else 0)
+            w_d = wald(jf, a, a + 3, jf.drift)
+            if w_d < float(chi2.ppf(0.999, 3)):
+                with_drift = False
+                log.debug("accelerometer bias drift not significant (Wald %.1f): left out", w_d)
+                jf = run_joint(use_g, False)
         theta_a, theta_g, db = jf.theta_a, jf.theta_g, jf.db
         G = jf.G if use_g else None
         bias_total = gyro_bias + db
