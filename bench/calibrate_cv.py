@@ -50,9 +50,11 @@ METHODS = {
     "imuslam joint, variance components (former default)": {
         "joint_weights": "variance_components",
         "g_sensitivity_test": False,
+        "accel_bias_drift": False,
     },
     "imuslam joint, no g-sensitivity": {"method": "joint", "gyro_g_sensitivity": False},
-    "imuslam joint (default: measured noise weights, G if significant)": {},
+    "imuslam joint (default: measured-noise weights, G and drift if significant)": {},
+    "imuslam joint, measured-noise weights, constant bias": {"accel_bias_drift": False},
     "imuslam joint + accel bias drift": {"accel_bias_drift": True},
 }
 
