@@ -853,6 +853,7 @@ def calibrate(
         cov_g_full = np.full_like(cov_g_full, np.inf)
     db = theta_g[9:12] if cfg.estimate_gyro_bias else np.zeros(3)
     G: FloatArray | None = None
+    drift_notes: dict[str, object] = {}
     f_c = np.zeros((1, 3))
     if cfg.method == "joint":
         use_g = cfg.gyro_g_sensitivity
@@ -923,6 +924,12 @@ def calibrate(
                 log.debug("accelerometer bias drift not significant (Wald %.1f): left out", w_d)
                 jf = run_joint(use_g, False)
         theta_a, theta_g, db = jf.theta_a, jf.theta_g, jf.db
+        if with_drift:
+            # the fitted bias is the one at the middle of the poses' time span
+            drift_notes = {
+                "accel_bias_drift_per_s": jf.drift.tolist(),
+                "accel_bias_drift_t_ref_s": float(0.5 * (pose_t.min() + pose_t.max())),
+            }
         G = jf.G if use_g else None
         bias_total = gyro_bias + db
         cov_a = jf.cov[:9, :9]
@@ -975,6 +982,7 @@ def calibrate(
             "n_intervals": int(len(iv)),
             "method": cfg.method,
             "warnings": list(warnings),
+            **drift_notes,
         },
         gyro_g_sensitivity=G,
     )
