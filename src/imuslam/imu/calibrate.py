@@ -639,6 +639,12 @@ def _check_units(K: FloatArray, sensor: str, unit: str, option: str, source: str
     )
 
 
+def _std_or_inf(var: np.ndarray) -> np.ndarray:
+    """Standard deviations from variances; a non-positive variance (undetermined) gives inf."""
+    var = np.asarray(var, dtype=np.float64)
+    return np.where(var > 0.0, np.sqrt(np.where(var > 0.0, var, 1.0)), np.inf)
+
+
 def _verdict(
     std_a: FloatArray, std_g: FloatArray, theta_a: FloatArray, theta_g: FloatArray, n_poses: int
 ) -> list[str]:
@@ -960,8 +966,10 @@ def calibrate(
 
     _check_units(accel_model.K, "accelerometer", log_.accel_unit, "--accel-unit", log_.source)
     _check_units(gyro_model.K, "gyro", log_.gyro_unit, "--gyro-unit", log_.source)
-    std_a = np.sqrt(np.diag(cov_a))
-    std_g = np.sqrt(np.diag(cov_g_full))[:9]
+    # A rank-deficient fit (too few poses about an axis) leaves a zero or slightly negative variance from
+    # the pseudo-inverse: that parameter is undetermined, so its std is infinite, never NaN.
+    std_a = _std_or_inf(np.diag(cov_a))
+    std_g = _std_or_inf(np.diag(cov_g_full))[:9]
     poor = _verdict(std_a, std_g, theta_a, theta_g[:9], len(iv))
     if poor:
         warnings.append("poorly determined: " + ", ".join(poor))

@@ -342,7 +342,10 @@ def joint_refine(
         lam = max(lam / 10.0, 1e-12)
         r, J = fun_jac(x)
         # Converged when the step is far below the parameters' uncertainty and the weights settled.
-        small = bool(np.all(np.abs(dx) <= 1e-3 * np.sqrt(np.diag(_inv_normal(J)))))
+        var_x = np.clip(
+            np.diag(_inv_normal(J)), 0.0, None
+        )  # pinv of a rank-deficient N: 0, not NaN
+        small = bool(np.all(np.abs(dx) <= 1e-3 * np.sqrt(var_x)))
         if small and w_changed < 1e-2:
             break
     r, J = fun_jac(x)
