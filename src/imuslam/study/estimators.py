@@ -259,7 +259,8 @@ def _vio_prepare(cell: Cell) -> tuple[str, Callable[..., Any], tuple[Any, ...]]:
     return key, _vio_front_end, (base.model_dump(mode="json"), o.image_hz, vo_cfg)
 
 
-@register("vio", VioOptions, ("room", "handheld"), "stereo VO + EKF (NHC, gating)", _vio_prepare)
+@register("vio", VioOptions, ("room", "handheld"), "stereo VO + EKF (NHC, gating)", _vio_prepare,
+          cpu_per_s=0.05)
 def run_vio_cell(inp: CellInput) -> Estimate:
     from imuslam.vio.pipeline import VioConfig, run_vio
 
@@ -442,6 +443,6 @@ def run_lio_cell(inp: CellInput) -> Estimate:
 
 if _available("imuslam.lio.pipeline", "imuslam.lio.estimator"):
     register("lio", LioOptions, ("street", "corridor"), "LiDAR-inertial odometry", _lio_prepare,
-             own_alignment=True)(run_lio_cell)  # fmt: skip
+             own_alignment=True, cpu_per_s=1.5)(run_lio_cell)  # fmt: skip
 else:
     planned("lio", "LiDAR-inertial odometry (imuslam.lio) has no pipeline in this build")
