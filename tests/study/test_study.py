@@ -211,6 +211,9 @@ def _cli_error(tmp_path: Path, study: dict[str, Any] | str, *extra: str) -> str:
         ({"scenarios": [{"name": "moon"}]}, "unknown scenario 'moon'"),
         ({"scenarios": [{"name": "gimbal"}]}, "'gimbal' is the calibration log"),
         ({"scenarios": []}, "scenarios is empty: the study has no cells"),
+        ({"seeds": []}, "claims[0] (align).seeds is empty: a study needs at least one seed"),
+        ({"seeds": 0}, "claims[0] (align).seeds is empty: a study needs at least one seed"),
+        ({"estimators": []}, "estimators is empty: the study has no cells"),
         ({"imu": ["perfect"]}, "claims[0] (align).imu[0]"),
         (
             {"estimators": [{"name": "ins", "options": {"nhc": True}}]},
@@ -226,6 +229,8 @@ def test_bad_study(tmp_path: Path, change: dict[str, Any], expect: str) -> None:
 
 def test_no_cells_and_missing_estimator(tmp_path: Path) -> None:
     assert "claims is empty: the study has no cells" in _cli_error(tmp_path, {"claims": []})
+    study_no_seed = {**small_study(), "seeds": []}
+    assert "seeds is empty: a study needs at least one seed" in _cli_error(tmp_path, study_no_seed)
     for name, e in estimators.REGISTRY.items():
         if e.run is None:  # an estimator this build does not have
             line = _cli_error(tmp_path, small_study(estimators=[{"name": name}]))

@@ -259,8 +259,14 @@ def _vio_prepare(cell: Cell) -> tuple[str, Callable[..., Any], tuple[Any, ...]]:
     return key, _vio_front_end, (base.model_dump(mode="json"), o.image_hz, vo_cfg)
 
 
-@register("vio", VioOptions, ("room", "handheld"), "stereo VO + EKF (NHC, gating)", _vio_prepare,
-          cpu_per_s=0.05)
+@register(
+    "vio",
+    VioOptions,
+    ("room", "handheld"),
+    "stereo VO + EKF (NHC, gating)",
+    _vio_prepare,
+    cpu_per_s=0.05,
+)
 def run_vio_cell(inp: CellInput) -> Estimate:
     from imuslam.vio.pipeline import VioConfig, run_vio
 

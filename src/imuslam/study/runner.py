@@ -16,6 +16,7 @@ import json
 import logging
 import os
 import time
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -106,7 +107,12 @@ def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
     pre = {**dask.config.get("distributed.nanny.pre-spawn-environ", default={}), **WORKER_ENV}
     saved = {k: os.environ.get(k) for k in pre}
     try:
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": pre}):
+        with (
+            dask.config.set({"distributed.nanny.pre-spawn-environ": pre}),
+            warnings.catch_warnings(),
+        ):
+            # the scheduler's HTTP server (no dashboard) moves to a free port when 8787 is taken
+            warnings.filterwarnings("ignore", message="Port .* is already in use")
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                    dashboard_address=None, silence_logs=logging.ERROR)  # fmt: skip
     finally:
