@@ -449,6 +449,6 @@ def run_lio_cell(inp: CellInput) -> Estimate:
 
 if _available("imuslam.lio.pipeline", "imuslam.lio.estimator"):
     register("lio", LioOptions, ("street", "corridor"), "LiDAR-inertial odometry", _lio_prepare,
-             own_alignment=True, cpu_per_s=1.5)(run_lio_cell)  # fmt: skip
+             own_alignment=True, cpu_per_s=0.6)(run_lio_cell)  # fmt: skip
 else:
     planned("lio", "LiDAR-inertial odometry (imuslam.lio) has no pipeline in this build")
