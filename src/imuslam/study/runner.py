@@ -102,10 +102,12 @@ def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
             client.close()
         return
     n = workers or os.cpu_count() or 1
-    # the Nanny writes its pre-spawn environment into this process's os.environ before it spawns a
-    # worker: put ours in it, and give this process its own environment back once the workers run
+    # the Nanny takes its pre-spawn environment from this process's os.environ where a variable is set
+    # there (a user's OMP_NUM_THREADS=8 would win): set ours here while the workers are spawned, then
+    # give this process its own environment back
     pre = {**dask.config.get("distributed.nanny.pre-spawn-environ", default={}), **WORKER_ENV}
     saved = {k: os.environ.get(k) for k in pre}
+    os.environ.update(WORKER_ENV)
     try:
         with (
             dask.config.set({"distributed.nanny.pre-spawn-environ": pre}),
