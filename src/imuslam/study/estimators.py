@@ -357,7 +357,7 @@ if _available("imuslam.slam2d.slam", "imuslam.sim.robot2d", "imuslam.eval.mapqua
         Map2dOptions,
         ("room", "corridor", "square"),
         "2D SLAM (scans, wheels, IMU)",
-        cpu_per_s=0.13,
+        cpu_per_s=0.16,
     )(run_map2d_cell)
 else:
     planned("map2d", "2D SLAM (imuslam.slam2d) has no pipeline in this build")
