@@ -211,6 +211,9 @@ def _cli_error(tmp_path: Path, study: dict[str, Any] | str, *extra: str) -> str:
         ({"scenarios": [{"name": "moon"}]}, "unknown scenario 'moon'"),
         ({"scenarios": [{"name": "gimbal"}]}, "'gimbal' is the calibration log"),
         ({"scenarios": []}, "scenarios is empty: the study has no cells"),
+        ({"seeds": []}, "claims[0] (align).seeds is empty: a study needs at least one seed"),
+        ({"seeds": 0}, "claims[0] (align).seeds is empty: a study needs at least one seed"),
+        ({"estimators": []}, "estimators is empty: the study has no cells"),
         ({"imu": ["perfect"]}, "claims[0] (align).imu[0]"),
         (
             {"estimators": [{"name": "ins", "options": {"nhc": True}}]},
@@ -226,6 +229,8 @@ def test_bad_study(tmp_path: Path, change: dict[str, Any], expect: str) -> None:
 
 def test_no_cells_and_missing_estimator(tmp_path: Path) -> None:
     assert "claims is empty: the study has no cells" in _cli_error(tmp_path, {"claims": []})
+    study_no_seed = {**small_study(), "seeds": []}
+    assert "seeds is empty: a study needs at least one seed" in _cli_error(tmp_path, study_no_seed)
     for name, e in estimators.REGISTRY.items():
         if e.run is None:  # an estimator this build does not have
             line = _cli_error(tmp_path, small_study(estimators=[{"name": name}]))
@@ -293,3 +298,44 @@ def test_vio_cells_against_truth(tmp_path: Path) -> None:
     assert (t["status"] == "ok").all(), t["error"]
     assert t.loc["fused", "ape_rmse_m"] < 0.05
     assert t.loc["imu", "ape_rmse_m"] > t.loc["fused", "ape_rmse_m"]
+
+
+# ---------------------------------------------------------------------------------------------
+# scheduling: the scene simulated once per process, the longest cells first
+
+
+def test_scene_cache_returns_what_a_fresh_simulation_gives() -> None:
+    from imuslam.study import pipeline
+
+    cells = expand(parse_study(small_study(alignment=["none", "kf", "rwnn"])))
+    a, b = cells[0], cells[2]  # seed 0, alignment none and kf: one scene
+    assert a.seed == b.seed == 0 and a.alignment != b.alignment
+    assert pipeline.scene_key(a) == pipeline.scene_key(b)
+    assert pipeline.scene_key(a) != pipeline.scene_key(cells[1])  # seed 1
+    other_imu = a.model_copy(update={"imu": "raw"})
+    assert pipeline.scene_key(a) != pipeline.scene_key(other_imu)
+    traj, _, rate = pipeline.scene("street")
+    pipeline._SCENE_CACHE.clear()
+    raw, truth = pipeline.simulate_scene(a, traj, rate)
+    raw.accel[:] = 0.0  # what a cell does to its copy does not reach the next cell
+    again, _ = pipeline.simulate_scene(b, traj, rate)
+    total = a.align.duration_s + a.scenario.duration_s
+    spec = sensor_spec(a.imu, a.drift, total)
+    fresh, fresh_truth = simulate_imu(traj, total, a.world_rng("imu"), spec, rate, g=pipeline.G)
+    np.testing.assert_array_equal(again.accel, fresh.accel)
+    np.testing.assert_array_equal(again.gyro, fresh.gyro)
+    np.testing.assert_array_equal(truth.p_w, fresh_truth.p_w)
+
+
+def test_cell_cost_orders_estimators() -> None:
+    from imuslam.study.pipeline import cell_cost
+
+    study = small_study(alignment=["none", "kf"])
+    cells = expand(parse_study(study))
+    none, kf = cells[0], cells[2]
+    assert cell_cost(kf) > cell_cost(none)  # the alignment filter runs over 20 s of IMU
+    if estimators.REGISTRY["map2d"].run is not None:
+        m = expand(parse_study(small_study(
+            scenarios=[{"name": "square", "duration_s": 10.0}], alignment=["none"],
+            estimators=[{"name": "map2d"}], expect=[])))[0]  # fmt: skip
+        assert cell_cost(m) > cell_cost(kf)

@@ -141,3 +141,28 @@ def test_local_cluster_equals_serial(tmp_path: Path) -> None:
     serial = run_study(study, tmp_path / "serial", serial=True, progress=False).table
     assert (local.table["status"] == "ok").all(), local.table[["error"]]
     _same_numbers(local.table, serial)
+
+
+def _worker_threads() -> dict[str, str | int | None]:
+    import numba
+
+    return {
+        "numba": numba.config.NUMBA_NUM_THREADS,  # type: ignore[attr-defined]
+        **{k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")},
+    }
+
+
+def test_local_cluster_workers_run_one_thread_each(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each LocalCluster worker is one process with numba, OpenMP and BLAS held to one thread (set
+    before the worker imported numba), and this process keeps its own environment."""
+    from imuslam.study.runner import dask_client
+
+    monkeypatch.delenv("NUMBA_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "7")
+    with dask_client(None, 2) as client:
+        info = client.scheduler_info()["workers"]
+        assert len(info) == 2 and all(w["nthreads"] == 1 for w in info.values())
+        assert len(set(client.run(os.getpid).values())) == 2  # two processes
+        for got in client.run(_worker_threads).values():
+            assert got == {"numba": 1, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+    assert os.environ["OMP_NUM_THREADS"] == "7" and "NUMBA_NUM_THREADS" not in os.environ

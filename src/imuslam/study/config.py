@@ -98,7 +98,9 @@ class ClaimSpec(_Strict):
     metric: str = "ape_rmse_m"
     lower_is_better: bool = True
     seeds: list[int] | None = Field(
-        None, description="this claim's seeds (a count or a list); default: the study's"
+        None,
+        min_length=1,
+        description="this claim's seeds (a count or a list); default: the study's",
     )
     align: AlignSpec | None = Field(
         None, description="this claim's alignment window; default: the study's"

@@ -88,7 +88,9 @@ class EstimatorEntry:
     images for every filter variant), run once per key as a task of its own; ``fn(*args)`` arrives in
     ``CellInput.shared``. ``missing`` says why an estimator without ``run`` is not available.
     ``own_alignment``: the estimator aligns itself (the cell's alignment method is its option, read from
-    ``inp.cell.alignment``); the study's fix-aided alignment window is then not run."""
+    ``inp.cell.alignment``); the study's fix-aided alignment window is then not run. ``cpu_per_s``: CPU
+    seconds a cell takes per second of run (measured on the simulator, shared work included), so the
+    runner can start the longest cells first."""
 
     name: str
     doc: str
@@ -98,6 +100,7 @@ class EstimatorEntry:
     missing: str = ""
     prepare: Prepare | None = None
     own_alignment: bool = False
+    cpu_per_s: float = 0.01
 
 
 REGISTRY: dict[str, EstimatorEntry] = {}
@@ -110,12 +113,13 @@ def register(
     doc: str,
     prepare: Prepare | None = None,
     own_alignment: bool = False,
+    cpu_per_s: float = 0.01,
 ) -> Callable[[Callable[[CellInput], Estimate]], Callable[[CellInput], Estimate]]:
     """Decorator: make ``run`` the adapter of estimator ``name``."""
 
     def deco(run: Callable[[CellInput], Estimate]) -> Callable[[CellInput], Estimate]:
         REGISTRY[name] = EstimatorEntry(name, doc, options, scenarios, run, prepare=prepare,
-                                        own_alignment=own_alignment)  # fmt: skip
+                                        own_alignment=own_alignment, cpu_per_s=cpu_per_s)  # fmt: skip
         return run
 
     return deco
@@ -177,7 +181,13 @@ class InsOptions(BaseModel):
     )
 
 
-@register("ins", InsOptions, NAV_SCENARIOS, "free inertial navigation from the aligned state")
+@register(
+    "ins",
+    InsOptions,
+    NAV_SCENARIOS,
+    "free inertial navigation from the aligned state",
+    cpu_per_s=0.002,
+)
 def run_ins(inp: CellInput) -> Estimate:
     opts = inp.options
     assert isinstance(opts, InsOptions)
@@ -249,7 +259,14 @@ def _vio_prepare(cell: Cell) -> tuple[str, Callable[..., Any], tuple[Any, ...]]:
     return key, _vio_front_end, (base.model_dump(mode="json"), o.image_hz, vo_cfg)
 
 
-@register("vio", VioOptions, ("room", "handheld"), "stereo VO + EKF (NHC, gating)", _vio_prepare)
+@register(
+    "vio",
+    VioOptions,
+    ("room", "handheld"),
+    "stereo VO + EKF (NHC, gating)",
+    _vio_prepare,
+    cpu_per_s=0.05,
+)
 def run_vio_cell(inp: CellInput) -> Estimate:
     from imuslam.vio.pipeline import VioConfig, run_vio
 
@@ -335,9 +352,13 @@ def _available(*modules: str) -> bool:
 
 
 if _available("imuslam.slam2d.slam", "imuslam.sim.robot2d", "imuslam.eval.mapquality"):
-    register("map2d", Map2dOptions, ("room", "corridor", "square"), "2D SLAM (scans, wheels, IMU)")(
-        run_map2d_cell
-    )
+    register(
+        "map2d",
+        Map2dOptions,
+        ("room", "corridor", "square"),
+        "2D SLAM (scans, wheels, IMU)",
+        cpu_per_s=0.16,
+    )(run_map2d_cell)
 else:
     planned("map2d", "2D SLAM (imuslam.slam2d) has no pipeline in this build")
 
@@ -428,6 +449,6 @@ def run_lio_cell(inp: CellInput) -> Estimate:
 
 if _available("imuslam.lio.pipeline", "imuslam.lio.estimator"):
     register("lio", LioOptions, ("street", "corridor"), "LiDAR-inertial odometry", _lio_prepare,
-             own_alignment=True)(run_lio_cell)  # fmt: skip
+             own_alignment=True, cpu_per_s=0.6)(run_lio_cell)  # fmt: skip
 else:
     planned("lio", "LiDAR-inertial odometry (imuslam.lio) has no pipeline in this build")

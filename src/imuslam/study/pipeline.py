@@ -12,7 +12,9 @@ evaluated against the truth (APE/RPE, ``eval/metrics.py``).
 
 from __future__ import annotations
 
+import copy
 import time
+from collections import OrderedDict
 from typing import Any
 
 import numpy as np
@@ -35,7 +37,7 @@ from imuslam.sim.trajectory import (
     SquareLoopCcwCw,
 )
 from imuslam.sim.world import World, corridor, room_8x8, urban_block
-from imuslam.study.cells import Cell
+from imuslam.study.cells import Cell, digest
 from imuslam.study.conditions import calibration_age_h, gimbal_calibration, sensor_spec
 from imuslam.study.config import DriftSpec
 from imuslam.study.estimators import CellInput, get_estimator
@@ -59,6 +61,48 @@ def scene(name: str) -> tuple[EulerTrajectory, World, float]:
     if name == "handheld":
         return Handheld(), room_8x8(), 200.0
     raise InputError(f"unknown scenario '{name}'")
+
+
+# (raw IMU log, truth) of the scenes this process simulated last, by content hash: the cells that
+# differ only after the simulation (alignment method, estimator variant) simulate their scene once
+_SCENE_CACHE: OrderedDict[str, Any] = OrderedDict()
+_SCENE_CACHE_SIZE = 8
+
+
+def scene_key(cell: Cell) -> str:
+    """Content hash of everything that decides a cell's simulated IMU log and truth."""
+    c = cell.content()
+    return digest(["imu-scene", cell.world_seed(), c["scenario"], c["align"]["duration_s"],
+                   cell.imu, c.get("drift")])  # fmt: skip
+
+
+def simulate_scene(cell: Cell, traj: EulerTrajectory, rate_hz: float) -> tuple[Any, Any]:
+    """The cell's raw IMU log and truth over the alignment window and the run (kept per process by
+    :func:`scene_key`; a copy is returned, so an estimator cannot change what the next cell gets)."""
+    key = scene_key(cell)
+    hit = _SCENE_CACHE.get(key)
+    if hit is None:
+        total = cell.align.duration_s + cell.scenario.duration_s
+        spec = sensor_spec(cell.imu, cell.drift, total)
+        hit = simulate_imu(traj, total, cell.world_rng("imu"), spec, rate_hz, g=G)
+        _SCENE_CACHE[key] = hit
+        while len(_SCENE_CACHE) > _SCENE_CACHE_SIZE:
+            _SCENE_CACHE.popitem(last=False)
+    else:
+        _SCENE_CACHE.move_to_end(key)
+    return copy.deepcopy(hit)
+
+
+def cell_cost(cell: Cell) -> float:
+    """Expected CPU seconds of a cell (for scheduling the longest first), from the estimator's
+    measured cost per simulated second (``EstimatorEntry.cpu_per_s``) and the alignment filter's."""
+    entry = get_estimator(cell.estimator.name)
+    align_s = 0.0 if cell.alignment == "none" or entry.own_alignment else cell.align.duration_s
+    return 0.05 + ALIGN_CPU_PER_S * align_s + entry.cpu_per_s * cell.scenario.duration_s
+
+
+ALIGN_CPU_PER_S = 0.004  # KF / STKF / RWNN alignment at 100-200 Hz, CPU s per second of log
+CALIBRATION_CPU_S = 2.0  # one 40-pose gimbal calibration
 
 
 def calibration_need(cell: Cell) -> tuple[float, int] | None:
@@ -114,9 +158,8 @@ def _run(
     options = entry.options.model_validate(cell.estimator.options)
     traj, world, rate = scene(cell.scenario.name)
     a = cell.align
-    total = a.duration_s + cell.scenario.duration_s
-    spec = sensor_spec(cell.imu, cell.drift, total)
-    raw, truth = simulate_imu(traj, total, cell.world_rng("imu"), spec, rate, g=G)
+    spec = sensor_spec(cell.imu, cell.drift, a.duration_s + cell.scenario.duration_s)
+    raw, truth = simulate_scene(cell, traj, rate)
     lap("simulate")
 
     need = calibration_need(cell)
@@ -190,7 +233,7 @@ def run_cell(
     not given); shared: the result of the estimator's shared work (:func:`shared_need`), likewise."""
     c = cell if isinstance(cell, Cell) else Cell.model_validate(cell)
     row: dict[str, Any] = {"key": c.key, **c.label, "status": "ok", "error": ""}
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     try:
         metrics, timings = _run(c, calibration, shared)
     except Exception as exc:  # a failing cell is a result, not the end of the study
@@ -201,4 +244,5 @@ def run_cell(
     for s in STAGES:
         row[f"t_{s}_s"] = timings.get(s, float("nan"))
     row["t_total_s"] = time.perf_counter() - t0
+    row["t_cpu_s"] = time.process_time() - cpu0
     return row

@@ -15,9 +15,11 @@ from __future__ import annotations
 import json
 import logging
 import os
+import time
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -30,8 +32,10 @@ from imuslam.study.cells import Cell, expand
 from imuslam.study.config import StudyConfig
 from imuslam.study.estimators import check_study
 from imuslam.study.pipeline import (
+    CALIBRATION_CPU_S,
     calibration_need,
     calibration_task,
+    cell_cost,
     run_cell,
     shared_need,
     shared_task,
@@ -49,6 +53,8 @@ class StudyRun:
     n_cached: int
     n_run: int
     backend: str
+    worker_cpu_s: dict[str, float] = field(default_factory=dict)
+    """CPU seconds each Dask worker process used (start-up included); this process's for --serial."""
 
 
 def plan(study: StudyConfig, source: str = "<study>") -> list[Cell]:
@@ -60,10 +66,21 @@ def plan(study: StudyConfig, source: str = "<study>") -> list[Cell]:
     return cells
 
 
+# one worker = one core: the numba, OpenMP and BLAS thread pools of a worker process hold one thread
+# (numba reads NUMBA_NUM_THREADS when it is imported, so these are set before the worker process starts)
+WORKER_ENV = {
+    "NUMBA_NUM_THREADS": "1",
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+}
+
+
 @contextmanager
 def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
     """A client of ``scheduler`` (an address), or of a new in-process LocalCluster of ``workers``
-    single-threaded worker processes (default: one per core)."""
+    single-threaded worker processes (default: one per core), with :data:`WORKER_ENV`."""
+    import dask
     from distributed import Client, LocalCluster
 
     for name in (
@@ -85,11 +102,41 @@ def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
             client.close()
         return
     n = workers or os.cpu_count() or 1
-    # one worker = one core (dask sets OMP / BLAS threads to 1 in its workers; numba's threading layer
-    # reads NUMBA_NUM_THREADS at import, before a Nanny's env would apply, so it is left alone)
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:  # fmt: skip
+    # the Nanny takes its pre-spawn environment from this process's os.environ where a variable is set
+    # there (a user's OMP_NUM_THREADS=8 would win): set ours here while the workers are spawned, then
+    # give this process its own environment back
+    pre = {**dask.config.get("distributed.nanny.pre-spawn-environ", default={}), **WORKER_ENV}
+    saved = {k: os.environ.get(k) for k in pre}
+    os.environ.update(WORKER_ENV)
+    try:
+        with (
+            dask.config.set({"distributed.nanny.pre-spawn-environ": pre}),
+            warnings.catch_warnings(),
+        ):
+            # the scheduler's HTTP server (no dashboard) moves to a free port when 8787 is taken
+            warnings.filterwarnings("ignore", message="Port .* is already in use")
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)  # fmt: skip
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    with cluster, Client(cluster) as client:
         yield client
+
+
+def worker_cpu_s(client: Any) -> dict[str, float]:
+    """CPU seconds (user + system) each worker process has used since it started."""
+
+    def cpu() -> float:
+        import resource
+
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
+
+    return {str(k): float(v) for k, v in client.run(cpu).items()}
 
 
 def _cache_path(out: Path, key: str) -> Path:
@@ -124,9 +171,9 @@ def execute(
     workers: int | None = None,
     serial: bool = False,
     progress: bool = True,
-) -> tuple[dict[str, dict[str, Any]], int, str]:
+) -> tuple[dict[str, dict[str, Any]], int, str, dict[str, float]]:
     """Rows by cell key for every distinct cell (from the cache or run); the number taken from the
-    cache; the backend used."""
+    cache; the backend used; CPU seconds by worker (see :attr:`StudyRun.worker_cpu_s`)."""
     unique: dict[str, Cell] = {}
     for c in cells:
         unique.setdefault(c.key, c)
@@ -138,8 +185,9 @@ def execute(
     n_cached = len(rows)
     pending = [c for k, c in unique.items() if k not in rows]
     if not pending:
-        return rows, n_cached, "cache"
+        return rows, n_cached, "cache", {}
     if serial:
+        cpu0 = time.process_time()
         bar = tqdm(total=len(pending), unit="cell", desc="study", disable=not progress)
         backend = "serial"
         cals: dict[tuple[float, int], Any] = {}
@@ -157,31 +205,36 @@ def execute(
             _store(out, c, rows[c.key])
             bar.update()
         bar.close()
-        return rows, n_cached, backend
+        return rows, n_cached, backend, {"serial": time.process_time() - cpu0}
     with dask_client(scheduler, workers) as client:
         from distributed import as_completed
 
         n_workers = len(client.scheduler_info()["workers"])
         backend = f"dask {scheduler if scheduler else 'LocalCluster'} ({n_workers} workers)"
         bar = tqdm(total=len(pending), unit="cell", desc="study", disable=not progress)
+        # longest first: a cell's priority is its expected CPU time; calibrations and shared work
+        # come before everything that waits for them (Dask runs the ready task of highest priority)
+        cost = {c.key: cell_cost(c) for c in pending}
+        top = 1.0 + sum(cost.values())
         cal_futures: dict[tuple[float, int], Any] = {}
         shared_futures: dict[str, Any] = {}
         futures = {}
-        for c in pending:
+        for c in sorted(pending, key=lambda c: -cost[c.key]):
             need = calibration_need(c)
             if need is not None and need not in cal_futures:
                 cal_futures[need] = client.submit(
-                    calibration_task, c.drift.model_dump(), *need,
+                    calibration_task, c.drift.model_dump(), *need, priority=top + CALIBRATION_CPU_S,
                     key=f"calibration-{need[1]:x}-{need[0]:g}h-{c.key}",
                 )  # fmt: skip
             sh = shared_need(c)
             if sh is not None and sh[0] not in shared_futures:
                 shared_futures[sh[0]] = client.submit(
-                    shared_task, sh[1], *sh[2], key=f"shared-{sh[0]}"
+                    shared_task, sh[1], *sh[2], key=f"shared-{sh[0]}", priority=top + cost[c.key]
                 )
             fut = client.submit(run_cell, c.model_dump(mode="json"),
                                 None if need is None else cal_futures[need],
-                                None if sh is None else shared_futures[sh[0]], key=f"cell-{c.key}")  # fmt: skip
+                                None if sh is None else shared_futures[sh[0]], key=f"cell-{c.key}",
+                                priority=cost[c.key])  # fmt: skip
             futures[fut] = c
         for fut in as_completed(list(futures)):
             c = futures[fut]
@@ -195,7 +248,8 @@ def execute(
             bar.update()
             fut.release()
         bar.close()
-    return rows, n_cached, backend
+        cpu = worker_cpu_s(client)
+    return rows, n_cached, backend, cpu
 
 
 def table(cells: list[Cell], rows: dict[str, dict[str, Any]]) -> pd.DataFrame:
@@ -218,10 +272,10 @@ def run_study(
     out = Path(out_dir) if out_dir is not None else None
     if out is not None and out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
-    rows, n_cached, backend = execute(cells, out, scheduler, workers, serial, progress)
+    rows, n_cached, backend, cpu = execute(cells, out, scheduler, workers, serial, progress)
     df = table(cells, rows)
     if out is not None:
         from imuslam.study.report import write_outputs
 
         write_outputs(study, df, out, backend)
-    return StudyRun(df, out, n_cached, len(rows) - n_cached, backend)
+    return StudyRun(df, out, n_cached, len(rows) - n_cached, backend, cpu)
