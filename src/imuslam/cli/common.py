@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import logging
 from collections.abc import Callable
+from enum import Enum, StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar, cast
 
@@ -50,6 +51,38 @@ def _print_error(msg: str) -> None:
     # markup off: a path or value in the message must print as it is ("[1, 2]" is not a style)
     err_console.print("[bold red]error:[/] ", end="")
     err_console.print(msg, markup=False, highlight=False, soft_wrap=True)
+
+
+class ImuFormatChoice(StrEnum):
+    """``--format`` of the IMU readers (``imuslam.io.load.FORMATS``)."""
+
+    auto = "auto"
+    imutk = "imutk"
+    euroc = "euroc"
+    csv = "csv"
+    bag = "bag"
+
+
+class AccelUnitChoice(StrEnum):
+    m_s2 = "m/s^2"
+    g = "g"
+    counts = "counts"
+
+
+class GyroUnitChoice(StrEnum):
+    rad_s = "rad/s"
+    deg_s = "deg/s"
+    counts = "counts"
+
+
+class BiasSign(StrEnum):
+    plus = "plus"
+    minus = "minus"
+
+
+def value(choice: Enum | None) -> str | None:
+    """The string of an Enum option (None stays None)."""
+    return None if choice is None else str(choice.value)
 
 
 COLUMN_KEYS = ("t", "ax", "ay", "az", "gx", "gy", "gz")
