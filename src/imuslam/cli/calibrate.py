@@ -6,7 +6,6 @@ from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
 import typer
 
 from imuslam.cli import validate
@@ -22,7 +21,6 @@ from imuslam.cli.common import (
     table,
     value,
 )
-from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
 
 
 class CalibMethod(StrEnum):
@@ -33,6 +31,8 @@ class CalibMethod(StrEnum):
 if (
     TYPE_CHECKING
 ):  # numba, scipy, pydantic and matplotlib load when the command runs, not at start-up
+    import numpy as np
+
     from imuslam.imu.calibrate import CalibrationResult
     from imuslam.imu.crossval import CrossValidation
     from imuslam.interfaces.imu import ImuLog
@@ -42,6 +42,10 @@ def print_result(
     res: CalibrationResult, truth_a: np.ndarray | None = None, truth_g: np.ndarray | None = None
 ) -> None:
     """Rich tables of the parameters (with units) and the fit quality."""
+    import numpy as np
+
+    from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
+
     c = res.calibration
     au, gu = c.accel_unit, c.gyro_unit
     units_a = ["rad"] * 3 + (["1"] if au == "m/s^2" else [f"m/s^2 per {au}"]) * 3 + [au] * 3
