@@ -154,13 +154,15 @@ def register(app: typer.Typer) -> None:
         def show(e: Event) -> None:
             console.print(f"{e.kind}: {e.detail}")
 
+        def plan_ready(plan: Any, predicted: Any) -> None:  # before the first session
+            if predicted is not None:
+                _print_predicted(poses, predicted)
+
         try:
-            res = pipeline.run(on_event=show)
+            res = pipeline.run(on_event=show, on_plan=plan_ready)
         finally:
             if imu is not None:
                 imu.close()
-        if res.predicted is not None:
-            _print_predicted(poses, res.predicted)
         if sim:
             for e in res.events:
                 if e.kind != "command":

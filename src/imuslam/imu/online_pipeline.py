@@ -112,13 +112,20 @@ class OnlinePipeline:
         sa40, sg40 = model.predicted_std(seed)
         return np.concatenate([sa, sg]), np.concatenate([sa40, sg40])
 
-    def run(self, on_event: Callable[[Event], None] | None = None) -> OnlineOutput:
-        """Run to the end (simulated) or until the IMU stops or Ctrl-C (robot; ``on_event`` sees each
-        event as it happens)."""
+    def run(
+        self,
+        on_event: Callable[[Event], None] | None = None,
+        on_plan: Callable[[FloatArray, tuple[FloatArray, FloatArray] | None], None] | None = None,
+    ) -> OnlineOutput:
+        """Run to the end (simulated) or until the IMU stops or Ctrl-C (robot). ``on_plan(plan,
+        predicted)`` sees the pose plan before the first session; ``on_event`` each event of the robot
+        as it happens."""
         c, ds = self.config, self.dataset
         cfg = OnlineConfig(calibration=CalibrationConfig(t_init_s=c.t_init_s))
         model, plan = self.plan()
         pred = self.predicted(model, plan) if c.poses < SEED_POSES else None
+        if on_plan is not None:
+            on_plan(plan, pred)
         if isinstance(ds, SimulatedRobot):
             from imuslam.imu.online_sim import Drift, run_simulated_robot
 
