@@ -24,12 +24,16 @@ def test_monte_carlo_errors_consistent_with_covariance() -> None:
     If the reported covariance is right, each run's NEES e^T P^-1 e is chi-square with 9 dof, and the sum
     over 100 runs is chi-square with 900 dof: mean 9, std of the mean sqrt(18 / 100) = 0.42. The band is
     +-3 of those sigmas (99.7 %), widened by what a residual-estimated variance adds: 3 % for tedaldi's
-    gyro (69 degrees of freedom: 69 / 67); for the joint fit's variance components, whose smallest group
-    (the accelerometer's 3 residuals per pose less the pose's direction and the 9 parameters) has about
-    28 degrees of freedom, up to 2 / 28 on the upper side.
-    The joint fit's accelerometer must also be more accurate: the mean over parameters of its squared
-    error, relative to tedaldi's, below 1. Its gyroscope is not (measured ratio 1.26 over these 100 runs,
-    reported as missed in the README), so that ratio is printed, not asserted.
+    gyro (69 degrees of freedom: 69 / 67). The joint fit weighs every residual by the noise measured in
+    the 50 s still period (5000 samples: its variance is known to 2 %, below the band), so its band is
+    the plain chi-square one.
+    Accuracy against tedaldi: the runs differ widely in geometry (a few plans turn little about some
+    axis, and their gyro errors are 20x the median), so the mean squared error of a parameter is decided
+    by two or three runs. Each run's error is therefore also measured in units of tedaldi's own 1-sigma
+    for that run (the same yardstick for both methods): the joint fit must be below tedaldi on that
+    normalised mean square, for the accelerometer and the gyroscope. The raw ratio (mean over the 9
+    parameters of the ratio of mean squared errors) must be below 1 for the accelerometer; the gyro's is
+    printed and reported in the README (1.22 over these runs: missed).
     """
     nees: dict[str, list[float]] = {k: [] for k in ("ta", "tg", "ja", "jg")}
     err: dict[str, list[np.ndarray]] = {k: [] for k in ("ta", "tg", "ja", "jg")}
@@ -63,16 +67,22 @@ def test_monte_carlo_errors_consistent_with_covariance() -> None:
     assert abs(np.mean(nees["ta"]) - 9) < band
     assert abs(np.mean(nees["tg"]) - 9 * 69 / 67) < band
     for k in ("ja", "jg"):
-        assert 9 - band < np.mean(nees[k]) < 9 * (1 + 2 / 28) + band
-    ratio = {}
+        assert abs(np.mean(nees[k]) - 9) < band
+    ratio, norm_ratio = {}, {}
     for t in ("a", "g"):
         mse_t = np.mean(np.square(err["t" + t]), axis=0)
         mse_j = np.mean(np.square(err["j" + t]), axis=0)
         ratio[t] = float(np.mean(mse_j / mse_t))
+        sig_t = np.asarray(std["t" + t])
+        nse_t = np.mean(np.square(np.asarray(err["t" + t]) / sig_t), axis=0)
+        nse_j = np.mean(np.square(np.asarray(err["j" + t]) / sig_t), axis=0)
+        norm_ratio[t] = float(np.mean(nse_j / nse_t))
     print(f"joint / tedaldi mean squared error ratio: accel {ratio['a']:.3f}, gyro {ratio['g']:.3f}; "
+          f"normalised by tedaldi's 1-sigma: accel {norm_ratio['a']:.3f}, gyro {norm_ratio['g']:.3f}; "
           f"NEES joint accel {np.mean(nees['ja']):.2f} gyro {np.mean(nees['jg']):.2f}, "
           f"tedaldi accel {np.mean(nees['ta']):.2f} gyro {np.mean(nees['tg']):.2f}")  # fmt: skip
     assert ratio["a"] < 1.0
+    assert norm_ratio["a"] < 1.0 and norm_ratio["g"] < 1.0
 
 
 def test_recovers_seed000_parameters_and_residuals_shrink() -> None:

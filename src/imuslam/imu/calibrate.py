@@ -13,6 +13,8 @@
 5. ``method="joint"`` (the default): steps 2-3 only start a joint weighted least squares of both triads,
    the gyro bias and its g-sensitivity over every pose's accelerometer mean, every rotation's predicted
    gravity direction and every pose's rate at rest (``imu/joint.py``), whose covariance replaces theirs.
+   Each residual is weighted by the noise measured in the initial still period; the g-sensitivity and a
+   linear accelerometer bias drift are fitted and kept only when their Wald test is significant.
    ``method="tedaldi"`` stops after step 4 (imu_tk's result, for reproduction).
 """
 
@@ -28,9 +30,10 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, Field, field_validator
 from scipy.optimize import least_squares
+from scipy.stats import chi2
 
 from imuslam.errors import InputError
-from imuslam.imu.joint import joint_refine
+from imuslam.imu.joint import JointFit, joint_refine, measured_noise
 from imuslam.imu.model import (
     ACCEL_PARAM_NAMES,
     GYRO_PARAM_NAMES,
@@ -98,10 +101,23 @@ class CalibrationConfig(BaseModel):
         True,
         description="joint method: weigh each pose by the square root of its length (white noise)",
     )
-    accel_bias_drift: bool = Field(
-        False,
+    accel_bias_drift: bool | Literal["auto"] = Field(
+        "auto",
         description="joint method: let the accelerometer bias drift linearly over the session in the fit "
-        "(a nuisance; the calibration keeps the bias at the middle of the session)",
+        "(a nuisance; the calibration keeps the bias at the middle of the session); auto: fit it and keep "
+        "it only if it differs from zero significantly (Wald test, chi-square 3 dof, 99.9 %)",
+    )
+    joint_weights: Literal["measured", "variance_components"] = Field(
+        "measured",
+        description="joint method: measured: each residual weighted by the noise measured in the still "
+        "period (white noise of the pose means, angle random walk over each rotation), covariance "
+        "widened only where the misfit exceeds it significantly; variance_components: each group's noise "
+        "estimated from its own residuals",
+    )
+    g_sensitivity_test: bool = Field(
+        True,
+        description="joint method: keep the g-sensitivity G only if it differs from zero significantly "
+        "(Wald test, chi-square 9 dof, 99.9 %); otherwise refit without it",
     )
     min_intervals: int = Field(12, ge=9, description="fewest static intervals a threshold may give")
     gyro_margin_s: float = Field(
@@ -623,6 +639,12 @@ def _check_units(K: FloatArray, sensor: str, unit: str, option: str, source: str
     )
 
 
+def _std_or_inf(var: np.ndarray) -> np.ndarray:
+    """Standard deviations from variances; a non-positive variance (undetermined) gives inf."""
+    var = np.asarray(var, dtype=np.float64)
+    return np.where(var > 0.0, np.sqrt(np.where(var > 0.0, var, 1.0)), np.inf)
+
+
 def _verdict(
     std_a: FloatArray, std_g: FloatArray, theta_a: FloatArray, theta_g: FloatArray, n_poses: int
 ) -> list[str]:
@@ -837,6 +859,7 @@ def calibrate(
         cov_g_full = np.full_like(cov_g_full, np.inf)
     db = theta_g[9:12] if cfg.estimate_gyro_bias else np.zeros(3)
     G: FloatArray | None = None
+    drift_notes: dict[str, object] = {}
     f_c = np.zeros((1, 3))
     if cfg.method == "joint":
         use_g = cfg.gyro_g_sensitivity
@@ -862,18 +885,62 @@ def calibrate(
             pose_means = np.stack([acc[s : e + 1].mean(axis=0) for s, e in still])
         raw_means = pose_means
         gyro_means = np.stack([w[s : e + 1].mean(axis=0) for s, e in still])
-        jf = joint_refine(
-            pose_means, gyro_means, w, f_c, t_s, segs, pairs, theta_a, theta_g[:9], cfg.g, sign,
-            cfg.estimate_gyro_bias, use_g, integrate_segments,
-            pose_t=t_s[(iv[:, 0] + iv[:, 1]) // 2] if cfg.accel_bias_drift else None,
-            pose_n=(still[:, 1] - still[:, 0] + 1).astype(float) if cfg.weigh_by_length else None,
-        )  # fmt: skip
+        pose_n = (still[:, 1] - still[:, 0] + 1).astype(float)
+        noise = None
+        if cfg.joint_weights == "measured":
+            sig_a = np.std(acc[: n_init + 1], axis=0, ddof=1) * np.abs(theta_a[3:6])
+            sig_w = np.std(log_.gyro[: n_init + 1], axis=0, ddof=1) * np.abs(theta_g[6:9])
+            noise = measured_noise(
+                sig_a, sig_w, pose_n, t_s[segs[:, 1]] - t_s[segs[:, 0]], 1.0 / rate
+            )
+
+        pose_t = t_s[(iv[:, 0] + iv[:, 1]) // 2]
+
+        def run_joint(with_g: bool, with_drift: bool) -> JointFit:
+            return joint_refine(
+                pose_means, gyro_means, w, f_c, t_s, segs, pairs, theta_a, theta_g[:9], cfg.g, sign,
+                cfg.estimate_gyro_bias or cfg.gyro_g_sensitivity, with_g, integrate_segments,
+                pose_t=pose_t if with_drift else None,
+                pose_n=pose_n if cfg.weigh_by_length else None, noise=noise,
+            )  # fmt: skip
+
+        def wald(jf: JointFit, a: int, b: int, x: FloatArray) -> float:
+            """Wald statistic x^T C^-1 x of the parameters [a, b) of the fit (Koch 1999, sec. 4.2)."""
+            try:
+                return float(x @ np.linalg.solve(jf.cov[a:b, a:b], x))
+            except np.linalg.LinAlgError:
+                return float("inf")
+
+        # Optional terms are fitted and kept only if significant (Wald test at 99.9 %): an insignificant
+        # g-sensitivity or bias drift only adds variance to the parameters that matter.
+        with_drift = cfg.accel_bias_drift is not False
+        jf = run_joint(use_g, with_drift)
+        n_b = 3 if (cfg.estimate_gyro_bias or cfg.gyro_g_sensitivity) else 0
+        if use_g and cfg.g_sensitivity_test:
+            w_G = wald(jf, 18 + n_b, 27 + n_b, jf.G.ravel())
+            if w_G < float(chi2.ppf(0.999, 9)):
+                use_g = False
+                log.debug("g-sensitivity not significant (Wald %.1f): left out", w_G)
+                jf = run_joint(False, with_drift)
+        if with_drift and cfg.accel_bias_drift == "auto":
+            a = 18 + n_b + (9 if use_g else 0)
+            w_d = wald(jf, a, a + 3, jf.drift)
+            if w_d < float(chi2.ppf(0.999, 3)):
+                with_drift = False
+                log.debug("accelerometer bias drift not significant (Wald %.1f): left out", w_d)
+                jf = run_joint(use_g, False)
         theta_a, theta_g, db = jf.theta_a, jf.theta_g, jf.db
+        if with_drift:
+            # the fitted bias is the one at the middle of the poses' time span
+            drift_notes = {
+                "accel_bias_drift_per_s": jf.drift.tolist(),
+                "accel_bias_drift_t_ref_s": float(0.5 * (pose_t.min() + pose_t.max())),
+            }
         G = jf.G if use_g else None
         bias_total = gyro_bias + db
         cov_a = jf.cov[:9, :9]
         cov_g_full = jf.cov[9:18, 9:18]
-        if cfg.estimate_gyro_bias or use_g:
+        if cfg.estimate_gyro_bias or cfg.gyro_g_sensitivity:
             cov_bias = jf.cov[18:21, 18:21]
         log.debug("joint fit noise levels: %s", jf.sigmas)
         accel_model = TriadModel(
@@ -899,8 +966,10 @@ def calibrate(
 
     _check_units(accel_model.K, "accelerometer", log_.accel_unit, "--accel-unit", log_.source)
     _check_units(gyro_model.K, "gyro", log_.gyro_unit, "--gyro-unit", log_.source)
-    std_a = np.sqrt(np.diag(cov_a))
-    std_g = np.sqrt(np.diag(cov_g_full))[:9]
+    # A rank-deficient fit (too few poses about an axis) leaves a zero or slightly negative variance from
+    # the pseudo-inverse: that parameter is undetermined, so its std is infinite, never NaN.
+    std_a = _std_or_inf(np.diag(cov_a))
+    std_g = _std_or_inf(np.diag(cov_g_full))[:9]
     poor = _verdict(std_a, std_g, theta_a, theta_g[:9], len(iv))
     if poor:
         warnings.append("poorly determined: " + ", ".join(poor))
@@ -921,6 +990,7 @@ def calibrate(
             "n_intervals": int(len(iv)),
             "method": cfg.method,
             "warnings": list(warnings),
+            **drift_notes,
         },
         gyro_g_sensitivity=G,
     )

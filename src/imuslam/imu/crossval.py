@@ -45,6 +45,17 @@ class CrossValidation:
     pair: IntArray
     fit_norm_rms: float = float("nan")  # the full calibration on the same poses (in-sample), m/s^2
     fit_direction_rms_deg: float = float("nan")
+    # (K,) held-out gravity-norm error with each fold's accelerometer bias drift (when its fit kept one)
+    # applied at the pose's time: the in-session prediction of a drift-aware fit. Equal to norm_error
+    # where no drift was kept. A calibration file keeps only the bias at the reference time, so this is
+    # not what the calibration delivers on a later log.
+    norm_error_in_session: FloatArray | None = None
+
+    @property
+    def norm_rms_in_session(self) -> float:
+        return rms(
+            self.norm_error if self.norm_error_in_session is None else self.norm_error_in_session
+        )
 
     @property
     def norm_rms(self) -> float:
@@ -96,6 +107,8 @@ def cross_validate(
         )
     fold = np.arange(K) % k_folds
     norm = np.full(K, np.nan)
+    norm_sess = np.full(K, np.nan)
+    t_pose = log.t_s[(poses[:, 0] + poses[:, 1]) // 2]
     dirs: list[FloatArray] = []
     pair_ids: list[IntArray] = []
     iv = np.asarray(intervals, dtype=np.int64)
@@ -106,6 +119,16 @@ def cross_validate(
         res = calibrate(log, config, intervals=iv[kept], pair_ok=pair_ok)
         pe = pose_errors(log, res.calibration, poses, config.g)
         norm[fold == f] = pe.norm_error[fold == f]
+        norm_sess[fold == f] = pe.norm_error[fold == f]
+        rate = res.calibration.notes.get("accel_bias_drift_per_s")
+        if rate is not None:
+            held = np.flatnonzero(fold == f)
+            sign = 1.0 if res.calibration.accel.bias_sign == "plus" else -1.0
+            t_ref = float(res.calibration.notes["accel_bias_drift_t_ref_s"])
+            raw = np.stack([log.accel[s:e].mean(axis=0) for s, e in poses[held]])
+            # the fit's model: a_O = T K (a_S + sign (b + rate (t - t_ref)))
+            raw = raw + sign * np.outer(t_pose[held] - t_ref, np.asarray(rate))
+            norm_sess[held] = np.linalg.norm(res.calibration.correct_accel(raw), axis=1) - config.g
         touched = np.flatnonzero((fold[:-1] == f) | (fold[1:] == f))
         dirs.append(pe.direction_error_deg[touched])
         pair_ids.append(touched)
@@ -120,4 +143,5 @@ def cross_validate(
         np.concatenate(pair_ids).astype(np.int64),
         rms(fit.norm_error) if fit is not None else float("nan"),
         rms(fit.direction_error_deg) if fit is not None else float("nan"),
+        norm_sess,
     )
