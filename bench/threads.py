@@ -5,7 +5,12 @@ core, the spinning thread competes with it and the parallel call can end up slow
 This bench times, for each set-up, the calibration call on the imu_tk xsens log (``imu.calibrate``,
 the multi-position sweep) and the overlapped Allan kernel (``imu.allan.overlapped_adev``), each in a
 fresh process (the threading environment is read when the threading library is loaded), first with
-nothing else started by the bench, then with one busy-loop process per extra core.
+nothing else started by the bench, then with one busy-loop process per extra core. The wall time and
+the CPU time (``time.process_time``, all threads) of each call are printed: a spinning thread shows as
+CPU time spent for nothing.
+
+OpenBLAS (numpy's linear algebra, which the joint calibration's normal equations use) has its own
+thread pool, whose idle threads also spin: ``OPENBLAS_NUM_THREADS`` is varied with the OpenMP set-up.
 
 Run: python bench/threads.py [--repeat N] [--allan-samples N]
 """
@@ -32,13 +37,17 @@ SETUPS: dict[str, tuple[dict[str, str], bool]] = {
     "omp passive": ({"NUMBA_THREADING_LAYER": "omp", "OMP_WAIT_POLICY": "passive"}, False),
     "workqueue": ({"NUMBA_THREADING_LAYER": "workqueue"}, False),
     "omp 1 thread": ({"NUMBA_NUM_THREADS": "1"}, False),
+    "omp passive, BLAS 2 threads": ({"OPENBLAS_NUM_THREADS": "2"}, False),
     "imuslam (none set)": ({}, False),
 }
-_ENV_KEYS = ("NUMBA_THREADING_LAYER", "OMP_WAIT_POLICY", "NUMBA_NUM_THREADS", "GOMP_SPINCOUNT")
+_ENV_KEYS = ("NUMBA_THREADING_LAYER", "OMP_WAIT_POLICY", "NUMBA_NUM_THREADS", "GOMP_SPINCOUNT",
+             "OPENBLAS_NUM_THREADS")  # fmt: skip
 
 
 def _worker(repeat: int, allan_samples: int, init_first: bool) -> None:
     """Time both calls in this process; print one JSON line."""
+    if not init_first:
+        import imuslam  # noqa: F401  (its thread defaults apply before numpy and numba load)
     import numba
     import numpy as np
 
@@ -60,27 +69,31 @@ def _worker(repeat: int, allan_samples: int, init_first: bool) -> None:
     log = load_imu(DATA / "xsens_acc.mat", DATA / "xsens_gyro.mat")
     cfg = CalibrationConfig(g=9.81744, bias_sign="minus")
     calibrate(log, cfg)  # compile / load the cache
-    t_cal = []
+    t_cal, c_cal = [], []
     for _ in range(repeat):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         calibrate(log, cfg)
         t_cal.append(time.perf_counter() - t)
+        c_cal.append(time.process_time() - c)
     rng = np.random.default_rng(0)
     y = rng.normal(size=allan_samples)
     ms = cluster_sizes(allan_samples, 100)
     overlapped_adev(y[:1000], 100.0, cluster_sizes(1000, 10))
-    t_allan = []
+    t_allan, c_allan = [], []
     for _ in range(repeat):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         overlapped_adev(y, 100.0, ms)
         t_allan.append(time.perf_counter() - t)
+        c_allan.append(time.process_time() - c)
     print(
         json.dumps(
             {
                 "layer": numba.threading_layer(),
                 "threads": numba.get_num_threads(),
                 "calibrate": statistics.median(t_cal),
+                "calibrate_cpu": statistics.median(c_cal),
                 "allan": statistics.median(t_allan),
+                "allan_cpu": statistics.median(c_allan),
             }
         )
     )
@@ -138,16 +151,18 @@ def main() -> None:
         f"process(es); 1-min load average {load_start} at the start, {load_end} at the end, "
         f"{os.cpu_count()} cores"
     )
-    for c in ("set-up", "layer", "calib. [s]", "calib. +busy [s]", "Allan [s]", "Allan +busy [s]"):
+    for c in ("set-up", "layer", "calib. wall / CPU [s]", "calib. +busy wall / CPU [s]",
+              "Allan wall / CPU [s]", "Allan +busy wall / CPU [s]"):  # fmt: skip
         table.add_column(c, justify="right")
     for name, r in rows.items():
+        i, b = r["idle"], r["busy"]
         table.add_row(
             name,
-            f"{r['idle']['layer']}x{int(r['idle']['threads'])}",
-            f"{r['idle']['calibrate']:.3f}",
-            f"{r['busy']['calibrate']:.3f}",
-            f"{r['idle']['allan']:.3f}",
-            f"{r['busy']['allan']:.3f}",
+            f"{i['layer']}x{int(i['threads'])}",
+            f"{i['calibrate']:.3f} / {i['calibrate_cpu']:.3f}",
+            f"{b['calibrate']:.3f} / {b['calibrate_cpu']:.3f}",
+            f"{i['allan']:.3f} / {i['allan_cpu']:.3f}",
+            f"{b['allan']:.3f} / {b['allan_cpu']:.3f}",
         )
     Console().print(table)
 

@@ -21,10 +21,17 @@ with them and a 0.12 s calibration call takes 0.36 s. Importing imuslam therefor
 wait passively (``OMP_WAIT_POLICY=PASSIVE``) unless the variable is already set: the two-thread gain is
 kept on an idle machine and a busy one costs about what one thread would (``bench/threads.py``). It
 takes effect only if no OpenMP runtime was loaded before imuslam (libgomp reads it once, when loaded).
+
+OpenBLAS (numpy's and scipy's linear algebra) starts one thread per core, and its idle threads spin too.
+The matrices here are small (a calibration's normal equations are about 100 x 100, a filter's 18 x 18),
+so a second thread gains nothing and, with the other core busy, the xsens calibration costs 2.5x the CPU
+time and 2x the wall time. Importing imuslam therefore sets ``OPENBLAS_NUM_THREADS=1`` unless it is set
+(again only if numpy was not imported before imuslam; ``bench/threads.py`` measures both).
 """
 
 import os as _os
 
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+_os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 __version__ = "0.1.0"

@@ -32,6 +32,11 @@ def test_align_euroc_against_ground_truth(shared_data: Path, tmp_path: Path, met
         assert (tmp_path / f).stat().st_size > 0
     est = np.loadtxt(tmp_path / "estimates.csv", delimiter=",", skiprows=1)
     assert est.shape[1] == 16 and np.allclose(est[-1, 1:4], res["accel_bias"], rtol=1e-6)
+    # the one writer's files: metrics.json = alignment.json, config.yaml, the filter's poses as TUM
+    assert json.loads((tmp_path / "metrics.json").read_text()) == res
+    assert f"method: {method}" in (tmp_path / "config.yaml").read_text()
+    tum = [ln for ln in (tmp_path / "trajectory.tum").read_text().splitlines() if ln[0] != "#"]
+    assert len(tum) == len(est) and len(tum[0].split()[0].split(".")[1]) == 9
 
 
 def test_align_euroc_datasheet_noise_is_overconfident(shared_data: Path, tmp_path: Path) -> None:

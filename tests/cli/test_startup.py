@@ -9,12 +9,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import imuslam
 from imuslam.cli import COMMANDS, load_command
 
-HEAVY = ("numba", "scipy", "matplotlib", "rosbags", "cv2", "dask", "gtsam")
+HEAVY = ("numpy", "numba", "scipy", "matplotlib", "rosbags", "cv2", "dask", "gtsam")
 CLI_DIR = Path(imuslam.__file__).parent / "cli"
 
 
@@ -34,18 +35,22 @@ def _modules_after(argv: list[str]) -> set[str]:
     return {m for m in line[-1].removeprefix("MODULES=").split(",") if m}
 
 
-@pytest.mark.parametrize(
-    "argv",
-    [
-        ["--help"],
-        ["calibrate", "--help"],
-        ["eval", "--help"],
-        ["score", "--help"],
-        ["study", "--help"],
-    ],
-)
+@pytest.mark.parametrize("argv", [["--help"]] + [[c, "--help"] for c in COMMANDS])
 def test_help_loads_no_heavy_library(argv: list[str]) -> None:
+    """Every command's module imports only typer and its own thin body (not even numpy)."""
     assert _modules_after(argv) == set()
+
+
+def test_eval_without_plots_loads_neither_scipy_nor_numba(tmp_path: Path) -> None:
+    """``imuslam eval --no-plots`` (SE(3), Sim(3)) needs numpy only: no scipy, numba, matplotlib."""
+    t = 1.0 + 0.1 * np.arange(50)
+    rows = np.column_stack([t, np.cos(t), np.sin(t), 0.1 * t, np.zeros((50, 3)), np.ones(50)])
+    for name, r in (("gt.tum", rows), ("est.tum", rows + [0, 0.01, 0, 0, 0, 0, 0, 0])):
+        np.savetxt(tmp_path / name, r, fmt="%.9f")
+    argv = ["eval", str(tmp_path / "gt.tum"), str(tmp_path / "est.tum"), "--align", "sim3",
+            "--no-plots", "--out", str(tmp_path / "out")]  # fmt: skip
+    assert _modules_after(argv) == {"numpy"}
+    assert (tmp_path / "out" / "metrics.json").is_file()
 
 
 def test_every_command_module_is_listed() -> None:
@@ -61,3 +66,10 @@ def test_listed_help_is_the_commands_own(name: str) -> None:
     assert cmd.name == name
     first_paragraph = " ".join((cmd.help or "").split("\n\n")[0].split())
     assert " ".join(COMMANDS[name][1].split()) == first_paragraph
+
+
+def test_simulate_scenario_choices_match_the_simulator() -> None:
+    from imuslam.cli.simulate import Scenario
+    from imuslam.sim.scenario import SCENARIOS
+
+    assert tuple(s.value for s in Scenario) == SCENARIOS

@@ -1,6 +1,7 @@
 """APE and RPE equal evo's on evo's own test data (evo is a test-only dependency, run in the same test)."""
 
 import copy
+import functools
 from pathlib import Path
 
 import pytest
@@ -18,7 +19,10 @@ CASES = {
 }
 
 
-def _evo(d: Path, case: str, correct_scale: bool, delta: float, unit: "metrics.Unit"):  # type: ignore[no-untyped-def]
+@functools.cache
+def _evo_aligned(d: Path, case: str, correct_scale: bool):  # type: ignore[no-untyped-def]
+    """evo's reference and aligned estimate, and its APE statistics: the same for every RPE delta, so
+    computed once per (case, alignment) in a test session (evo's metrics do not modify the poses)."""
     gt, est, kind = CASES[case]
     if kind == "kitti":
         ref = file_interface.read_kitti_poses_file(d / gt)
@@ -33,16 +37,27 @@ def _evo(d: Path, case: str, correct_scale: bool, delta: float, unit: "metrics.U
         ref, e = sync.associate_trajectories(ref, e, max_diff=0.01)
     e = copy.deepcopy(e)
     e.align(ref, correct_scale=correct_scale)
-    out = {}
+    apes = {}
     for name, rel in (
         ("t", metrics.PoseRelation.translation_part),
         ("r", metrics.PoseRelation.rotation_angle_deg),
     ):
         ape = metrics.APE(rel)
         ape.process_data((ref, e))
+        apes[name] = ape.get_all_statistics()
+    return ref, e, apes
+
+
+def _evo(d: Path, case: str, correct_scale: bool, delta: float, unit: "metrics.Unit"):  # type: ignore[no-untyped-def]
+    ref, e, apes = _evo_aligned(d, case, correct_scale)
+    out = {}
+    for name, rel in (
+        ("t", metrics.PoseRelation.translation_part),
+        ("r", metrics.PoseRelation.rotation_angle_deg),
+    ):
         rpe = metrics.RPE(rel, delta=delta, delta_unit=unit, all_pairs=False)
         rpe.process_data((ref, e))
-        out[name] = (ape.get_all_statistics(), rpe.get_all_statistics())
+        out[name] = (apes[name], rpe.get_all_statistics())
     return out, ref.num_poses
 
 

@@ -5,32 +5,29 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np  # noqa: E402
-import typer  # noqa: E402
-import yaml  # noqa: E402
+import typer
 
-from imuslam.cli import validate  # noqa: E402
-from imuslam.cli.common import (  # noqa: E402
-    ACCEL_UNITS,
+from imuslam.cli import validate
+from imuslam.cli.common import (
     FORMAT_HELP,
-    GYRO_UNITS,
+    AccelUnitChoice,
+    GyroUnitChoice,
+    ImuFormatChoice,
     console,
     friendly_errors,
     load_log,
     table,
-    write_json,
+    value,
 )
-from imuslam.imu.allan import AllanResult, allan  # noqa: E402
-from imuslam.io.atomic import write_atomic  # noqa: E402
-from imuslam.io.figures import save_figure  # noqa: E402
-from imuslam.io.load import FORMATS  # noqa: E402
-from imuslam.io.results import results_folder  # noqa: E402
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # numba, matplotlib and yaml load when the command runs
     from matplotlib.figure import Figure
+
+    from imuslam.imu.allan import AllanResult
 
 
 def plot_allan(res: AllanResult) -> Figure:
+    import numpy as np
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(12, 5))
@@ -63,23 +60,24 @@ def register(app: typer.Typer) -> None:
         gyro: Path | None = typer.Argument(
             None, help="gyroscope file, for imu_tk text in two files"
         ),
-        fmt: str = typer.Option(
-            "auto", "--format", help=FORMAT_HELP, callback=validate.choice(FORMATS)
-        ),
+        fmt: ImuFormatChoice = typer.Option(ImuFormatChoice.auto, "--format", help=FORMAT_HELP),
         topic: str | None = typer.Option(None, help="IMU topic of a bag"),
-        accel_unit: str | None = typer.Option(
-            None, help="m/s^2, g or counts", callback=validate.choice(ACCEL_UNITS)
-        ),
-        gyro_unit: str | None = typer.Option(
-            None, help="rad/s, deg/s or counts", callback=validate.choice(GYRO_UNITS)
-        ),
+        accel_unit: AccelUnitChoice | None = typer.Option(None, help="m/s^2, g or counts"),
+        gyro_unit: GyroUnitChoice | None = typer.Option(None, help="rad/s, deg/s or counts"),
         columns: str | None = typer.Option(None, help="CSV column mapping"),
         out: Path = typer.Option(
             Path("allan_out"), "--out", help="results folder", callback=validate.out_folder()
         ),
     ) -> None:
         """Overlapped Allan deviation per axis: noise density, bias instability, random walk, Kalibr yaml."""
-        log = load_log(log_path, gyro, fmt, topic, accel_unit, gyro_unit, columns)
+        import numpy as np
+
+        from imuslam.imu.allan import allan
+        from imuslam.io.results import write_results
+
+        log = load_log(
+            log_path, gyro, fmt.value, topic, value(accel_unit), value(gyro_unit), columns
+        )
         res = allan(log)
         rows = []
         data = []
@@ -105,7 +103,7 @@ def register(app: typer.Typer) -> None:
             )
         )
         kalibr = res.kalibr(topic or "/imu0")
-        written = ["allan.png", "allan.csv", "noise_terms.json"]
+        written = ["allan.png", "allan.csv", "noise_terms.json", "config.yaml", "metrics.json"]
         kalibr_ok: dict[str, Any] | None = None
         if "counts" in (res.accel_unit, res.gyro_unit):
             res.warnings.append(
@@ -131,18 +129,31 @@ def register(app: typer.Typer) -> None:
             written.append("imu.yaml (Kalibr)")
         for w in res.warnings:
             console.print(f"[yellow]warning:[/] {w}")
-        with results_folder(out) as tmp:
-            _write(res, data, kalibr_ok, tmp)
+        summary = {
+            "source": res.source,
+            "rate_hz": res.rate_hz,
+            "terms": data,
+            "warnings": res.warnings,
+        }
+        inputs = {"log": str(log_path), "gyro": None if gyro is None else str(gyro), "format": fmt.value,
+                  "topic": topic, "accel_unit": res.accel_unit, "gyro_unit": res.gyro_unit, "columns": columns}  # fmt: skip
+        write_results(
+            out, config=inputs, metrics=summary, extra=lambda d: _write(res, summary, kalibr_ok, d)
+        )
         console.print(f"wrote {out}/{', '.join(written)}")
 
 
 def _write(
-    res: AllanResult, data: list[dict[str, Any]], kalibr: dict[str, Any] | None, out: Path
+    res: AllanResult, terms: dict[str, Any], kalibr: dict[str, Any] | None, out: Path
 ) -> None:
+    import yaml
+
+    from imuslam.io.atomic import write_atomic
+    from imuslam.io.figures import save_figure
+    from imuslam.io.results import write_json
+
     save_figure(plot_allan(res), out / "allan.png")
-    write_json(
-        out / "noise_terms.json", {"source": res.source, "rate_hz": res.rate_hz, "terms": data}
-    )
+    write_json(out / "noise_terms.json", terms)
     csv = "tau_s," + ",".join(f"accel_{a},gyro_{a}" for a in "xyz") + "\n"
     csv += "\n".join(
         f"{t:.6g},"

@@ -2,28 +2,37 @@
 
 from __future__ import annotations
 
+from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
 import typer
 
 from imuslam.cli import validate
 from imuslam.cli.common import (
-    ACCEL_UNITS,
     FORMAT_HELP,
-    GYRO_UNITS,
+    AccelUnitChoice,
+    BiasSign,
+    GyroUnitChoice,
+    ImuFormatChoice,
     console,
     friendly_errors,
     load_log,
     table,
+    value,
 )
-from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
-from imuslam.io.load import FORMATS
+
+
+class CalibMethod(StrEnum):
+    joint = "joint"
+    tedaldi = "tedaldi"
+
 
 if (
     TYPE_CHECKING
 ):  # numba, scipy, pydantic and matplotlib load when the command runs, not at start-up
+    import numpy as np
+
     from imuslam.imu.calibrate import CalibrationResult
     from imuslam.imu.crossval import CrossValidation
     from imuslam.interfaces.imu import ImuLog
@@ -33,6 +42,10 @@ def print_result(
     res: CalibrationResult, truth_a: np.ndarray | None = None, truth_g: np.ndarray | None = None
 ) -> None:
     """Rich tables of the parameters (with units) and the fit quality."""
+    import numpy as np
+
+    from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
+
     c = res.calibration
     au, gu = c.accel_unit, c.gyro_unit
     units_a = ["rad"] * 3 + (["1"] if au == "m/s^2" else [f"m/s^2 per {au}"]) * 3 + [au] * 3
@@ -123,9 +136,7 @@ def register(app: typer.Typer) -> None:
         gyro: Path | None = typer.Argument(
             None, help="gyroscope file, for imu_tk text in two files"
         ),
-        fmt: str = typer.Option(
-            "auto", "--format", help=FORMAT_HELP, callback=validate.choice(FORMATS)
-        ),
+        fmt: ImuFormatChoice = typer.Option(ImuFormatChoice.auto, "--format", help=FORMAT_HELP),
         topic: str | None = typer.Option(None, help="IMU topic of a bag"),
         g: float | None = typer.Option(
             None, "--g", help="local gravity, m/s^2 (default 9.80665)", callback=validate.gravity()
@@ -136,29 +147,21 @@ def register(app: typer.Typer) -> None:
             help="initial still period, s (default 50)",
             callback=validate.positive("s"),
         ),
-        bias_sign: str | None = typer.Option(
-            None,
-            help="plus: T K (x + b) (default); minus: T K (x - b) (imu_tk)",
-            callback=validate.choice(("plus", "minus")),
+        bias_sign: BiasSign | None = typer.Option(
+            None, help="plus: T K (x + b) (default); minus: T K (x - b) (imu_tk)"
         ),
-        accel_unit: str | None = typer.Option(
-            None,
-            help="m/s^2, g or counts (guessed if absent)",
-            callback=validate.choice(ACCEL_UNITS),
+        accel_unit: AccelUnitChoice | None = typer.Option(
+            None, help="m/s^2, g or counts (guessed if absent)"
         ),
-        gyro_unit: str | None = typer.Option(
-            None,
-            help="rad/s, deg/s or counts (guessed if absent)",
-            callback=validate.choice(GYRO_UNITS),
+        gyro_unit: GyroUnitChoice | None = typer.Option(
+            None, help="rad/s, deg/s or counts (guessed if absent)"
         ),
         columns: str | None = typer.Option(
             None, help="CSV column mapping: t=..,ax=..,ay=..,az=..,gx=..,gy=..,gz=.."
         ),
         config: Path | None = typer.Option(None, help="YAML with CalibrationConfig fields"),
-        method: str | None = typer.Option(
-            None,
-            help="joint (default): accelerometer and gyro fitted together; tedaldi: imu_tk's",
-            callback=validate.choice(("joint", "tedaldi")),
+        method: CalibMethod | None = typer.Option(
+            None, help="joint (default): accelerometer and gyro fitted together; tedaldi: imu_tk's"
         ),
         cv_folds: int = typer.Option(
             5,
@@ -175,9 +178,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Calibrate accelerometer and gyroscope from a log of static poses (Tedaldi 2014, imu_tk's method)."""
         from imuslam.config import load_config
-        from imuslam.imu.calibrate import CalibrationConfig, calibrate
-        from imuslam.imu.crossval import cross_validate
-        from imuslam.io.results import results_folder
+        from imuslam.imu.calibrate import CalibrationConfig
+        from imuslam.imu.pipeline import CalibrateOutput, CalibratePipeline
 
         cfg = load_config(config, CalibrationConfig) if config else CalibrationConfig()
         upd = {
@@ -185,21 +187,21 @@ def register(app: typer.Typer) -> None:
             for k, v in {
                 "g": g,
                 "t_init_s": t_init,
-                "bias_sign": bias_sign,
-                "method": method,
+                "bias_sign": value(bias_sign),
+                "method": value(method),
             }.items()
             if v is not None
         }
         cfg = CalibrationConfig.model_validate({**cfg.model_dump(), **upd})
-        log = load_log(acc, gyro, fmt, topic, accel_unit, gyro_unit, columns)
-        res = calibrate(log, cfg)
-        print_result(res)
-        cv = (
-            cross_validate(log, cfg, res.intervals, cv_folds, res.calibration) if cv_folds else None
-        )
+        log = load_log(acc, gyro, fmt.value, topic, value(accel_unit), value(gyro_unit), columns)
+        pipeline = CalibratePipeline(log, cfg, cv_folds)
+        res = pipeline.calibrate()
+        print_result(res)  # the result first; the cross-validation's refits and the report after
+        cv = pipeline.cross_validate(res)
         if cv is not None:
             print_cv(res, cv)
-        with results_folder(out) as tmp:
-            write_outputs(res, log, tmp, cv, plots)
+        pipeline.save(CalibrateOutput(res, cv), out, plots)
         extra = ", plots, report.html" if plots else ""
-        console.print(f"wrote {out}/calibration.yaml, acc.calib, gyro.calib, config.yaml{extra}")
+        console.print(
+            f"wrote {out}/calibration.yaml, acc.calib, gyro.calib, config.yaml, metrics.json{extra}"
+        )

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import functools
 import logging
+import sys
 from collections.abc import Callable
+from enum import Enum, StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar, cast
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
@@ -34,14 +35,18 @@ def friendly_errors(fn: F) -> F:
         except ImuslamError as exc:
             _print_error(str(exc))
             raise typer.Exit(exc.exit_code) from None
-        except np.linalg.LinAlgError as exc:  # a solver met a singular system the checks missed
-            logging.getLogger(__name__).debug("where the estimator failed", exc_info=exc)
-            _print_error(f"an estimator failed: {exc} (imuslam --verbose shows where)")
-            raise typer.Exit(3) from None
         except OSError as exc:  # a file that vanished or cannot be read or written mid-run
             where = exc.filename if exc.filename is not None else "a file"
             _print_error(f"{where}: {exc.strerror or exc}")
             raise typer.Exit(2) from None
+        except Exception as exc:
+            # a solver met a singular system the checks missed (numpy is loaded if it raised one)
+            np = sys.modules.get("numpy")
+            if np is None or not isinstance(exc, np.linalg.LinAlgError):
+                raise
+            logging.getLogger(__name__).debug("where the estimator failed", exc_info=exc)
+            _print_error(f"an estimator failed: {exc} (imuslam --verbose shows where)")
+            raise typer.Exit(3) from None
 
     return wrapper  # type: ignore[return-value]
 
@@ -50,6 +55,38 @@ def _print_error(msg: str) -> None:
     # markup off: a path or value in the message must print as it is ("[1, 2]" is not a style)
     err_console.print("[bold red]error:[/] ", end="")
     err_console.print(msg, markup=False, highlight=False, soft_wrap=True)
+
+
+class ImuFormatChoice(StrEnum):
+    """``--format`` of the IMU readers (``imuslam.io.load.FORMATS``)."""
+
+    auto = "auto"
+    imutk = "imutk"
+    euroc = "euroc"
+    csv = "csv"
+    bag = "bag"
+
+
+class AccelUnitChoice(StrEnum):
+    m_s2 = "m/s^2"
+    g = "g"
+    counts = "counts"
+
+
+class GyroUnitChoice(StrEnum):
+    rad_s = "rad/s"
+    deg_s = "deg/s"
+    counts = "counts"
+
+
+class BiasSign(StrEnum):
+    plus = "plus"
+    minus = "minus"
+
+
+def value(choice: Enum | None) -> str | None:
+    """The string of an Enum option (None stays None)."""
+    return None if choice is None else str(choice.value)
 
 
 COLUMN_KEYS = ("t", "ax", "ay", "az", "gx", "gy", "gz")

@@ -8,16 +8,15 @@ import typer
 
 from imuslam.cli import validate
 from imuslam.cli.common import (
-    ACCEL_UNITS,
     FORMAT_HELP,
-    GYRO_UNITS,
+    AccelUnitChoice,
+    GyroUnitChoice,
+    ImuFormatChoice,
     console,
     friendly_errors,
     load_log,
+    value,
 )
-from imuslam.imu.model import ImuCalibration
-from imuslam.io.load import FORMATS, detect_format, write_imu
-from imuslam.io.results import check_out_dir, results_file, results_folder
 
 
 def register(app: typer.Typer) -> None:
@@ -39,33 +38,31 @@ def register(app: typer.Typer) -> None:
             help="output: a file, a bag, or a folder for two text files",
             callback=validate.out_any(),
         ),
-        fmt: str = typer.Option(
-            "auto", "--format", help=FORMAT_HELP, callback=validate.choice(FORMATS)
-        ),
+        fmt: ImuFormatChoice = typer.Option(ImuFormatChoice.auto, "--format", help=FORMAT_HELP),
         topic: str | None = typer.Option(None, help="IMU topic of a bag (replaced in the copy)"),
-        accel_unit: str | None = typer.Option(
-            None, help="m/s^2, g or counts", callback=validate.choice(ACCEL_UNITS)
-        ),
-        gyro_unit: str | None = typer.Option(
-            None, help="rad/s, deg/s or counts", callback=validate.choice(GYRO_UNITS)
-        ),
+        accel_unit: AccelUnitChoice | None = typer.Option(None, help="m/s^2, g or counts"),
+        gyro_unit: GyroUnitChoice | None = typer.Option(None, help="rad/s, deg/s or counts"),
         columns: str | None = typer.Option(None, help="CSV column mapping"),
     ) -> None:
         """Write the corrected IMU (m/s^2, rad/s, body frame); a bag keeps every other message untouched."""
+        from imuslam.imu.model import ImuCalibration
+        from imuslam.io.load import detect_format, write_imu
+        from imuslam.io.results import check_out_dir, results_file, results_folder
+
         check_out_dir(out, "folder" if gyro is not None else "file")
         cal = ImuCalibration.load_yaml(calib)
         log = load_log(
             log_path,
             gyro,
-            fmt,
+            fmt.value,
             topic,
-            accel_unit or cal.accel_unit,
-            gyro_unit or cal.gyro_unit,
+            value(accel_unit) or cal.accel_unit,
+            value(gyro_unit) or cal.gyro_unit,
             columns,
         )
         corrected = cal.correct(log)
         cal.check_magnitudes(corrected)
-        f = detect_format(log_path) if fmt == "auto" else fmt
+        f = detect_format(log_path) if fmt.value == "auto" else fmt.value
         if f == "bag":
             t = topic or log.source.rsplit(":", 1)[-1]
             with results_file(out) as tmp:

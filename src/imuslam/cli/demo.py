@@ -6,20 +6,11 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
-import numpy as np  # noqa: E402
-import typer  # noqa: E402
+import typer
 
 from imuslam.cli import validate
 from imuslam.cli.calibrate import print_result, write_outputs
 from imuslam.cli.common import console, friendly_errors, table, write_json
-from imuslam.demo import ins_benefit
-from imuslam.imu.calibrate import CalibrationConfig, calibrate
-from imuslam.imu.model import ImuCalibration, TriadModel
-from imuslam.io.figures import save_figure
-from imuslam.io.load import write_imu
-from imuslam.io.results import results_folder
-from imuslam.sim.imu import ImuErrorSpec
-from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
 
 
 def register(app: typer.Typer) -> None:
@@ -37,6 +28,17 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0, help="random seed (>= 0)", callback=validate.integer(lo=0)),
     ) -> None:
         """A simulated robot IMU with seed 000's errors, turned through gimbal poses and calibrated."""
+        import numpy as np
+
+        from imuslam.demo import ins_benefit
+        from imuslam.imu.calibrate import CalibrationConfig, calibrate
+        from imuslam.imu.model import ImuCalibration, TriadModel
+        from imuslam.io.figures import save_figure
+        from imuslam.io.load import write_imu
+        from imuslam.io.results import results_folder
+        from imuslam.sim.imu import ImuErrorSpec
+        from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
+
         rng = np.random.default_rng(seed)
         console.print(f"simulating a BWT901CL turned through {poses} gimbal poses ...")
         sim = simulate_multipose(sphere_plan_deg(poses, rng), rng)

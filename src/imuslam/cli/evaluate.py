@@ -2,15 +2,33 @@
 
 from __future__ import annotations
 
+from enum import StrEnum
 from pathlib import Path
 
 import typer
 
 from imuslam.cli import validate
 from imuslam.cli.common import console, friendly_errors, table
-from imuslam.errors import InputError
-from imuslam.eval.align import ALIGN_METHODS
-from imuslam.io.trajectory import TRAJ_FORMATS
+
+
+class TrajFormat(StrEnum):
+    tum = "tum"
+    kitti = "kitti"
+    euroc = "euroc"
+    bag = "bag"
+
+
+class Align(StrEnum):
+    se3 = "se3"
+    sim3 = "sim3"
+    yaw = "yaw"
+    first = "first"
+    none = "none"
+
+
+class RpeUnit(StrEnum):
+    frames = "frames"
+    m = "m"
 
 
 def register(app: typer.Typer) -> None:
@@ -19,27 +37,17 @@ def register(app: typer.Typer) -> None:
     def eval_cmd(
         gt: Path = typer.Argument(..., help="reference trajectory"),
         est: Path = typer.Argument(..., help="estimated trajectory"),
-        fmt: str = typer.Option(
-            "tum",
-            "--format",
-            help="tum, kitti, euroc or bag (both files)",
-            callback=validate.choice(TRAJ_FORMATS),
+        fmt: TrajFormat = typer.Option(
+            TrajFormat.tum, "--format", help="tum, kitti, euroc or bag (both files)"
         ),
-        est_format: str | None = typer.Option(
-            None,
-            help="format of the estimate if it differs",
-            callback=validate.choice(TRAJ_FORMATS),
+        est_format: TrajFormat | None = typer.Option(
+            None, help="format of the estimate if it differs"
         ),
-        align: str = typer.Option(
-            "se3",
-            "--align",
-            help="se3, sim3, yaw (4-DoF), first or none",
-            callback=validate.choice(ALIGN_METHODS),
+        align: Align = typer.Option(
+            Align.se3, "--align", help="se3, sim3, yaw (4-DoF), first or none"
         ),
         rpe_delta: float = typer.Option(1.0, help="RPE pair spacing", callback=validate.positive()),
-        rpe_unit: str = typer.Option(
-            "frames", help="frames or m", callback=validate.choice(("frames", "m"))
-        ),
+        rpe_unit: RpeUnit = typer.Option(RpeUnit.frames, help="frames or m"),
         max_diff: float = typer.Option(
             0.01, help="association: max time difference, s", callback=validate.positive("s")
         ),
@@ -57,18 +65,16 @@ def register(app: typer.Typer) -> None:
         from imuslam.eval.pipeline import EvalConfig, EvalPipeline
         from imuslam.io.trajectory import read_trajectory
 
-        if align not in ALIGN_METHODS:
-            raise InputError(f"--align: '{align}'; expected one of {', '.join(ALIGN_METHODS)}")
-        ef = est_format or fmt
-        ref = read_trajectory(gt, fmt, topic, gt_times)
+        ef = (est_format or fmt).value
+        ref = read_trajectory(gt, fmt.value, topic, gt_times)
         e = read_trajectory(est, ef, topic)
         cfg = EvalConfig(
-            align=align,  # type: ignore[arg-type]
+            align=align.value,
             rpe_delta=rpe_delta,
-            rpe_unit=rpe_unit,  # type: ignore[arg-type]
+            rpe_unit=rpe_unit.value,
             max_diff_s=max_diff,
             kitti=kitti,
-            by_index=fmt == "kitti" and ef == "kitti" and gt_times is None,
+            by_index=fmt.value == "kitti" and ef == "kitti" and gt_times is None,
         )
         pipeline = EvalPipeline(ref, e, cfg)
         res = pipeline.run()
@@ -85,6 +91,6 @@ def register(app: typer.Typer) -> None:
             rows.append([f"KITTI drift {L:g} m ({n} segments)", f"{tp:.4g}", "", "", "", "", "%"])
         console.print(table(f"{est} vs {gt}: {res.n_pairs} pairs, {res.align} (scale {res.scale:.6g})",
                             ["quantity", "rmse", "mean", "median", "std", "max", "unit"], rows))  # fmt: skip
-        pipeline.save(res, out, plots, gt=str(gt), est=str(est), format=fmt, est_format=ef)
+        pipeline.save(res, out, plots, gt=str(gt), est=str(est), format=fmt.value, est_format=ef)
         pngs = "trajectories.png, ape.png, " if plots else ""
         console.print(f"wrote {out}/metrics.json, config.yaml, {pngs}estimate_aligned.tum")

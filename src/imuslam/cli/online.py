@@ -1,74 +1,50 @@
-"""``imuslam online``: calibration on the robot (gimbal + WitMotion IMU), or on a simulated robot."""
+"""``imuslam online``: calibration on the robot (gimbal + WitMotion IMU), or on a simulated robot; a thin
+body over :class:`imuslam.imu.online_pipeline.OnlinePipeline`."""
 
 from __future__ import annotations
 
-from dataclasses import replace
+from enum import StrEnum
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import typer
 
 from imuslam.cli import validate
 from imuslam.cli.common import console, friendly_errors, table
 from imuslam.errors import HardwareError, InputError
-from imuslam.imu.calibrate import CalibrationConfig
-from imuslam.imu.history import CalibrationHistory
-from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
-from imuslam.imu.online import OnlineConfig
-from imuslam.imu.online_sim import Drift, run_simulated_robot
-from imuslam.imu.poseplan import PlanModel, optimise_order
-from imuslam.interfaces.imu import ImuLog
-from imuslam.io.rosbag import write_imu_bag
-from imuslam.sim.multipose import sphere_plan_deg
 
-SEED_POSES = 40  # seed 000's pose count
+if TYPE_CHECKING:
+    from imuslam.imu.history import CalibrationHistory
+
+SEED_POSES = 40  # seed 000's pose count (imuslam.imu.online_pipeline.SEED_POSES)
 SEED_T_INIT_S = 50.0  # seed 000's initial still period, s
 
 
+class Gimbal(StrEnum):
+    pca9685 = "pca9685"
+
+
 def _print_history(hist: CalibrationHistory) -> None:
+    import numpy as np
+
     rows = []
     for v in hist.versions():
         c = hist.load(v)
-        rows.append(
-            [
-                str(v),
-                c.date,
-                f"{c.accel.K[2]:.5f}",
-                f"{c.accel.b[2]:+.4f}",
-                np.array2string(c.gyro.b, precision=4),
-            ]
-        )
-    console.print(
-        table(
-            "Calibration history",
-            ["version", "date", "s_az", "b_az [m/s^2]", "gyro bias [rad/s]"],
-            rows,
-        )
-    )
+        rows.append([str(v), c.date, f"{c.accel.K[2]:.5f}", f"{c.accel.b[2]:+.4f}",
+                     np.array2string(c.gyro.b, precision=4)])  # fmt: skip
+    console.print(table("Calibration history",
+                        ["version", "date", "s_az", "b_az [m/s^2]", "gyro bias [rad/s]"], rows))  # fmt: skip
 
 
-def _print_predicted(model: PlanModel, plan: np.ndarray) -> None:
+def _print_predicted(n_poses: int, predicted: Any) -> None:
     """Predicted 1-sigma of a shorter plan against seed 000's 40 poses, ordered as the default plan is."""
-    sa, sg = model.predicted_std(plan)
-    sa40, sg40 = model.predicted_std(
-        optimise_order(model, sphere_plan_deg(SEED_POSES), iterations=1000)
-    )
-    rows = [
-        [n, f"{s:.2e}", f"{s40:.2e}", f"{s / s40:.2f}"]
-        for n, s, s40 in zip(
-            ACCEL_PARAM_NAMES + GYRO_PARAM_NAMES,
-            np.concatenate([sa, sg]),
-            np.concatenate([sa40, sg40]),
-            strict=True,
-        )
-    ]
-    console.print(
-        table(
-            f"Predicted 1-sigma with {len(plan)} poses (seed 000 uses {SEED_POSES})",
-            ["parameter", f"{len(plan)} poses", f"{SEED_POSES} poses", "ratio"],
-            rows,
-        )
-    )
+    from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
+
+    s, s40 = predicted
+    rows = [[n, f"{a:.2e}", f"{b:.2e}", f"{a / b:.2f}"]
+            for n, a, b in zip(ACCEL_PARAM_NAMES + GYRO_PARAM_NAMES, s, s40, strict=True)]  # fmt: skip
+    console.print(table(f"Predicted 1-sigma with {n_poses} poses (seed 000 uses {SEED_POSES})",
+                        ["parameter", f"{n_poses} poses", f"{SEED_POSES} poses", "ratio"], rows))  # fmt: skip
 
 
 _NO_HW = "--imu-port needs the hardware extra ({} is missing): pip install 'imuslam[hw]'"
@@ -111,9 +87,7 @@ def register(app: typer.Typer) -> None:
         imu_port: str | None = typer.Option(
             None, help="serial port of a WitMotion IMU, e.g. /dev/ttyUSB0"
         ),
-        gimbal: str = typer.Option(
-            "pca9685", help="gimbal driver: pca9685", callback=validate.choice(("pca9685",))
-        ),
+        gimbal: Gimbal = typer.Option(Gimbal.pca9685, help="gimbal driver: pca9685"),
         rate: float = typer.Option(
             100.0, help="IMU output rate, Hz", callback=validate.positive("Hz", hi=1000)
         ),
@@ -128,71 +102,70 @@ def register(app: typer.Typer) -> None:
         ),
     ) -> None:
         """Calibrate with the gimbal, publish, watch for drift in still moments, recalibrate."""
-        cfg = OnlineConfig(calibration=CalibrationConfig(t_init_s=t_init))
-        hist = CalibrationHistory(out / "history")
-        rng = np.random.default_rng(seed)
-        model = PlanModel.seed000()
-        if not sim:
+        import numpy as np
+
+        from imuslam.imu.online import Event
+        from imuslam.imu.online_pipeline import (
+            OnlinePipeline,
+            OnlineRunConfig,
+            RobotDevices,
+            SimulatedRobot,
+        )
+
+        cfg = OnlineRunConfig(poses=poses, t_init_s=t_init, rate_hz=rate)
+        inputs: dict[str, object] = {"sim": sim}
+        dataset: SimulatedRobot | RobotDevices
+        imu = None
+        if sim:
+            dataset = SimulatedRobot(duration_h * 3600.0, np.array([0.0, 0.0, drift_accel]),
+                                     np.full(3, drift_gyro), seed)  # fmt: skip
+            inputs.update(
+                duration_h=duration_h, drift_accel=drift_accel, drift_gyro=drift_gyro, seed=seed
+            )
+        else:
             if imu_port is None:
                 raise InputError("give --sim, or --imu-port for a WitMotion IMU on the robot")
-            if gimbal != "pca9685":
-                raise InputError(f"--gimbal: '{gimbal}'; supported: pca9685")
             from imuslam.hw.gimbal import Pca9685Gimbal, ServoSpec
+            from imuslam.hw.witmotion import WitMotionImu
 
             try:  # the drivers import smbus2 and pyserial (the hw extra) when they open a device
                 g = Pca9685Gimbal(ServoSpec(0), ServoSpec(1, min_deg=-180, max_deg=180))
             except ImportError as exc:
                 raise InputError(_NO_HW.format(exc.name)) from None
             except OSError as exc:
-                raise HardwareError(f"--gimbal {gimbal}: cannot open its I2C bus ({exc})") from None
-            model = replace(model, resolution_deg=g.resolution_deg)
+                raise HardwareError(
+                    f"--gimbal {gimbal.value}: cannot open its I2C bus ({exc})"
+                ) from None
             console.print(
                 f"gimbal: PCA9685 hobby servos, {g.resolution_deg:.2f} deg per PWM count "
                 "(seed 000's gimbal: 0.088 deg); plans are predicted at the reachable angles"
             )
-        plan = optimise_order(model, sphere_plan_deg(poses), iterations=1000)
-        if poses < SEED_POSES:
-            _print_predicted(model, plan)
-        if sim:
-            drift = Drift(np.array([0.0, 0.0, drift_accel]), np.full(3, drift_gyro))
-            run = run_simulated_robot(plan, duration_h * 3600.0, drift, rng, cfg, hist)
-            for e in run.calibrator.events:
-                if e.kind != "command":
-                    console.print(f"{e.t_ns * 1e-9:8.1f} s  {e.kind:<13} {e.detail}")
-            _print_history(hist)
-            return
-        from imuslam.hw.session import run_online
-        from imuslam.hw.witmotion import WitMotionImu
-        from imuslam.imu.online import Event
-
-        assert imu_port is not None  # checked before the plan is built
-        try:
-            imu = WitMotionImu(imu_port)
-        except ImportError as exc:
-            raise InputError(_NO_HW.format(exc.name)) from None
-        except OSError as exc:
-            raise HardwareError(f"--imu-port {imu_port}: cannot open ({exc})") from None
-        imu.configure(rate)
-
-        buf_t: list[int] = []
-        buf: list[np.ndarray] = []
-
-        def keep(t: int, a: np.ndarray, w: np.ndarray) -> None:
-            buf_t.append(t)
-            buf.append(np.concatenate([a, w]))
+            try:
+                imu = WitMotionImu(imu_port)
+            except ImportError as exc:
+                raise InputError(_NO_HW.format(exc.name)) from None
+            except OSError as exc:
+                raise HardwareError(f"--imu-port {imu_port}: cannot open ({exc})") from None
+            imu.configure(rate)
+            dataset = RobotDevices(imu, g)
+            inputs.update(imu_port=imu_port, gimbal=gimbal.value)
+        pipeline = OnlinePipeline(dataset, cfg, out / "history")
 
         def show(e: Event) -> None:
             console.print(f"{e.kind}: {e.detail}")
 
+        def plan_ready(plan: Any, predicted: Any) -> None:  # before the first session
+            if predicted is not None:
+                _print_predicted(poses, predicted)
+
         try:
-            run_online(imu, g, plan, cfg, hist, rate, on_event=show, on_corrected=keep)
-        except KeyboardInterrupt:
-            pass
+            res = pipeline.run(on_event=show, on_plan=plan_ready)
         finally:
-            imu.close()
-            if buf:
-                x = np.array(buf)
-                write_imu_bag(
-                    ImuLog(np.array(buf_t), x[:, :3], x[:, 3:]), out / "corrected_imu.mcap"
-                )
-            _print_history(hist)
+            if imu is not None:
+                imu.close()
+        if sim:
+            for e in res.events:
+                if e.kind != "command":
+                    console.print(f"{e.t_ns * 1e-9:8.1f} s  {e.kind:<13} {e.detail}")
+        _print_history(pipeline.history)
+        pipeline.save(res, out, **inputs)

@@ -2,14 +2,24 @@
 
 from __future__ import annotations
 
+from enum import StrEnum
 from pathlib import Path
 
 import typer
 
 from imuslam.cli import validate
 from imuslam.cli.common import console, friendly_errors
-from imuslam.io.results import results_folder
-from imuslam.sim.scenario import SCENARIOS, run_scenario
+
+
+class Scenario(StrEnum):
+    """``imuslam.sim.scenario.SCENARIOS`` (tests/cli/test_startup.py checks they agree)."""
+
+    room = "room"
+    street = "street"
+    corridor = "corridor"
+    handheld = "handheld"
+    gimbal = "gimbal"
+
 
 #: An hour of simulated robot takes minutes to hours on 2 cores (60 s of a VLP-16: 20 s).
 MAX_DURATION_S = 3600.0
@@ -19,9 +29,7 @@ def register(app: typer.Typer) -> None:
     @app.command("simulate")
     @friendly_errors
     def simulate_cmd(
-        scenario: str = typer.Argument(
-            ..., help=f"one of {', '.join(SCENARIOS)}", callback=validate.choice(SCENARIOS)
-        ),
+        scenario: Scenario = typer.Argument(..., help=f"one of {', '.join(Scenario)}"),
         duration: float = typer.Option(
             60.0,
             "--duration",
@@ -37,7 +45,10 @@ def register(app: typer.Typer) -> None:
         ),
     ) -> None:
         """Simulate a robot (room, street, corridor, handheld, gimbal) with every sensor and the truth."""
+        from imuslam.io.results import results_folder
+        from imuslam.sim.scenario import run_scenario
+
         with results_folder(out) as tmp:
-            res = run_scenario(scenario, duration, tmp, seed, rotating_platform)
+            res = run_scenario(scenario.value, duration, tmp, seed, rotating_platform)
         names = ", ".join(str(out / Path(f).relative_to(tmp)) for f in res.files)
         console.print(f"wrote {res.counts.get('messages', 0)} messages: {names}")

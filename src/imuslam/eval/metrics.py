@@ -14,14 +14,13 @@ from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from typing import Any
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from imuslam.errors import InputError
 from imuslam.eval.align import AlignMethod, align, apply
 from imuslam.eval.associate import associate
+from imuslam.geometry.quaternion import quat_from_matrix
 from imuslam.interfaces.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
@@ -52,8 +51,11 @@ class Stats:
 
 
 def rotation_angle_deg(R: FloatArray) -> FloatArray:
-    """Angle (N,) in degrees of rotation matrices (N, 3, 3) (projected onto SO(3) first, as scipy does)."""
-    return np.rad2deg(Rotation.from_matrix(R).magnitude())
+    """Angle (N,) in degrees of rotation matrices (N, 3, 3), as evo computes it with scipy: the matrix goes
+    to the nearest unit quaternion by Shepperd's method (which projects a matrix slightly off SO(3)), and
+    the angle is ``2 atan2(|q_xyz|, |q_w|)``. Written with numpy so ``imuslam eval`` needs no scipy."""
+    q = quat_from_matrix(R)
+    return np.rad2deg(2.0 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), np.abs(q[..., 0])))
 
 
 def ape(ref: Trajectory, est: Trajectory) -> tuple[FloatArray, FloatArray]:
@@ -61,21 +63,6 @@ def ape(ref: Trajectory, est: Trajectory) -> tuple[FloatArray, FloatArray]:
     e_t = np.linalg.norm(est.p_w - ref.p_w, axis=1)
     e_r = rotation_angle_deg(np.swapaxes(ref.R_w_b, 1, 2) @ est.R_w_b)
     return e_t, e_r
-
-
-@numba.njit(cache=True)
-def _path_ids(p: FloatArray, delta: float) -> IntArray:  # pragma: no cover - compiled
-    ids = np.empty(p.shape[0], dtype=np.int64)
-    ids[0] = 0
-    k = 1
-    acc = 0.0
-    for i in range(1, p.shape[0]):
-        acc += np.sqrt(np.sum((p[i] - p[i - 1]) ** 2))
-        if acc >= delta:
-            ids[k] = i
-            k += 1
-            acc = 0.0
-    return ids[:k]
 
 
 def rpe_pairs(est: Trajectory, delta: float, unit: str) -> tuple[IntArray, IntArray]:
@@ -87,7 +74,9 @@ def rpe_pairs(est: Trajectory, delta: float, unit: str) -> tuple[IntArray, IntAr
             raise InputError(f"RPE delta {delta} frames; expected a whole number of frames")
         ids = np.arange(0, len(est), int(delta), dtype=np.int64)
     elif unit == "m":
-        ids = _path_ids(np.ascontiguousarray(est.p_w), float(delta))
+        from imuslam.eval.kernels import path_ids  # numba loads only for RPE in metres
+
+        ids = path_ids(np.ascontiguousarray(est.p_w), float(delta))
     else:
         raise InputError(f"RPE unit '{unit}'; expected frames or m")
     if len(ids) < 2:

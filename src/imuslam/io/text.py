@@ -59,8 +59,36 @@ def read_table(
     character are skipped; a first line that is not numeric is taken as a header when ``skip_header``
     is None.
     """
-    data, lines, _ = _parse(Path(path), n_cols, comment, skip_header)
+    p = Path(path)
+    allowed = (n_cols,) if isinstance(n_cols, int) else n_cols
+    text = read_text(p)
+    fast = _parse_plain(text, allowed, comment, skip_header)
+    if fast is not None:
+        return fast
+    data, lines, _ = _parse(p, n_cols, comment, skip_header, text)
     return data, lines
+
+
+def _parse_plain(
+    text: str, allowed: tuple[int, ...], comment: str, skip_header: bool | None
+) -> tuple[NDArray[np.float64], NDArray[np.int64]] | None:
+    """The common case in numpy's C parser: whitespace-separated numbers on every line, no comment,
+    no header, no blank line, finite values, an accepted column count. None when anything else is
+    there (the line-by-line parser then finds it and names the line)."""
+    if skip_header or "," in text or any(c in text for c in comment):
+        return None
+    lines = text.splitlines()
+    if not lines or not lines[0].split() or not _numeric(lines[0].split()[0]):
+        return None
+    try:
+        data = np.loadtxt(lines, dtype=np.float64, ndmin=2, comments=None)
+    except ValueError:
+        return None
+    if data.shape[0] != len(lines) or data.shape[1] not in allowed:
+        return None
+    if not np.isfinite(data).all():
+        return None
+    return data, np.arange(1, len(lines) + 1, dtype=np.int64)
 
 
 def read_table_ns(
@@ -74,9 +102,13 @@ def read_table_ns(
 
 
 def _parse(
-    p: Path, n_cols: int | tuple[int, ...], comment: str, skip_header: bool | None
+    p: Path,
+    n_cols: int | tuple[int, ...],
+    comment: str,
+    skip_header: bool | None,
+    text: str | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], list[list[str]]]:
-    text = read_text(p)
+    text = read_text(p) if text is None else text
     allowed = (n_cols,) if isinstance(n_cols, int) else n_cols
     rows: list[list[str]] = []
     lines: list[int] = []

@@ -139,7 +139,7 @@ class GateStats:
         return out
 
 
-def _level(accel_b: FloatArray) -> FloatArray:
+def level_attitude(accel_b: FloatArray) -> FloatArray:
     """R_n_b with zero yaw whose gravity matches the mean specific force (N, 3) (f_b = R^T [0, 0, g])."""
     f = accel_b.mean(axis=0)
     roll = np.arctan2(f[1], f[2])
@@ -428,7 +428,7 @@ def run_vio(
             if win.sum() < 2:
                 _check_imu_span(imu, m.t0_ns, m.t1_ns, data.source)
                 win = np.abs(t_imu - t_mid) == np.min(np.abs(t_imu - t_mid))
-            R0 = _level(imu.accel[win])
+            R0 = level_attitude(imu.accel[win])
             v0 = R0 @ m.vel_b
             i0, i1 = np.searchsorted(imu.t_ns, [m.t0_ns, m.t1_ns])
             bg0 = (imu.gyro[i0:i1].mean(axis=0) - m.omega_b) if i1 > i0 else np.zeros(3)
