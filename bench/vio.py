@@ -95,7 +95,7 @@ def sim(duration: float, rate: float, seed: int) -> None:
 
     run = SimStereoRun(StereoRunConfig(duration_s=duration, image_hz=rate, seed=seed))
     CACHE.mkdir(exist_ok=True)
-    cache = CACHE / f"vo_sim_{duration:g}s_{rate:g}hz_seed{seed}.pkl"
+    cache = CACHE / f"vo_sim_{duration:g}s_{rate:g}hz_seed{seed}_v2.pkl"
     if cache.is_file():
         vo_run = pickle.loads(cache.read_bytes())
         print(f"VO measurements from {cache}")
