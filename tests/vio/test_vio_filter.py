@@ -10,42 +10,15 @@ import numpy as np
 import pytest
 
 from imuslam.eval.vio_compare import compare_tracks
-from imuslam.geometry import exp, log
 from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
-from imuslam.vio.frontend import VoMeasurement, VoStats
 from imuslam.vio.pipeline import VioConfig, VoRun, run_vio
-
-
-def _truth_vo_run(run: SimStereoRun, sigma_v: float, sigma_w: float, seed: int) -> VoRun:
-    """VO measurements from the truth: mean rate and mid-interval velocity plus white noise of the
-    stated sigma, every 7th frame skipped (None), as the front end reports a frame with too few
-    features."""
-    rng = np.random.default_rng(seed)
-    tr = run.truth(run.t_frames_ns)
-    frames: list[tuple[int, VoMeasurement | None]] = []
-    for k, t in enumerate(run.t_frames_ns):
-        if k == 0 or k % 7 == 0:
-            frames.append((int(t), None))
-            continue
-        t0 = int(run.t_frames_ns[k - 1])
-        R01 = tr.R_w_b[k - 1].T @ tr.R_w_b[k]
-        p01 = tr.R_w_b[k - 1].T @ (tr.p_w[k] - tr.p_w[k - 1])
-        dt = (t - t0) * 1e-9
-        rot = log(R01)
-        vel = exp(-0.5 * rot) @ p01 / dt
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = R01, p01
-        cov = np.diag([sigma_w**2] * 3 + [sigma_v**2] * 3)
-        frames.append((int(t), VoMeasurement(
-            t0, int(t), rot / dt + rng.normal(0, sigma_w, 3), vel + rng.normal(0, sigma_v, 3), cov,
-            T, 50)))  # fmt: skip
-    return VoRun(frames, VoStats(), len(frames), 0)
+from imuslam.vio.simvo import truth_vo_run
 
 
 @pytest.fixture(scope="module")
 def sim_case() -> tuple[SimStereoRun, VoRun]:
     run = SimStereoRun(StereoRunConfig(duration_s=12.0, image_hz=10.0, seed=5))
-    return run, _truth_vo_run(run, 0.01, 0.003, seed=2)
+    return run, truth_vo_run(run, 0.01, 0.003, seed=2)
 
 
 @pytest.mark.parametrize(

@@ -23,7 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from imuslam.geometry import exp, hat, log
+from imuslam.geometry import hat
+from imuslam.geometry.so3_nb import exp_nb, log_nb
 from imuslam.vio.calib import Rectification
 from imuslam.vio.zncc import stereo_match, track
 
@@ -240,7 +241,7 @@ class StereoVO:
             if it == 3:
                 break
             dx = cov @ g
-            dR = exp(dx[:3])
+            dR = exp_nb(np.ascontiguousarray(dx[:3]))
             R, t = dR @ R, dR @ t + dx[3:]
             if np.linalg.norm(dx) < 1e-10:
                 break
@@ -254,8 +255,8 @@ class StereoVO:
     def _to_body(self, T_k_km1: FloatArray, dt: float) -> FloatArray:
         """[omega_b, vel_b] (6,) from the rectified-camera motion T_{r_k, r_{k-1}}."""
         T_bb = self.T_b_r @ _inv(T_k_km1) @ self.T_r_b  # T_{b_{k-1}, b_k}
-        rot = log(T_bb[:3, :3])
-        vel = exp(-0.5 * rot) @ T_bb[:3, 3] / dt  # displacement seen from mid-interval
+        rot = log_nb(np.ascontiguousarray(T_bb[:3, :3]))
+        vel = exp_nb(-0.5 * rot) @ T_bb[:3, 3] / dt  # displacement seen from mid-interval
         return np.concatenate([rot / dt, vel])
 
     def process(
@@ -328,7 +329,7 @@ class StereoVO:
                     for j in range(6):
                         dx = np.zeros(6)
                         dx[j] = eps
-                        dR = exp(dx[:3])
+                        dR = exp_nb(dx[:3].copy())
                         J[:, j] = (self._to_body(_se3(dR @ R, dR @ t + dx[3:]), dt) - z0) / eps
                     T_bb = self.T_b_r @ _inv(T) @ self.T_r_b
                     cov_z = J @ cov_d @ J.T

@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -81,12 +81,19 @@ class VioConfig(BaseModel):
         (0.0, 0.0, 0.0), description="vehicle origin (non-sliding point) in the body, m"
     )
     gate_prob: float | None = Field(0.999, gt=0.5, lt=1.0, description="chi-square gate; None: off")
+    vo_cov_model: Literal["prior_floor", "residual"] = Field(
+        "prior_floor",
+        description="VO covariance: the motion fit's (J^T W J)^-1 at the prior pixel sigma, raised by "
+        "the fit's a-posteriori variance factor when that exceeds one (prior_floor), or scaled by it "
+        "(residual: sigma^2 from the reprojection residuals alone)",
+    )
     vo_cov_scale: float = Field(
         1.0,
         gt=0,
-        description="inflation of the VO covariance (the pose covariance takes the points' "
-        "triangulation errors as independent between frames, which they are not quite)",
+        description="scale of the VO velocity covariance (1: as the front end reports it; a value "
+        "calibrated on another run with known truth, e.g. by bench/vio.py sim)",
     )
+    vo_rate_cov_scale: float = Field(1.0, gt=0, description="the same for the VO rate covariance")
     compiled: bool = Field(
         True,
         description="the compiled frame step (vio/kernels.py); False: the Python reference filter",
@@ -521,8 +528,15 @@ class VioResult:
 
 
 def vo_cov(m: VoMeasurement, cfg: VioConfig) -> FloatArray:
-    """The (6, 6) covariance of ``[omega_b, vel_b]`` the filter uses for a VO measurement."""
-    return cfg.vo_cov_scale * m.cov
+    """The (6, 6) covariance of ``[omega_b, vel_b]`` the filter uses for a VO measurement (see
+    ``VioConfig.vo_cov_model``), its rate and velocity blocks scaled by ``vo_rate_cov_scale`` and
+    ``vo_cov_scale``."""
+    if cfg.vo_cov_model == "residual" and m.cov_fit is not None:
+        cov = m.cov_fit * m.var_factor
+    else:
+        cov = m.cov
+    s = np.sqrt(np.r_[[cfg.vo_rate_cov_scale] * 3, [cfg.vo_cov_scale] * 3])
+    return np.asarray(cov * np.outer(s, s), dtype=np.float64)
 
 
 def _check_imu_span(imu: ImuLog, t_first: int, t_last: int, source: str) -> None:
