@@ -190,22 +190,35 @@ def _update(
     return 1 if _check(P, p, v, R) else -1
 
 
+# layout of frame_step's packed inputs (one array each: fewer arguments to type-check per call)
+M_T, M_VEL, M_COV_V, M_OMEGA, M_COV_W, M_T0, M_T1, M_VEL_ON, M_RATE_ON, M_LEN = (
+    0, 1, 4, 13, 16, 25, 26, 27, 28, 29)  # fmt: skip
+C_NHC_ON, C_NHC_STD, C_NHC_DT, C_GYRO_Q, C_GATE_ON, C_THR2, C_THR3, C_LEN = 0, 1, 2, 3, 4, 5, 6, 7
+
+
 @numba.njit(cache=True)
 def frame_step(
     t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
-    P: FloatArray, clock: FloatArray, t_target: float,
-    nhc_on: bool, nhc_std: float, nhc_dt: float, R_b_v: FloatArray, p_b_v: FloatArray,
-    vel_on: bool, vel_b: FloatArray, cov_v: FloatArray,
-    rate_on: bool, omega_b: FloatArray, cov_w: FloatArray, t0: float, t1: float, gyro_q: float,
-    gate_on: bool, thr2: float, thr3: float, q: FloatArray, off: IntArray,
+    P: FloatArray, clock: FloatArray, meas: FloatArray, const: FloatArray,
+    R_b_v: FloatArray, p_b_v: FloatArray, q: FloatArray, off: IntArray,
     tr_t: FloatArray, tr_p: FloatArray, tr_R: FloatArray,
     bias_t: FloatArray, bias: FloatArray, bias_std: FloatArray,
     nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
 ) -> int:  # fmt: skip  # pragma: no cover - compiled
-    """One VO frame (see the module docstring): NHC updates due before ``t_target`` (each at its time,
-    then recorded), prediction to ``t_target``, the VO velocity (``vel_on``) and rate (``rate_on``)
-    updates, and a record. Returns OK or DIVERGED (the time is in clock[0])."""
+    """One VO frame (see the module docstring): NHC updates due before the frame's mid-time (each at
+    its time, then recorded), prediction to it, the VO velocity and rate updates (when their flags are
+    set), and a record. ``meas`` (M_LEN,): mid-time, velocity (3,) m/s, its covariance (9,), rate (3,)
+    rad/s, its covariance (9,), the interval [t0, t1] s, the two flags; ``const`` (C_LEN,): NHC on,
+    its sigma m/s and period s, gyro density^2, gate on, chi-square thresholds for 2 and 3 dof.
+    Returns OK or DIVERGED (the time is in clock[0])."""
+    t_target = meas[M_T]
+    nhc_on = const[C_NHC_ON] != 0.0
+    nhc_std = const[C_NHC_STD]
+    nhc_dt = const[C_NHC_DT]
+    gate_on = const[C_GATE_ON] != 0.0
+    thr2 = const[C_THR2]
+    thr3 = const[C_THR3]
     m = P.shape[0]
     R_v_b = np.ascontiguousarray(R_b_v.T)
     while nhc_on and clock[1] < t_target:
@@ -232,7 +245,9 @@ def frame_step(
     if not _advance(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, t_target, q, off,
                     tr_t, tr_p, tr_R, cnt):  # fmt: skip
         return DIVERGED
-    if vel_on:
+    if meas[M_VEL_ON] != 0.0:
+        vel_b = meas[M_VEL : M_VEL + 3]
+        cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3))
         vb = R.T @ v
         H = np.zeros((3, m))
         H[:, off[2] : off[2] + 3] = R.T
@@ -240,13 +255,17 @@ def frame_step(
         if _update(vel_b - vb, H, cov_v, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_VEL,
                    nis_buf, acc_buf, cnt) < 0:  # fmt: skip
             return DIVERGED
-    if rate_on:
+    if meas[M_RATE_ON] != 0.0:
+        omega_b = meas[M_OMEGA : M_OMEGA + 3]
+        cov_w = np.ascontiguousarray(meas[M_COV_W : M_COV_W + 9]).reshape((3, 3))
+        t0 = meas[M_T0]
+        t1 = meas[M_T1]
         g_mean = gyro_mean_nb(t_imu, acc, gyr, t0, t1)
         H = np.zeros((3, m))
         for i in range(3):
             H[i, off[4] + i] = -1.0
         r = omega_b - (g_mean - bg)
-        Rm = cov_w + np.eye(3) * (gyro_q / (t1 - t0))
+        Rm = cov_w + np.eye(3) * (const[C_GYRO_Q] / (t1 - t0))
         if _update(r, H, Rm, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_RATE, nis_buf,
                    acc_buf, cnt) < 0:  # fmt: skip
             return DIVERGED

@@ -365,8 +365,14 @@ class CompiledVioFilter(VioFilter):
         self._thr3 = chi2_threshold(cfg.gate_prob, 3) if cfg.gate_prob is not None else np.inf
         self._q = self.noise.q
         self._off = self.kf.layout.offsets
-        self._z3 = np.zeros(3)
-        self._z33 = np.eye(3)
+        from imuslam.vio.kernels import C_LEN, M_LEN
+
+        self._meas = np.zeros(M_LEN)
+        self._const = np.zeros(C_LEN)
+        self._const[:] = (float(cfg.nhc), cfg.nhc_std, 1.0 / cfg.nhc_rate_hz, self.noise.gyro**2,
+                          float(self._gate), self._thr2, self._thr3)  # fmt: skip
+        self.R_b_v = np.ascontiguousarray(self.R_b_v, dtype=np.float64)
+        self.p_b_v = np.ascontiguousarray(self.p_b_v, dtype=np.float64)
 
     def _reserve(self, n_track: int, n_events: int) -> None:
         """Grow the buffers (doubling) so that ``n_track`` more track rows and ``n_events`` more marks
@@ -406,28 +412,46 @@ class CompiledVioFilter(VioFilter):
         t1_s: float = 0.0,
     ) -> bool:
         from imuslam.errors import FilterDivergence
-        from imuslam.vio.kernels import DIVERGED, KIND_VEL, frame_step
+        from imuslam.vio.kernels import (
+            DIVERGED,
+            KIND_VEL,
+            M_COV_V,
+            M_COV_W,
+            M_OMEGA,
+            M_RATE_ON,
+            M_T,
+            M_T0,
+            M_T1,
+            M_VEL,
+            M_VEL_ON,
+            frame_step,
+        )  # fmt: skip
 
         cfg = self.cfg
         t_now, t_nhc = float(self._clock[0]), float(self._clock[1])
         n_nhc = int(np.ceil((t_s - t_nhc) * cfg.nhc_rate_hz)) + 2 if cfg.nhc and t_s > t_nhc else 0
-        n_imu = int(np.searchsorted(self.t_imu, t_s, side="right")) - int(
-            np.searchsorted(self.t_imu, t_now, side="right")
-        )
-        self._reserve(max(n_imu, 0) + 2 * n_nhc + 4, n_nhc + 2)
+        i0, i1 = self.t_imu.searchsorted((t_now, t_s), side="right")
+        n_track = max(int(i1 - i0), 0) + 2 * n_nhc + 4
+        c = self._cnt
+        if (c[0] + n_track > len(self._tr_t) or c[1] + n_nhc + 2 > len(self._b_t)
+                or max(c[2], c[3], c[4]) + n_nhc + 2 > self._nis.shape[1]):  # fmt: skip
+            self._reserve(n_track, n_nhc + 2)
         x = self.kf.x
         vel_on = vel_b is not None and cov_vel is not None
-        rate_on = omega_b is not None and cov_omega is not None
+        meas = self._meas
+        meas[:] = 0.0
+        meas[M_T] = t_s
+        if vel_b is not None and cov_vel is not None:
+            meas[M_VEL : M_VEL + 3] = vel_b
+            meas[M_COV_V : M_COV_V + 9] = np.ravel(cov_vel)
+            meas[M_VEL_ON] = 1.0
+        if omega_b is not None and cov_omega is not None:
+            meas[M_OMEGA : M_OMEGA + 3] = omega_b
+            meas[M_COV_W : M_COV_W + 9] = np.ravel(cov_omega)
+            meas[M_T0], meas[M_T1], meas[M_RATE_ON] = t0_s, t1_s, 1.0
         status = frame_step(
             self.t_imu, self.acc, self.gyr, x.p_n, x.v_n, x.R_n_b, x.accel_bias, x.gyro_bias, x.g_n,
-            self.kf.P, self._clock, float(t_s),
-            bool(cfg.nhc), float(cfg.nhc_std), 1.0 / cfg.nhc_rate_hz, self.R_b_v, self.p_b_v,
-            vel_on, np.asarray(vel_b if vel_on else self._z3, float),
-            np.ascontiguousarray(cov_vel if vel_on else self._z33, dtype=np.float64),
-            rate_on, np.asarray(omega_b if rate_on else self._z3, float),
-            np.ascontiguousarray(cov_omega if rate_on else self._z33, dtype=np.float64),
-            float(t0_s), float(t1_s), float(self.noise.gyro**2),
-            self._gate, self._thr2, self._thr3, self._q, self._off,
+            self.kf.P, self._clock, meas, self._const, self.R_b_v, self.p_b_v, self._q, self._off,
             self._tr_t, self._tr_p, self._tr_R, self._b_t, self._b, self._b_s,
             self._nis, self._acc, self._cnt,
         )  # fmt: skip
@@ -535,6 +559,8 @@ def vo_cov(m: VoMeasurement, cfg: VioConfig) -> FloatArray:
         cov = m.cov_fit * m.var_factor
     else:
         cov = m.cov
+    if cfg.vo_rate_cov_scale == 1.0 and cfg.vo_cov_scale == 1.0:
+        return cov
     s = np.sqrt(np.r_[[cfg.vo_rate_cov_scale] * 3, [cfg.vo_cov_scale] * 3])
     return np.asarray(cov * np.outer(s, s), dtype=np.float64)
 

@@ -63,7 +63,7 @@ def _template(
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=True)
 def _score(img: F32Array, U: int, V: int, h: int, tpl: FloatArray) -> float:  # pragma: no cover
     """ZNCC of a normalised template with the integer-centred patch of ``img`` at (U, V)."""
     n = (2 * h + 1) * (2 * h + 1)
@@ -112,7 +112,7 @@ def _score_at(
     return st / np.sqrt(var)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=True)
 def _zncc_pair(
     a: F32Array, ua: float, va: float, b: F32Array, ub: float, vb: float, h: int
 ) -> float:  # pragma: no cover - compiled
