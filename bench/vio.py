@@ -138,14 +138,19 @@ def sim(duration: float, rate: float, seed: int, calib_duration: float) -> None:
     from imuslam.eval.vio_compare import compare_tracks
     from imuslam.vio.pipeline import VioConfig, run_vio
 
-    # the VO covariance scale is calibrated on ANOTHER rendered run (seed + 1, its own truth) and then
-    # applied unchanged to the evaluated run: the filter's mean NIS per VO block over 3 dof there
+    # the VO covariance scales are calibrated on ANOTHER rendered run (seed + 1, its own truth) and then
+    # applied unchanged to the evaluated run: per VO block the scale whose filter mean NIS there equals
+    # the 3 dof (fixed point s <- s * NIS / 3; the NIS is not linear in s, the prior shrinks with it)
     cal_run, cal_vo = _sim_vo(calib_duration, rate, seed + 1)
-    cal = run_vio(cal_run, VioConfig(nhc=True, nhc_std=0.002), vo_run=cal_vo).summary()["gating"]
-    s_vel = cal["vo_velocity"]["nis_mean_accepted"] / 3.0
-    s_rate = cal["vo_rate"]["nis_mean_accepted"] / 3.0
+    s_vel = s_rate = 1.0
+    for _ in range(6):
+        cal = run_vio(cal_run, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel,
+                                         vo_rate_cov_scale=s_rate), vo_run=cal_vo).summary()["gating"]  # fmt: skip
+        s_vel *= cal["vo_velocity"]["nis_mean_accepted"] / 3.0
+        s_rate *= cal["vo_rate"]["nis_mean_accepted"] / 3.0
     print(f"VO covariance scales calibrated on seed {seed + 1} ({calib_duration:g} s): "
-          f"velocity {s_vel:.3f}, rate {s_rate:.3f}")  # fmt: skip
+          f"velocity {s_vel:.3f}, rate {s_rate:.3f} (mean NIS there "
+          f"{cal['vo_velocity']['nis_mean_accepted']:.2f}, {cal['vo_rate']['nis_mean_accepted']:.2f})")  # fmt: skip
     run, vo_run = _sim_vo(duration, rate, seed)
     truth = run.truth()
     rows = []
