@@ -78,7 +78,11 @@ def test_cli_writes_the_results_folder_and_counts_bad_frames(
         ("camchain_one_camera", r"no 'cam1' entry; a stereo camchain needs cam0 and cam1"),
         ("size", r"image is 376x240; the calibration .* says 752x480"),
         ("no_imu", r"no IMU samples in the image time span"),
-        ("all_blank", r"no VO measurement from 6 frames"),
+        ("all_blank", r"no VO measurement from 6 frames \(0 unreadable, 5 with too few features"),
+        ("all_unreadable", r"no VO measurement from 6 frames \(6 unreadable"),
+        ("all_missing", r"none of the 6 listed stereo pairs exists on disk"),
+        ("no_imu_file", r"imu0/data.csv"),
+        ("calib_without_cam1", r"cam1/sensor.yaml"),
         ("bad_config", r"config.yaml: .*nhc_std"),
         ("bag_without_camchain", r"a bag needs --camchain, --left-topic and --right-topic"),
     ],
@@ -119,6 +123,16 @@ def test_bad_inputs_are_one_line_errors(
         for cam in ("cam0", "cam1"):
             for f in (m / cam / "data").iterdir():
                 cv2.imwrite(str(f), np.full((480, 752), 100, np.uint8))
+    elif case == "all_unreadable":
+        for f in (m / "cam0" / "data").iterdir():
+            f.write_bytes(b"\x89PNG truncated")
+    elif case == "all_missing":
+        for f in (m / "cam1" / "data").iterdir():
+            f.unlink()
+    elif case == "no_imu_file":
+        (m / "imu0" / "data.csv").unlink()
+    elif case == "calib_without_cam1":
+        (m / "cam1" / "sensor.yaml").unlink()
     elif case == "bag_without_camchain":
         (tmp_path / "x.mcap").write_bytes(b"")
         args = [str(tmp_path / "x.mcap")]

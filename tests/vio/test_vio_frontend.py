@@ -17,7 +17,7 @@ from imuslam.sim.world import room_8x8
 from imuslam.vio.calib import read_calibration, read_kalibr_camchain
 from imuslam.vio.dataset import EurocStereo
 from imuslam.vio.frontend import StereoVO, VoConfig
-from imuslam.vio.zncc import stereo_match, stereo_match_ref, track, zncc_ref
+from imuslam.vio.zncc import _zncc_pair, stereo_match, stereo_match_ref, track, zncc_ref
 
 EUROC = "euroc_V1_01_micro_kimera"
 
@@ -44,6 +44,28 @@ def test_stereo_match_equals_reference_and_true_shift() -> None:
         assert bs == pytest.approx(si, abs=1e-5)
     patch = left[10:21, 30:41]
     assert zncc_ref(patch, 3.0 * patch + 7.0) == pytest.approx(1.0)
+
+
+def test_subpixel_zncc_pair_equals_reference() -> None:
+    """The compiled sub-pixel ZNCC (bilinear weights once per patch) against scipy's order-1
+    interpolation of both patches and the numpy ZNCC."""
+    from scipy.ndimage import map_coordinates
+
+    rng = np.random.default_rng(7)
+    a = rng.uniform(0, 255, (40, 50)).astype(np.float32)
+    b = rng.uniform(0, 255, (40, 50)).astype(np.float32)
+    h = 5
+    d = np.arange(-h, h + 1)
+    for _ in range(50):
+        ua, va, ub, vb = rng.uniform(8, 30, 4)
+        pa = map_coordinates(
+            a.astype(float), [va + d[:, None] + 0 * d, ua + d[None] + 0 * d[:, None]], order=1
+        )
+        pb = map_coordinates(
+            b.astype(float), [vb + d[:, None] + 0 * d, ub + d[None] + 0 * d[:, None]], order=1
+        )
+        assert _zncc_pair(a, ua, va, b, ub, vb, h) == pytest.approx(zncc_ref(pa, pb), abs=1e-9)
+        assert _zncc_pair(a, ua, va, a, ua, va, h) == pytest.approx(1.0, abs=1e-12)
 
 
 def test_track_recovers_a_known_shift() -> None:

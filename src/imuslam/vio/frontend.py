@@ -23,7 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from imuslam.geometry import exp, hat, log
+from imuslam.geometry import hat
+from imuslam.geometry.so3_nb import exp_nb, log_nb
 from imuslam.vio.calib import Rectification
 from imuslam.vio.zncc import stereo_match, track
 
@@ -68,7 +69,10 @@ class VoConfig(BaseModel):
 class VoMeasurement:
     """Motion between frames at ``t0_ns`` and ``t1_ns``: mean body angular rate ``omega_b`` (rad/s) and
     mean linear velocity ``vel_b`` (m/s, in the body frame at mid-interval), covariance (6, 6) of
-    ``[omega_b, vel_b]``; ``T_b0_b1`` the relative body pose; ``n_inliers`` RANSAC inliers."""
+    ``[omega_b, vel_b]``; ``T_b0_b1`` the relative body pose; ``n_inliers`` RANSAC inliers. ``cov_fit``
+    (6, 6) is the motion fit's covariance at the prior pixel sigma, ``(J^T W J)^-1`` carried to the rates,
+    and ``var_factor`` the fit's a-posteriori variance factor (weighted residual chi-square over its
+    2 n - 6 degrees of freedom): ``cov = cov_fit * max(var_factor, 1)``."""
 
     t0_ns: int
     t1_ns: int
@@ -77,6 +81,8 @@ class VoMeasurement:
     cov: FloatArray
     T_b0_b1: FloatArray
     n_inliers: int
+    cov_fit: FloatArray | None = None
+    var_factor: float = 1.0
 
     @property
     def t_mid_ns(self) -> int:
@@ -201,7 +207,8 @@ class StereoVO:
         self, X: FloatArray, covX: FloatArray, uv: FloatArray, R: FloatArray, t: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
         """Weighted Gauss-Newton on T_{r_k, r_{k-1}} (left perturbation [dtheta, dt]); returns R, t, the
-        6x6 covariance of the perturbation and the normalised chi-square."""
+        6x6 covariance of the perturbation at the prior pixel sigma and the a-posteriori variance factor
+        (chi-square over 2 n - 6)."""
         K = self.rect.K
         f = np.array([K[0, 0], K[1, 1]])
         cxy = K[:2, 2]
@@ -234,7 +241,7 @@ class StereoVO:
             if it == 3:
                 break
             dx = cov @ g
-            dR = exp(dx[:3])
+            dR = exp_nb(np.ascontiguousarray(dx[:3]))
             R, t = dR @ R, dR @ t + dx[3:]
             if np.linalg.norm(dx) < 1e-10:
                 break
@@ -243,13 +250,13 @@ class StereoVO:
         # prior, which also covers what the residuals cannot show (sub-pixel biases shared by a frame)
         dof = max(2 * n - 6, 1)
         vf = chi2 / dof
-        return R, t, cov * max(vf, 1.0), vf
+        return R, t, cov, vf
 
     def _to_body(self, T_k_km1: FloatArray, dt: float) -> FloatArray:
         """[omega_b, vel_b] (6,) from the rectified-camera motion T_{r_k, r_{k-1}}."""
         T_bb = self.T_b_r @ _inv(T_k_km1) @ self.T_r_b  # T_{b_{k-1}, b_k}
-        rot = log(T_bb[:3, :3])
-        vel = exp(-0.5 * rot) @ T_bb[:3, 3] / dt  # displacement seen from mid-interval
+        rot = log_nb(np.ascontiguousarray(T_bb[:3, :3]))
+        vel = exp_nb(-0.5 * rot) @ T_bb[:3, 3] / dt  # displacement seen from mid-interval
         return np.concatenate([rot / dt, vel])
 
     def process(
@@ -307,7 +314,7 @@ class StereoVO:
                 else:
                     ii = inl.ravel()
                     R0, _ = cv2.Rodrigues(rvec)
-                    R, t, cov_d, _ = self._refine(
+                    R, t, cov_d, vf = self._refine(
                         Xo[ii],
                         covo[ii],
                         uvo[ii],
@@ -322,12 +329,14 @@ class StereoVO:
                     for j in range(6):
                         dx = np.zeros(6)
                         dx[j] = eps
-                        dR = exp(dx[:3])
+                        dR = exp_nb(dx[:3].copy())
                         J[:, j] = (self._to_body(_se3(dR @ R, dR @ t + dx[3:]), dt) - z0) / eps
                     T_bb = self.T_b_r @ _inv(T) @ self.T_r_b
+                    cov_z = J @ cov_d @ J.T
                     meas = VoMeasurement(
-                        prev["t_ns"], t_ns, z0[:3], z0[3:], J @ cov_d @ J.T, T_bb, n_in
-                    )
+                        prev["t_ns"], t_ns, z0[:3], z0[3:], cov_z * max(vf, 1.0), T_bb, n_in,
+                        cov_z, vf,
+                    )  # fmt: skip
                     st.measurements += 1
                     st.inliers.append(n_in)
                     keep = np.flatnonzero(ok)[ii]

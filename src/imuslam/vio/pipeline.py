@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,6 +29,7 @@ from imuslam.ins.core import (
     InsState,
     KfNoise,
     Measurement,
+    chi2_threshold,
     gate,
     integrate_nominal,
 )
@@ -80,11 +81,22 @@ class VioConfig(BaseModel):
         (0.0, 0.0, 0.0), description="vehicle origin (non-sliding point) in the body, m"
     )
     gate_prob: float | None = Field(0.999, gt=0.5, lt=1.0, description="chi-square gate; None: off")
+    vo_cov_model: Literal["prior_floor", "residual"] = Field(
+        "prior_floor",
+        description="VO covariance: the motion fit's (J^T W J)^-1 at the prior pixel sigma, raised by "
+        "the fit's a-posteriori variance factor when that exceeds one (prior_floor), or scaled by it "
+        "(residual: sigma^2 from the reprojection residuals alone)",
+    )
     vo_cov_scale: float = Field(
         1.0,
         gt=0,
-        description="inflation of the VO covariance (the pose covariance takes the points' "
-        "triangulation errors as independent between frames, which they are not quite)",
+        description="scale of the VO velocity covariance (1: as the front end reports it; a value "
+        "calibrated on another run with known truth, e.g. by bench/vio.py sim)",
+    )
+    vo_rate_cov_scale: float = Field(1.0, gt=0, description="the same for the VO rate covariance")
+    compiled: bool = Field(
+        True,
+        description="the compiled frame step (vio/kernels.py); False: the Python reference filter",
     )
     vo_velocity: bool = True
     vo_rate: bool = True
@@ -188,6 +200,9 @@ class VioFilter:
         self._bias_t: list[float] = []
         self._bias: list[FloatArray] = []
         self._bias_std: list[FloatArray] = []
+        self.next_nhc = t0_s + 1.0 / cfg.nhc_rate_hz
+        self.R_b_v = rpy_matrix(cfg.vehicle_rpy_deg)
+        self.p_b_v = np.asarray(cfg.vehicle_p_b, float)
 
     def sample_at(self, t: float) -> tuple[FloatArray, FloatArray]:
         """Interpolated (accel, gyro) at time t."""
@@ -256,6 +271,40 @@ class VioFilter:
             st.rejected += 1
         return res.accepted
 
+    def frame(
+        self,
+        t_s: float,
+        vel_b: FloatArray | None = None,
+        cov_vel: FloatArray | None = None,
+        omega_b: FloatArray | None = None,
+        cov_omega: FloatArray | None = None,
+        t0_s: float = 0.0,
+        t1_s: float = 0.0,
+    ) -> bool:
+        """Everything up to one VO frame's mid-time ``t_s``: the non-holonomic updates due before it
+        (when ``cfg.nhc``), the prediction to ``t_s``, the VO velocity update (``vel_b`` (3,) m/s, body,
+        covariance (3, 3)) and the VO rate update (``omega_b`` (3,) rad/s over [t0_s, t1_s], covariance
+        (3, 3)) when given, and a record. Returns whether the velocity update was accepted (True without
+        one). This is the reference (one Python call per event); :class:`CompiledVioFilter` does the
+        same in one compiled call."""
+        cfg = self.cfg
+        while cfg.nhc and self.next_nhc < t_s:
+            self.advance(self.next_nhc)
+            gyro = self.sample_at(self.next_nhc)[1]
+            self.update(NonHolonomic(cfg.nhc_std, gyro, self.R_b_v, self.p_b_v), 2)
+            self.mark()
+            self.next_nhc += 1.0 / cfg.nhc_rate_hz
+        self.advance(t_s)
+        ok_v = True
+        if vel_b is not None and cov_vel is not None:
+            ok_v = self.update(VoVelocity(vel_b, cov_vel), 3)
+        if omega_b is not None and cov_omega is not None:
+            g_mean = self.gyro_mean(t0_s, t1_s)
+            gv = self.noise.gyro**2 / (t1_s - t0_s)
+            self.update(VoRate(omega_b, cov_omega, g_mean, gv), 3)
+        self.mark()
+        return ok_v
+
     def trajectory(self, source: str) -> Trajectory:
         t = np.concatenate(self._t)
         order = np.argsort(t, kind="stable")
@@ -269,9 +318,180 @@ class VioFilter:
             source,
         )
 
+    def gate_stats(self) -> dict[str, GateStats]:
+        """Accepted / rejected updates and their NIS per measurement kind."""
+        return self.stats
+
     def biases(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Times (s since t_ref), biases (N, 6) [accel, gyro] and their 1-sigma (N, 6) at each mark."""
         return np.asarray(self._bias_t), np.asarray(self._bias), np.asarray(self._bias_std)
+
+
+class CompiledVioFilter(VioFilter):
+    """:class:`VioFilter` whose :meth:`frame` is one compiled call (:func:`imuslam.vio.kernels.frame_step`)
+    per VO frame: the NHC updates, the prediction over the IMU samples and the VO updates run in numba
+    on the core's kernels, updating the core filter's state arrays in place; records go to growing
+    buffers. Results equal the reference's to rounding (``tests/vio/test_vio_filter.py``)."""
+
+    _KINDS = (("nhc", 2), ("vo_velocity", 3), ("vo_rate", 3))
+
+    def __init__(
+        self, imu: ImuLog, t_ref_ns: int, x0: InsState, P0: FloatArray, t0_s: float, cfg: VioConfig
+    ) -> None:
+        super().__init__(imu, t_ref_ns, x0, P0, t0_s, cfg)
+        x = self.kf.x
+        for name in ("p_n", "v_n", "R_n_b", "accel_bias", "gyro_bias", "g_n"):
+            setattr(x, name, np.ascontiguousarray(getattr(x, name), dtype=np.float64).copy())
+        self.kf.P = np.ascontiguousarray(self.kf.P, dtype=np.float64)
+        self.t_imu = np.ascontiguousarray(self.t_imu)
+        self.acc = np.ascontiguousarray(self.acc, dtype=np.float64)
+        self.gyr = np.ascontiguousarray(self.gyr, dtype=np.float64)
+        self._clock = np.array([t0_s, self.next_nhc])
+        self._cnt = np.zeros(5, np.int64)
+        self._tr_t = np.zeros(0)
+        self._tr_p = np.zeros((0, 3))
+        self._tr_R = np.zeros((0, 3, 3))
+        self._b_t = np.zeros(0)
+        self._b = np.zeros((0, 6))
+        self._b_s = np.zeros((0, 6))
+        self._nis = np.zeros((3, 0))
+        self._acc = np.zeros((3, 0), bool)
+        self._reserve(1024, 256)
+        # the reference's first record (the initial state)
+        self._tr_t[0], self._tr_p[0], self._tr_R[0] = t0_s, x0.p_n, x0.R_n_b
+        self._cnt[0] = 1
+        self._gate = cfg.gate_prob is not None
+        self._thr2 = chi2_threshold(cfg.gate_prob, 2) if cfg.gate_prob is not None else np.inf
+        self._thr3 = chi2_threshold(cfg.gate_prob, 3) if cfg.gate_prob is not None else np.inf
+        self._q = self.noise.q
+        self._off = self.kf.layout.offsets
+        from imuslam.vio.kernels import C_LEN, M_LEN
+
+        self._meas = np.zeros(M_LEN)
+        self._const = np.zeros(C_LEN)
+        self._const[:] = (float(cfg.nhc), cfg.nhc_std, 1.0 / cfg.nhc_rate_hz, self.noise.gyro**2,
+                          float(self._gate), self._thr2, self._thr3)  # fmt: skip
+        self.R_b_v = np.ascontiguousarray(self.R_b_v, dtype=np.float64)
+        self.p_b_v = np.ascontiguousarray(self.p_b_v, dtype=np.float64)
+
+    def _reserve(self, n_track: int, n_events: int) -> None:
+        """Grow the buffers (doubling) so that ``n_track`` more track rows and ``n_events`` more marks
+        and updates per kind fit."""
+
+        def grow(a: Any, need: int, axis: int = 0) -> Any:
+            if a.shape[axis] >= need:
+                return a
+            shape = list(a.shape)
+            shape[axis] = max(need, 2 * a.shape[axis])
+            b = np.zeros(shape, a.dtype)
+            if axis == 0:
+                b[: a.shape[0]] = a
+            else:
+                b[:, : a.shape[1]] = a
+            return b
+
+        c = self._cnt
+        self._tr_t = grow(self._tr_t, c[0] + n_track)
+        self._tr_p = grow(self._tr_p, c[0] + n_track)
+        self._tr_R = grow(self._tr_R, c[0] + n_track)
+        self._b_t = grow(self._b_t, c[1] + n_events)
+        self._b = grow(self._b, c[1] + n_events)
+        self._b_s = grow(self._b_s, c[1] + n_events)
+        need = int(c[2:].max()) + n_events
+        self._nis = grow(self._nis, need, 1)
+        self._acc = grow(self._acc, need, 1)
+
+    def frame(
+        self,
+        t_s: float,
+        vel_b: FloatArray | None = None,
+        cov_vel: FloatArray | None = None,
+        omega_b: FloatArray | None = None,
+        cov_omega: FloatArray | None = None,
+        t0_s: float = 0.0,
+        t1_s: float = 0.0,
+    ) -> bool:
+        from imuslam.errors import FilterDivergence
+        from imuslam.vio.kernels import (
+            DIVERGED,
+            KIND_VEL,
+            M_COV_V,
+            M_COV_W,
+            M_OMEGA,
+            M_RATE_ON,
+            M_T,
+            M_T0,
+            M_T1,
+            M_VEL,
+            M_VEL_ON,
+            frame_step,
+        )  # fmt: skip
+
+        cfg = self.cfg
+        t_now, t_nhc = float(self._clock[0]), float(self._clock[1])
+        n_nhc = int(np.ceil((t_s - t_nhc) * cfg.nhc_rate_hz)) + 2 if cfg.nhc and t_s > t_nhc else 0
+        i0, i1 = self.t_imu.searchsorted((t_now, t_s), side="right")
+        n_track = max(int(i1 - i0), 0) + 2 * n_nhc + 4
+        c = self._cnt
+        if (c[0] + n_track > len(self._tr_t) or c[1] + n_nhc + 2 > len(self._b_t)
+                or max(c[2], c[3], c[4]) + n_nhc + 2 > self._nis.shape[1]):  # fmt: skip
+            self._reserve(n_track, n_nhc + 2)
+        x = self.kf.x
+        vel_on = vel_b is not None and cov_vel is not None
+        meas = self._meas
+        meas[:] = 0.0
+        meas[M_T] = t_s
+        if vel_b is not None and cov_vel is not None:
+            meas[M_VEL : M_VEL + 3] = vel_b
+            meas[M_COV_V : M_COV_V + 9] = np.ravel(cov_vel)
+            meas[M_VEL_ON] = 1.0
+        if omega_b is not None and cov_omega is not None:
+            meas[M_OMEGA : M_OMEGA + 3] = omega_b
+            meas[M_COV_W : M_COV_W + 9] = np.ravel(cov_omega)
+            meas[M_T0], meas[M_T1], meas[M_RATE_ON] = t0_s, t1_s, 1.0
+        status = frame_step(
+            self.t_imu, self.acc, self.gyr, x.p_n, x.v_n, x.R_n_b, x.accel_bias, x.gyro_bias, x.g_n,
+            self.kf.P, self._clock, meas, self._const, self.R_b_v, self.p_b_v, self._q, self._off,
+            self._tr_t, self._tr_p, self._tr_R, self._b_t, self._b, self._b_s,
+            self._nis, self._acc, self._cnt,
+        )  # fmt: skip
+        if status == DIVERGED:
+            raise FilterDivergence(
+                f"filter diverged at t = {self._clock[0]:.3f} s after the start (frame mid-time "
+                f"{t_s:.3f} s): covariance not positive definite or state not finite; check the noise "
+                "settings and the aiding"
+            )
+        self.t = float(self._clock[0])
+        self.next_nhc = float(self._clock[1])
+        return bool(self._acc[KIND_VEL, self._cnt[3] - 1]) if vel_on else True
+
+    def mark(self) -> None:
+        from imuslam.vio.kernels import mark_state
+
+        self._reserve(1, 1)
+        x = self.kf.x
+        mark_state(self.t, x.p_n, x.R_n_b, x.accel_bias, x.gyro_bias, self.kf.P, self._off,
+                   self._tr_t, self._tr_p, self._tr_R, self._b_t, self._b, self._b_s, self._cnt)  # fmt: skip
+
+    def gate_stats(self) -> dict[str, GateStats]:
+        out: dict[str, GateStats] = {}
+        for k, (name, dof) in enumerate(self._KINDS):
+            n = int(self._cnt[2 + k])
+            if n == 0:
+                continue
+            acc = self._acc[k, :n]
+            out[name] = GateStats(dof, int(acc.sum()), int(n - acc.sum()), self._nis[k, :n].tolist(),
+                                  acc.tolist())  # fmt: skip
+        return out
+
+    def trajectory(self, source: str) -> Trajectory:
+        n = int(self._cnt[0])
+        self._t, self._p, self._R = [self._tr_t[:n]], [self._tr_p[:n]], [self._tr_R[:n]]
+        return super().trajectory(source)
+
+    def biases(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        n = int(self._cnt[1])
+        return self._b_t[:n].copy(), self._b[:n].copy(), self._b_s[:n].copy()
 
 
 class StereoImuDataset(Protocol):
@@ -331,6 +551,20 @@ class VioResult:
         }
 
 
+def vo_cov(m: VoMeasurement, cfg: VioConfig) -> FloatArray:
+    """The (6, 6) covariance of ``[omega_b, vel_b]`` the filter uses for a VO measurement (see
+    ``VioConfig.vo_cov_model``), its rate and velocity blocks scaled by ``vo_rate_cov_scale`` and
+    ``vo_cov_scale``."""
+    if cfg.vo_cov_model == "residual" and m.cov_fit is not None:
+        cov = m.cov_fit * m.var_factor
+    else:
+        cov = m.cov
+    if cfg.vo_rate_cov_scale == 1.0 and cfg.vo_cov_scale == 1.0:
+        return cov
+    s = np.sqrt(np.r_[[cfg.vo_rate_cov_scale] * 3, [cfg.vo_cov_scale] * 3])
+    return np.asarray(cov * np.outer(s, s), dtype=np.float64)
+
+
 def _check_imu_span(imu: ImuLog, t_first: int, t_last: int, source: str) -> None:
     if len(imu) < 2 or imu.t_ns[-1] <= t_first or imu.t_ns[0] >= t_last:
         raise InputError(
@@ -385,8 +619,6 @@ def run_vio(
     if vo_run is None:
         vo_run = compute_vo(data, cfg.vo, progress)
     rng = np.random.default_rng(cfg.outlier_seed)
-    R_b_v = rpy_matrix(cfg.vehicle_rpy_deg)
-    p_b_v = np.asarray(cfg.vehicle_p_b, float)
 
     filt: VioFilter | None = None
     t_ref = 0
@@ -397,7 +629,6 @@ def run_vio(
     meas_all: list[VoMeasurement] = []
     corrupted: list[bool] = []
     vel_acc: list[bool] = []
-    next_nhc = 0.0
     frames_seen = vo_run.seen
     unreadable = vo_run.unreadable
     if vo_run.frames:
@@ -442,9 +673,10 @@ def run_vio(
             P0[lay.BG, lay.BG] = m.cov[:3, :3] + np.eye(3) * (
                 cfg.init_std_bg**2 + cfg.noise.gyro**2 / max(m.dt, 1e-3)
             )
-            filt = VioFilter(imu, t_ref, x0, P0, t_mid, cfg)
+            filt = (CompiledVioFilter if cfg.compiled else VioFilter)(
+                imu, t_ref, x0, P0, t_mid, cfg
+            )
             filt.mark()
-            next_nhc = t_mid + 1.0 / cfg.nhc_rate_hz
             # the IMU alone from the same state
             sel = (t_imu > t_mid) & (imu.t_ns <= vo_run.frames[-1][0] + 50_000_000)
             a0, g0 = filt.sample_at(t_mid)
@@ -464,25 +696,15 @@ def run_vio(
             m = VoMeasurement(
                 m.t0_ns, m.t1_ns, m.omega_b + dw / np.linalg.norm(dw) * rng.uniform(*cfg.outlier_rate),
                 m.vel_b + dv / np.linalg.norm(dv) * rng.uniform(*cfg.outlier_vel), m.cov, m.T_b0_b1,
-                m.n_inliers,
+                m.n_inliers, m.cov_fit, m.var_factor,
             )  # fmt: skip
-        t_mid = (m.t_mid_ns - t_ref) * 1e-9
-        while cfg.nhc and next_nhc < t_mid:
-            filt.advance(next_nhc)
-            filt.update(NonHolonomic(cfg.nhc_std, filt.sample_at(next_nhc)[1], R_b_v, p_b_v), 2)
-            filt.mark()
-            next_nhc += 1.0 / cfg.nhc_rate_hz
-        filt.advance(t_mid)
-        ok_v = True
-        if cfg.vo_velocity:
-            ok_v = filt.update(VoVelocity(m.vel_b, cfg.vo_cov_scale * m.cov[3:, 3:]), 3)
-        if cfg.vo_rate:
-            t0 = (m.t0_ns - t_ref) * 1e-9
-            t1 = (m.t1_ns - t_ref) * 1e-9
-            g_mean = filt.gyro_mean(t0, t1)
-            gv = filt.noise.gyro**2 / (t1 - t0)
-            filt.update(VoRate(m.omega_b, cfg.vo_cov_scale * m.cov[:3, :3], g_mean, gv), 3)
-        filt.mark()
+        cov = vo_cov(m, cfg)
+        ok_v = filt.frame(
+            (m.t_mid_ns - t_ref) * 1e-9,
+            m.vel_b if cfg.vo_velocity else None, cov[3:, 3:],
+            m.omega_b if cfg.vo_rate else None, cov[:3, :3],
+            (m.t0_ns - t_ref) * 1e-9, (m.t1_ns - t_ref) * 1e-9,
+        )  # fmt: skip
         meas_all.append(m)
         corrupted.append(bad)
         vel_acc.append(ok_v)
@@ -494,14 +716,7 @@ def run_vio(
             "nothing to fuse"
         )
     # to the last frame
-    t_last = (vo_t[-1] - t_ref) * 1e-9
-    while cfg.nhc and next_nhc < t_last:
-        filt.advance(next_nhc)
-        filt.update(NonHolonomic(cfg.nhc_std, filt.sample_at(next_nhc)[1], R_b_v, p_b_v), 2)
-        filt.mark()
-        next_nhc += 1.0 / cfg.nhc_rate_hz
-    filt.advance(t_last)
-    filt.mark()
+    filt.frame((vo_t[-1] - t_ref) * 1e-9)
     fused = filt.trajectory("fused")
     # VO alone, expressed from the same initial state as the others (pose of the first mid-time)
     vo_arr = np.asarray(vo_T)
@@ -514,7 +729,7 @@ def run_vio(
     skipped = data.skipped_frames()
     bt, b, bs = filt.biases()
     return VioResult(
-        fused, vo_traj, imu_track, filt.stats, vo_run.stats,
+        fused, vo_traj, imu_track, filt.gate_stats(), vo_run.stats,
         {"listed_or_rendered": frames_seen + skipped.get("missing", 0), "missing": skipped.get("missing", 0),
          "unreadable": unreadable, "used": frames_seen - unreadable},
         {"corrupted": int(cor.sum()), "corrupted_rejected": int((cor & ~va).sum()),

@@ -63,7 +63,7 @@ def _template(
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=True)
 def _score(img: F32Array, U: int, V: int, h: int, tpl: FloatArray) -> float:  # pragma: no cover
     """ZNCC of a normalised template with the integer-centred patch of ``img`` at (U, V)."""
     n = (2 * h + 1) * (2 * h + 1)
@@ -112,7 +112,7 @@ def _score_at(
     return st / np.sqrt(var)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=True)
 def _zncc_pair(
     a: F32Array, ua: float, va: float, b: F32Array, ub: float, vb: float, h: int
 ) -> float:  # pragma: no cover - compiled
@@ -129,10 +129,27 @@ def _zncc_pair(
     saa = 0.0
     sbb = 0.0
     sab = 0.0
+    # every pixel of a patch has the same bilinear weights: compute them once per patch
+    ia = int(np.floor(ua))
+    ja = int(np.floor(va))
+    xa = ua - ia
+    ya = va - ja
+    ib = int(np.floor(ub))
+    jb = int(np.floor(vb))
+    xb = ub - ib
+    yb = vb - jb
+    a00, a01, a10, a11 = (1 - xa) * (1 - ya), xa * (1 - ya), (1 - xa) * ya, xa * ya
+    b00, b01, b10, b11 = (1 - xb) * (1 - yb), xb * (1 - yb), (1 - xb) * yb, xb * yb
     for dv in range(-h, h + 1):
+        ra = ja + dv
+        rb = jb + dv
         for du in range(-h, h + 1):
-            x = _bilinear(a, ua + du, va + dv)
-            y = _bilinear(b, ub + du, vb + dv)
+            ca = ia + du
+            cb = ib + du
+            x = (a00 * a[ra, ca] + a01 * a[ra, ca + 1] + a10 * a[ra + 1, ca]
+                 + a11 * a[ra + 1, ca + 1])  # fmt: skip
+            y = (b00 * b[rb, cb] + b01 * b[rb, cb + 1] + b10 * b[rb + 1, cb]
+                 + b11 * b[rb + 1, cb + 1])  # fmt: skip
             sa += x
             sb += y
             saa += x * x

@@ -1,0 +1,273 @@
+"""The VIO filter's compiled frame step: everything the EKF does between two VO frames in one numba call.
+
+:func:`frame_step` runs, for one VO frame, what :class:`imuslam.vio.pipeline.VioFilter` does in Python
+per event: the non-holonomic pseudo-measurements due before the frame's mid-time (predict to each, gated
+update, record), the prediction to the mid-time, the gated VO velocity and VO rate updates, and the
+record. The prediction is the inertial core's own kernel (:func:`imuslam.ins.core.propagate`), the update
+its :func:`~imuslam.ins.core.kalman_update` (Joseph form) and attitude perturbation
+:func:`~imuslam.ins.core.boxplus_attitude`; only the three measurement models are written again here, as
+compiled twins of :mod:`imuslam.vio.measurements` (which stay the reference: ``tests/vio`` runs both
+filters and compares them to 1e-9).
+
+State arrays are updated in place: ``p, v (3,)``, ``R (3, 3)``, ``ba, bg, g_n (3,)``, ``P (m, m)``,
+``clock = [t, next_nhc]`` (s since the filter's reference time). Records go to preallocated buffers with
+counters ``cnt = [track, marks, nhc, vo_velocity, vo_rate]``; measurement kinds are rows 0 (nhc),
+1 (vo_velocity), 2 (vo_rate) of ``nis`` and ``accepted``.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from imuslam.geometry.so3_nb import hat_nb
+from imuslam.ins.core import boxplus_attitude, is_pd, kalman_update, propagate
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+KIND_NHC, KIND_VEL, KIND_RATE = 0, 1, 2
+OK, DIVERGED = 0, 1
+
+
+@numba.njit(cache=True)
+def sample_at_nb(
+    t_imu: FloatArray, acc: FloatArray, gyr: FloatArray, t: float
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """IMU (accel, gyro) linearly interpolated at time t (the end segments extrapolate)."""
+    k = int(np.searchsorted(t_imu, t)) - 1
+    k = min(max(k, 0), t_imu.shape[0] - 2)
+    w = (t - t_imu[k]) / (t_imu[k + 1] - t_imu[k])
+    return (1 - w) * acc[k] + w * acc[k + 1], (1 - w) * gyr[k] + w * gyr[k + 1]
+
+
+@numba.njit(cache=True)
+def gyro_mean_nb(
+    t_imu: FloatArray, acc: FloatArray, gyr: FloatArray, t0: float, t1: float
+) -> FloatArray:  # pragma: no cover - compiled
+    """Mean raw gyro (3,) over [t0, t1]: trapezoid over the samples and the interpolated ends."""
+    i0 = int(np.searchsorted(t_imu, t0, side="right"))
+    i1 = int(np.searchsorted(t_imu, t1, side="right"))
+    n = max(i1 - i0, 0)
+    ts = np.empty(n + 2)
+    gs = np.empty((n + 2, 3))
+    ts[0] = t0
+    gs[0] = sample_at_nb(t_imu, acc, gyr, t0)[1]
+    for j in range(n):
+        ts[j + 1] = t_imu[i0 + j]
+        gs[j + 1] = gyr[i0 + j]
+    ts[n + 1] = t1
+    gs[n + 1] = sample_at_nb(t_imu, acc, gyr, t1)[1]
+    s = np.zeros(3)
+    for j in range(n + 1):
+        s += 0.5 * (gs[j + 1] + gs[j]) * (ts[j + 1] - ts[j])
+    return s / max(t1 - t0, 1e-12)
+
+
+@numba.njit(cache=True)
+def _check(P: FloatArray, p: FloatArray, v: FloatArray, R: FloatArray) -> bool:  # pragma: no cover
+    """The core filter's check: finite state, P symmetrised in place and positive definite."""
+    if not (np.isfinite(P).all() and np.isfinite(p).all() and np.isfinite(v).all()
+            and np.isfinite(R).all()):  # fmt: skip
+        return False
+    P[:, :] = 0.5 * (P + P.T)
+    return is_pd(P + np.eye(P.shape[0]) * 1e-18)
+
+
+@numba.njit(cache=True)
+def _advance(
+    t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
+    p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
+    P: FloatArray, clock: FloatArray, t: float, q: FloatArray, off: IntArray,
+    tr_t: FloatArray, tr_p: FloatArray, tr_R: FloatArray, cnt: IntArray,
+) -> bool:  # fmt: skip  # pragma: no cover - compiled
+    """Predict from clock[0] to t with the core's kernel (IMU interpolated at both ends), recording the
+    interior samples; False when the filter diverged."""
+    t_now = clock[0]
+    if t <= t_now:
+        return True
+    i0 = int(np.searchsorted(t_imu, t_now, side="right"))
+    i1 = int(np.searchsorted(t_imu, t, side="right"))
+    n_in = max(i1 - i0, 0)
+    ts_all = np.empty(n_in + 2)
+    ts_all[0] = t_now
+    ts_all[1 : n_in + 1] = t_imu[i0 : i0 + n_in]
+    ts_all[n_in + 1] = t
+    keep = np.empty(n_in + 2, np.bool_)
+    keep[0] = True
+    for j in range(1, n_in + 2):
+        keep[j] = ts_all[j] - ts_all[j - 1] > 1e-9
+    n = int(keep.sum())
+    if n < 2:
+        return True
+    a0, w0 = sample_at_nb(t_imu, acc, gyr, t_now)
+    a1, w1 = sample_at_nb(t_imu, acc, gyr, t)
+    ts = np.empty(n)
+    A = np.empty((n, 3))
+    W = np.empty((n, 3))
+    k = 0
+    for j in range(n_in + 2):
+        if not keep[j]:
+            continue
+        ts[k] = ts_all[j]
+        if j == 0:
+            A[k], W[k] = a0, w0
+        elif j == n_in + 1:
+            A[k], W[k] = a1, w1
+        else:
+            A[k], W[k] = acc[i0 + j - 1], gyr[i0 + j - 1]
+        k += 1
+    Ps, Vs, Rs, Pn, _ = propagate(A, W, np.diff(ts), p, v, R, ba, bg, g_n, P, q, off)
+    p[:] = Ps[n - 1]
+    v[:] = Vs[n - 1]
+    R[:, :] = Rs[n - 1]
+    P[:, :] = Pn
+    c = cnt[0]
+    for j in range(1, n - 1):
+        tr_t[c] = ts[j]
+        tr_p[c] = Ps[j]
+        tr_R[c] = Rs[j]
+        c += 1
+    cnt[0] = c
+    clock[0] = t
+    return _check(P, p, v, R)
+
+
+@numba.njit(cache=True)
+def mark_state(
+    t: float, p: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, P: FloatArray,
+    off: IntArray, tr_t: FloatArray, tr_p: FloatArray, tr_R: FloatArray, bias_t: FloatArray,
+    bias: FloatArray, bias_std: FloatArray, cnt: IntArray,
+) -> None:  # fmt: skip  # pragma: no cover - compiled
+    """Record the posterior state at t: the track, the biases and their 1-sigma."""
+    c = cnt[0]
+    tr_t[c] = t
+    tr_p[c] = p
+    tr_R[c] = R
+    cnt[0] = c + 1
+    b = cnt[1]
+    bias_t[b] = t
+    bias[b, :3] = ba
+    bias[b, 3:] = bg
+    for i in range(3):
+        bias_std[b, i] = np.sqrt(P[off[3] + i, off[3] + i])
+        bias_std[b, 3 + i] = np.sqrt(P[off[4] + i, off[4] + i])
+    cnt[1] = b + 1
+
+
+@numba.njit(cache=True)
+def _update(
+    r: FloatArray, H: FloatArray, Rm: FloatArray,
+    p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
+    P: FloatArray, off: IntArray, gate_on: bool, threshold: float,
+    kind: int, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
+) -> int:  # fmt: skip  # pragma: no cover - compiled
+    """Chi-square gate (nis = r^T (H P H^T + R)^-1 r) and the core's Kalman update; records the nis and
+    the verdict of this kind. Returns 1 accepted, 0 rejected, -1 diverged."""
+    S = H @ P @ H.T + Rm
+    nis = r @ np.linalg.solve(S, r)
+    j = cnt[2 + kind]
+    nis_buf[kind, j] = nis
+    cnt[2 + kind] = j + 1
+    if gate_on and not (nis <= threshold):
+        acc_buf[kind, j] = False
+        return 0
+    acc_buf[kind, j] = True
+    m = P.shape[0]
+    dx, Pn, _, _ = kalman_update(P, np.zeros((m, m)), r, H, Rm, False, np.zeros((r.shape[0],
+                                 r.shape[0])), False, 0.95, 3.0, 5.0)  # fmt: skip
+    P[:, :] = Pn
+    R[:, :] = boxplus_attitude(R, np.ascontiguousarray(dx[off[0] : off[0] + 3]))
+    p += dx[off[1] : off[1] + 3]
+    v += dx[off[2] : off[2] + 3]
+    if off[3] >= 0:
+        ba += dx[off[3] : off[3] + 3]
+    if off[4] >= 0:
+        bg += dx[off[4] : off[4] + 3]
+    if off[5] >= 0:
+        g_n += dx[off[5] : off[5] + 3]
+    return 1 if _check(P, p, v, R) else -1
+
+
+# layout of frame_step's packed inputs (one array each: fewer arguments to type-check per call)
+M_T, M_VEL, M_COV_V, M_OMEGA, M_COV_W, M_T0, M_T1, M_VEL_ON, M_RATE_ON, M_LEN = (
+    0, 1, 4, 13, 16, 25, 26, 27, 28, 29)  # fmt: skip
+C_NHC_ON, C_NHC_STD, C_NHC_DT, C_GYRO_Q, C_GATE_ON, C_THR2, C_THR3, C_LEN = 0, 1, 2, 3, 4, 5, 6, 7
+
+
+@numba.njit(cache=True)
+def frame_step(
+    t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
+    p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
+    P: FloatArray, clock: FloatArray, meas: FloatArray, const: FloatArray,
+    R_b_v: FloatArray, p_b_v: FloatArray, q: FloatArray, off: IntArray,
+    tr_t: FloatArray, tr_p: FloatArray, tr_R: FloatArray,
+    bias_t: FloatArray, bias: FloatArray, bias_std: FloatArray,
+    nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
+) -> int:  # fmt: skip  # pragma: no cover - compiled
+    """One VO frame (see the module docstring): NHC updates due before the frame's mid-time (each at
+    its time, then recorded), prediction to it, the VO velocity and rate updates (when their flags are
+    set), and a record. ``meas`` (M_LEN,): mid-time, velocity (3,) m/s, its covariance (9,), rate (3,)
+    rad/s, its covariance (9,), the interval [t0, t1] s, the two flags; ``const`` (C_LEN,): NHC on,
+    its sigma m/s and period s, gyro density^2, gate on, chi-square thresholds for 2 and 3 dof.
+    Returns OK or DIVERGED (the time is in clock[0])."""
+    t_target = meas[M_T]
+    nhc_on = const[C_NHC_ON] != 0.0
+    nhc_std = const[C_NHC_STD]
+    nhc_dt = const[C_NHC_DT]
+    gate_on = const[C_GATE_ON] != 0.0
+    thr2 = const[C_THR2]
+    thr3 = const[C_THR3]
+    m = P.shape[0]
+    R_v_b = np.ascontiguousarray(R_b_v.T)
+    while nhc_on and clock[1] < t_target:
+        tn = clock[1]
+        if not _advance(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, tn, q, off,
+                        tr_t, tr_p, tr_R, cnt):  # fmt: skip
+            return DIVERGED
+        # non-holonomic constraint: vehicle-frame lateral and vertical velocity zero (measurements.py)
+        w = sample_at_nb(t_imu, acc, gyr, tn)[1] - bg
+        vb = R.T @ v
+        vv = R_v_b @ (vb + np.cross(w, p_b_v))
+        Hf = np.zeros((3, m))
+        Hf[:, off[2] : off[2] + 3] = R_v_b @ R.T
+        Hf[:, off[0] : off[0] + 3] = R_v_b @ hat_nb(vb)
+        Hf[:, off[4] : off[4] + 3] = R_v_b @ hat_nb(p_b_v)
+        r = -vv[1:]
+        H = np.ascontiguousarray(Hf[1:])
+        Rm = np.eye(2) * nhc_std**2
+        if _update(r, H, Rm, p, v, R, ba, bg, g_n, P, off, gate_on, thr2, KIND_NHC, nis_buf,
+                   acc_buf, cnt) < 0:  # fmt: skip
+            return DIVERGED
+        mark_state(clock[0], p, R, ba, bg, P, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, cnt)
+        clock[1] = tn + nhc_dt
+    if not _advance(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, t_target, q, off,
+                    tr_t, tr_p, tr_R, cnt):  # fmt: skip
+        return DIVERGED
+    if meas[M_VEL_ON] != 0.0:
+        vel_b = meas[M_VEL : M_VEL + 3]
+        cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3))
+        vb = R.T @ v
+        H = np.zeros((3, m))
+        H[:, off[2] : off[2] + 3] = R.T
+        H[:, off[0] : off[0] + 3] = hat_nb(vb)
+        if _update(vel_b - vb, H, cov_v, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_VEL,
+                   nis_buf, acc_buf, cnt) < 0:  # fmt: skip
+            return DIVERGED
+    if meas[M_RATE_ON] != 0.0:
+        omega_b = meas[M_OMEGA : M_OMEGA + 3]
+        cov_w = np.ascontiguousarray(meas[M_COV_W : M_COV_W + 9]).reshape((3, 3))
+        t0 = meas[M_T0]
+        t1 = meas[M_T1]
+        g_mean = gyro_mean_nb(t_imu, acc, gyr, t0, t1)
+        H = np.zeros((3, m))
+        for i in range(3):
+            H[i, off[4] + i] = -1.0
+        r = omega_b - (g_mean - bg)
+        Rm = cov_w + np.eye(3) * (const[C_GYRO_Q] / (t1 - t0))
+        if _update(r, H, Rm, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_RATE, nis_buf,
+                   acc_buf, cnt) < 0:  # fmt: skip
+            return DIVERGED
+    mark_state(clock[0], p, R, ba, bg, P, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, cnt)
+    return OK
