@@ -24,9 +24,7 @@ from imuslam.eval.slam2d_gt import relations_against_corrected
 from imuslam.io.carmen import read_breezyslam, read_carmen
 from imuslam.io.laserlog import LaserLog
 from imuslam.slam2d import pose2
-from imuslam.slam2d.grid import GridParams, ProbabilityGrid
-from imuslam.slam2d.matching import bnb_match, make_index, refine_pose
-from imuslam.slam2d.slam import Slam2dConfig, Slam2dResult, render_map, run_slam2d, scan_points
+from imuslam.slam2d.slam import Slam2dConfig, Slam2dResult, render_map, run_slam2d
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 RADISH = {"intel": "intel", "fr079": "freiburg-079", "aces": "aces", "mit-csail": "csail"}
@@ -45,29 +43,34 @@ def save_map(log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig, path: Path, t
     save_figure(map_figure(render_map(log_, res.pose_xy_yaw, cfg), res, title), path)
 
 
-def loop_check(
-    log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig
-) -> tuple[int, float, float, float, float]:
-    """Where the robot comes back to its start: the scan of the last two thirds whose SLAM pose is nearest
-    the start is matched against the map of the first third of the scans (branch and bound over +-1 m, +-30 deg around
-    the SLAM pose, then refined). Returns that scan, its distance from the start (m), the correction the
-    match makes to the SLAM pose (m, deg) and the match score: a closed loop needs no correction."""
-    pts = scan_points(log_, cfg)
-    P = res.pose_xy_yaw
-    first = len(P) // 3
-    g = ProbabilityGrid(GridParams(resolution=cfg.resolution), P[0, :2], 6.0)
-    for k in range(first):
-        g.insert(pose2.act(P[k], log_.T_b_l[None, :2])[0], pose2.act(P[k], pts[k]))
-    prob, x0, y0 = g.cropped()
-    idx = make_index(prob, x0, y0, cfg.resolution, 5)
-    k = first + int(np.argmin(np.hypot(P[first:, 0] - P[0, 0], P[first:, 1] - P[0, 1])))
-    dist = float(np.hypot(P[k, 0] - P[0, 0], P[k, 1] - P[0, 1]))
-    best, score = bnb_match(idx, pts[k], P[k], 1.0, np.deg2rad(30.0), 0.3, 15.0)
-    if score < 0:
-        return k, dist, float("nan"), float("nan"), score
-    ref, sc = refine_pose(prob, x0, y0, cfg.resolution, pts[k], best, best, 1.0, 0.0, 0.0, 0.1, 30)
-    d = pose2.between(ref, P[k])
-    return k, dist, float(np.hypot(d[0], d[1])), float(np.rad2deg(abs(d[2]))), float(sc)
+def closing_constraints(res: Slam2dResult) -> dict[str, float]:
+    """The loop constraints that close the loop: a node of the last third of the scans matched against a
+    submap started in the first third. Each says where the node is relative to the submap's first node;
+    its residual (m, deg) on the local-SLAM poses (before loop closure) and on the optimised poses: a
+    closed loop satisfies its closing constraints to within the matcher's precision."""
+    n = len(res.t_ns)
+    cl = [
+        c
+        for c in res.loops
+        if res.node_scans[c.node] >= 2 * n // 3 and res.node_scans[c.anchor] < n // 3
+    ]
+    if not cl:
+        return {"n": 0}
+
+    def resid(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a = P[[res.node_scans[c.anchor] for c in cl]]
+        b = P[[res.node_scans[c.node] for c in cl]]
+        d = pose2.between(pose2.compose(a, np.array([c.T_anchor_node for c in cl])), b)
+        return np.hypot(d[:, 0], d[:, 1]), np.rad2deg(np.abs(pose2.wrap(d[:, 2])))
+
+    t0, r0 = resid(res.local_xy_yaw)
+    t1, r1 = resid(res.pose_xy_yaw)
+    return {
+        "n": len(cl), "score": float(np.mean([c.score for c in cl])),
+        "before_m": float(np.median(t0)), "before_deg": float(np.median(r0)),
+        "after_m": float(np.median(t1)), "after_deg": float(np.median(r1)),
+        "after_max_m": float(np.max(t1)),
+    }  # fmt: skip
 
 
 def main() -> None:
@@ -105,17 +108,21 @@ def main() -> None:
             cfg_b = cfg.model_copy(deep=True)
             cfg_b.loop.min_score = 0.5
             res, wall, cpu = run(log_, cfg_b)
-            k, dist, dm, dd, sc = loop_check(log_, res, cfg_b)
-            rows.append(
-                (name, len(log_), log_.duration_s, wall, cpu, len(res.loops), k, dist, dm, dd, sc)
-            )
+            rows.append((name, len(log_), log_.duration_s, wall, cpu, len(res.loops),
+                         closing_constraints(res)))  # fmt: skip
         if maps:
             save_map(log_, res, cfg, maps / f"{name}.png", name)
     if rows:
-        print("\n| log | scans | duration [s] | wall [s] | CPU [s] | loops | return scan | its distance from the start [m] | correction by matching the start map [m] | [deg] | match score |")  # fmt: skip
+        print("\n| log | scans | duration [s] | wall [s] | CPU [s] | loop constraints | closing constraints (last third -> submaps of the first third) | their mean score | median residual before loop closure [m, deg] | after [m, deg] | largest after [m] |")  # fmt: skip
         print("|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
-            print(f"| {r[0]} | {r[1]} | {r[2]:.0f} | {r[3]:.1f} | {r[4]:.1f} | {r[5]} | {r[6]} | {r[7]:.2f} | {r[8]:.3f} | {r[9]:.2f} | {r[10]:.2f} |", flush=True)  # fmt: skip
+            c = r[6]
+            tail = (f"{c['n']} | {c['score']:.2f} | {c['before_m']:.3f}, {c['before_deg']:.2f} | "
+                    f"{c['after_m']:.3f}, {c['after_deg']:.2f} | {c['after_max_m']:.3f}") if c["n"] else "0 | - | - | - | -"  # fmt: skip
+            print(
+                f"| {r[0]} | {r[1]} | {r[2]:.0f} | {r[3]:.1f} | {r[4]:.1f} | {r[5]} | {tail} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":
