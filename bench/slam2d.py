@@ -140,8 +140,8 @@ def main() -> None:
         maps.mkdir(parents=True, exist_ok=True)
     cfg = Slam2dConfig()
     rows = []
-    print("| log | scans | log duration [s] | wall [s] | CPU [s] | x real time (wall / CPU) | loops | SLAM relation error: trans [m], rot [deg] | odometry relation error | relations |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| log | scans | log duration [s] | wall [s] | CPU [s] | of which the loop worker thread [s] | x real time (wall / CPU) | loops | SLAM relation error: trans [m], rot [deg] | odometry relation error | relations |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.logs:
         if name in RADISH:
             c = read_carmen(DATA / "radish_freiburg_benchmark" / f"{name}.clf.bz2")
@@ -153,7 +153,7 @@ def main() -> None:
                 {"slam": res.pose_xy_yaw, "odometry": log_.odom_xy_yaw},
             )  # fmt: skip
             s, o = m["slam"], m["odometry"]
-            print(f"| {name} | {len(log_)} | {log_.duration_s:.0f} | {wall:.1f} | {cpu:.1f} | "
+            print(f"| {name} | {len(log_)} | {log_.duration_s:.0f} | {wall:.1f} | {cpu:.1f} | {res.timing_s['loop_search_cpu']:.1f} | "
                   f"{log_.duration_s / wall:.0f} / {log_.duration_s / cpu:.0f} | {len(res.loops)} | "
                   f"{s['trans_mean']:.3f} ± {s['trans_std']:.3f}, {s['rot_mean_deg']:.2f} ± {s['rot_std_deg']:.2f} | "
                   f"{o['trans_mean']:.3f} ± {o['trans_std']:.3f}, {o['rot_mean_deg']:.2f} ± {o['rot_std_deg']:.2f} | "

@@ -234,7 +234,8 @@ class Slam2d:
         self.loops: list[LoopConstraint] = []
         self.loops_searched = 0
         self.last_node_t = -1e18
-        self.timing = {"local": 0.0, "loop_search": 0.0, "optimise": 0.0}
+        # loop_search: wall time of the matching jobs; loop_search_cpu: their thread's CPU time
+        self.timing = {"local": 0.0, "loop_search": 0.0, "loop_search_cpu": 0.0, "optimise": 0.0}
         self.scores: list[float] = []
         self._nodes_since_opt = 0
         self._loops_since_opt = 0
@@ -244,7 +245,7 @@ class Slam2d:
         self._pool: ThreadPoolExecutor | None = None
         if cfg.loop.enabled and cfg.loop.background:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="slam2d-loops")
-        self._pending: list[Future[tuple[list[LoopConstraint], float]]] = []
+        self._pending: list[Future[tuple[list[LoopConstraint], float, float]]] = []
         self.main_loop_time = 0.0  # loop-closure time spent on the main thread
 
     # ---------------------------------------------------------------- local SLAM
@@ -343,25 +344,26 @@ class Slam2d:
     def in_background(self) -> bool:
         return self._pool is not None
 
-    def _run(self, fn: Callable[..., tuple[list[LoopConstraint], float]], *args: object) -> None:
+    def _run(
+        self, fn: Callable[..., tuple[list[LoopConstraint], float, float]], *args: object
+    ) -> None:
         """``fn(*args)`` on the loop worker (or here without one); its constraints join the graph
         when collected."""
         if self._pool is not None:
             self._pending.append(self._pool.submit(fn, *args))
         else:
-            loops, dt = fn(*args)
-            self._add_loops(loops, dt)
+            self._add_loops(*fn(*args))
 
-    def _add_loops(self, loops: list[LoopConstraint], dt: float) -> None:
+    def _add_loops(self, loops: list[LoopConstraint], dt: float, dt_cpu: float) -> None:
         self.loops.extend(loops)
         self._loops_since_opt += len(loops)
         self.timing["loop_search"] += dt
+        self.timing["loop_search_cpu"] += dt_cpu
 
     def collect_loops(self, wait: bool = False) -> None:
         """Constraints of the finished background jobs (all of them with ``wait``), in submission order."""
         while self._pending and (wait or self._pending[0].done()):
-            loops, dt = self._pending.pop(0).result()
-            self._add_loops(loops, dt)
+            self._add_loops(*self._pending.pop(0).result())
 
     def close(self) -> None:
         """Wait for the loop worker and stop it."""
@@ -372,13 +374,13 @@ class Slam2d:
                 self._pool.shutdown(wait=True, cancel_futures=True)
                 self._pool = None
 
-    def _index_job(self, s: int) -> tuple[list[LoopConstraint], float]:
-        t0 = time.perf_counter()
+    def _index_job(self, s: int) -> tuple[list[LoopConstraint], float, float]:
+        t0, c0 = time.perf_counter(), time.thread_time()
         g = self.submaps[s].grid
         self.submaps[s].index = make_index(
             g.prob, g.x0, g.y0, self.params.resolution, self.cfg.loop.depth
         )
-        return [], time.perf_counter() - t0
+        return [], time.perf_counter() - t0, time.thread_time() - c0
 
     def search_loops(self, j: int) -> None:
         """Queue the search of node ``j`` against the nearest finished submaps (candidates chosen here from
@@ -407,11 +409,11 @@ class Slam2d:
 
     def _match_job(
         self, j: int, pts: FloatArray, jobs: list[tuple[int, FloatArray]]
-    ) -> tuple[list[LoopConstraint], float]:
+    ) -> tuple[list[LoopConstraint], float, float]:
         """Branch and bound, then refinement, of node ``j``'s points in each submap of ``jobs`` (submap,
         T_submap_node guess); reads only finished submaps and past nodes' local poses."""
         cfg = self.cfg.loop
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         out: list[LoopConstraint] = []
         for s, T_s_n in jobs:
             idx = self.submaps[s].index
@@ -437,7 +439,7 @@ class Slam2d:
                 pose2.between(self.node_local[sm.anchor_node], sm.T_local_submap), refined
             )
             out.append(LoopConstraint(j, s, refined, float(sc2), sm.anchor_node, T_a_n))
-        return out, time.perf_counter() - t0
+        return out, time.perf_counter() - t0, time.thread_time() - c0
 
     def optimise(self) -> None:
         """Levenberg-Marquardt on the pose graph (gtsam), warm-started from the current estimate."""
