@@ -445,3 +445,28 @@ def test_map2d_cli_counts_bad_readings_and_odometry_jumps(tmp_path: Path) -> Non
     traj = np.loadtxt(out / "trajectory.tum")
     # the scans all see the same wall from the same place: every pose within a cell of the first
     assert np.abs(traj[:, 1:3] - traj[0, 1:3]).max() < 0.05
+
+
+@pytest.mark.slow
+def test_background_loop_search_equals_inline(shared_data: Path) -> None:
+    """The loop search on the worker thread against the same search inline, on the first 3,000 Intel
+    scans: the same nodes searched, the constraints found agree (the background's intermediate
+    optimisations see fewer constraints, so its guesses can differ: at least 90 % shared (node, submap)
+    pairs) and every final pose within one grid cell."""
+    from imuslam.io.carmen import read_carmen
+    from imuslam.slam2d.slam import Slam2dConfig, run_slam2d
+
+    log_ = read_carmen(shared_data / "radish_freiburg_benchmark" / "intel.clf.bz2").laser.slice(
+        0, 3000
+    )
+    cfg_bg = Slam2dConfig()
+    cfg_in = Slam2dConfig()
+    cfg_in.loop.background = False
+    bg, inl = run_slam2d(log_, cfg_bg), run_slam2d(log_, cfg_in)
+    assert bg.loops_searched == inl.loops_searched
+    assert len(inl.loops) >= 10
+    a = {(c.node, c.submap) for c in bg.loops}
+    b = {(c.node, c.submap) for c in inl.loops}
+    assert len(a & b) >= 0.9 * max(len(a), len(b))
+    d = np.hypot(*(bg.pose_xy_yaw[:, :2] - inl.pose_xy_yaw[:, :2]).T)
+    assert d.max() < cfg_bg.resolution
