@@ -470,3 +470,19 @@ def test_background_loop_search_equals_inline(shared_data: Path) -> None:
     assert len(a & b) >= 0.9 * max(len(a), len(b))
     d = np.hypot(*(bg.pose_xy_yaw[:, :2] - inl.pose_xy_yaw[:, :2]).T)
     assert d.max() < cfg_bg.resolution
+
+
+def test_single_pose_fast_path_equals_se2() -> None:
+    """pose2's one-pose compose/between (no matrices) against geometry.se2 on random poses."""
+    from imuslam.geometry import se2
+
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        a, b = rng.uniform([-5, -5, -4], [5, 5, 4], size=(2, 3))
+        for fast, ref in (
+            (pose2.compose(a, b), se2.compose(se2.from_xy_yaw(a), se2.from_xy_yaw(b))),
+            (pose2.between(a, b), se2.between(se2.from_xy_yaw(a), se2.from_xy_yaw(b))),
+        ):
+            r = se2.to_xy_yaw(ref)
+            assert np.allclose(fast[:2], r[:2], atol=1e-12)
+            assert abs(pose2.wrap(fast[2] - r[2])) < 1e-12
