@@ -59,6 +59,8 @@ def main() -> None:
         cart.matcher.use_correlative = (
             False  # Cartographer 2D's default: refinement from the prediction only
         )
+        cart.matcher.translation_weight = 10.0  # Cartographer 2D's default weights
+        cart.matcher.rotation_weight = 40.0
         setups["Cartographer 2D default (no online correlative search)"] = cart
 
     def occupied(log_: LaserLog, cfg: Slam2dConfig) -> Callable[[np.ndarray], np.ndarray]:

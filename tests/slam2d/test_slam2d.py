@@ -374,3 +374,115 @@ def test_carmen_robotlaser1_and_compressed(tmp_path: Path) -> None:
     f.write_bytes(gzip.compress(line(100, 10.0, 0.0).encode()))
     with pytest.raises(InputError, match=r"r.log.gz:1: field of view .* and 100 readings disagree"):
         read_carmen(f)
+
+
+def _flaser(t: float, ranges: list[str], odom: tuple[float, float, float]) -> str:
+    x, y, th = odom
+    return f"FLASER {len(ranges)} {' '.join(ranges)} {x} {y} {th} {x} {y} {th} {t:.3f} h {t:.3f}\n"
+
+
+@pytest.mark.parametrize(
+    ("case", "text", "expected"),
+    [
+        ("no scans", "ODOM 0 0 0 0 0 0 1.0 host 1.0\n", "no laser scans"),
+        ("malformed", "FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 1.0 h 1.0\nFLASER 3 1.0 x\n", "log.clf:2"),
+        (
+            "unsorted",
+            "".join(_flaser(10.0 - k, ["1.0"] * 3, (0, 0, 0)) for k in range(10)),
+            "not in time order",
+        ),
+    ],
+)
+def test_map2d_cli_bad_log_is_one_line_and_no_output(
+    tmp_path: Path, case: str, text: str, expected: str
+) -> None:
+    """Each bad CARMEN log: exit 2, one line naming the file and what is wrong, no results folder."""
+    from typer.testing import CliRunner
+
+    from imuslam.cli import app
+
+    f = tmp_path / "log.clf"
+    f.write_text(text)
+    out = tmp_path / "out"
+    r = CliRunner().invoke(app, ["map2d", str(f), "--out", str(out), "--no-progress"])
+    assert r.exit_code == 2, (case, r.output)
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert len(lines) == 1, (case, r.output)
+    assert expected in lines[0] and "log.clf" in lines[0], (case, lines[0])
+    assert "Traceback" not in r.output
+    assert not out.exists()
+
+
+def test_map2d_cli_counts_bad_readings_and_odometry_jumps(tmp_path: Path) -> None:
+    """A log of a robot standing 3 m from a round wall with 4 bad readings (inf, NaN, 90 m beyond the
+    30 m range, a negative one) and one odometry jump (5 m in 0.1 s): the map is made, each counted once in
+    summary.json and the printed table, the jump replaced by no motion (the pose stays at the start)."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from imuslam.cli import app
+
+    rng = np.random.default_rng(0)
+    lines = []
+    for k in range(40):
+        r = [f"{3.0 + 0.01 * rng.standard_normal():.3f}" for _ in range(180)]
+        if k == 5:
+            r[10], r[20] = "inf", "nan"
+        if k == 7:
+            r[30], r[40] = "90.0", "-1.0"
+        odom = (5.0, 0.0, 0.0) if k >= 20 else (0.0, 0.0, 0.0)  # the jump between scans 19 and 20
+        lines.append(_flaser(100.0 + 0.1 * k, r, odom))
+    f = tmp_path / "log.clf"
+    f.write_text("".join(lines))
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["map2d", str(f), "--out", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    s = json.loads((out / "summary.json").read_text())
+    assert s["warnings"]["readings dropped (inf/NaN/out of range)"] == 4
+    assert s["warnings"]["odometry jumps (step replaced by no motion)"] == 1
+    assert "odometry jumps" in res.output
+    traj = np.loadtxt(out / "trajectory.tum")
+    # the scans all see the same wall from the same place: every pose within a cell of the first
+    assert np.abs(traj[:, 1:3] - traj[0, 1:3]).max() < 0.05
+
+
+@pytest.mark.slow
+def test_background_loop_search_equals_inline(shared_data: Path) -> None:
+    """The loop search on the worker thread against the same search inline, on the first 3,000 Intel
+    scans: the same nodes searched, the constraints found agree (the background's intermediate
+    optimisations see fewer constraints, so its guesses can differ: at least 90 % shared (node, submap)
+    pairs) and every final pose within one grid cell."""
+    from imuslam.io.carmen import read_carmen
+    from imuslam.slam2d.slam import Slam2dConfig, run_slam2d
+
+    log_ = read_carmen(shared_data / "radish_freiburg_benchmark" / "intel.clf.bz2").laser.slice(
+        0, 3000
+    )
+    cfg_bg = Slam2dConfig()
+    cfg_in = Slam2dConfig()
+    cfg_in.loop.background = False
+    bg, inl = run_slam2d(log_, cfg_bg), run_slam2d(log_, cfg_in)
+    assert bg.loops_searched == inl.loops_searched
+    assert len(inl.loops) >= 10
+    a = {(c.node, c.submap) for c in bg.loops}
+    b = {(c.node, c.submap) for c in inl.loops}
+    assert len(a & b) >= 0.9 * max(len(a), len(b))
+    d = np.hypot(*(bg.pose_xy_yaw[:, :2] - inl.pose_xy_yaw[:, :2]).T)
+    assert d.max() < cfg_bg.resolution
+
+
+def test_single_pose_fast_path_equals_se2() -> None:
+    """pose2's one-pose compose/between (no matrices) against geometry.se2 on random poses."""
+    from imuslam.geometry import se2
+
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        a, b = rng.uniform([-5, -5, -4], [5, 5, 4], size=(2, 3))
+        for fast, ref in (
+            (pose2.compose(a, b), se2.compose(se2.from_xy_yaw(a), se2.from_xy_yaw(b))),
+            (pose2.between(a, b), se2.between(se2.from_xy_yaw(a), se2.from_xy_yaw(b))),
+        ):
+            r = se2.to_xy_yaw(ref)
+            assert np.allclose(fast[:2], r[:2], atol=1e-12)
+            assert abs(pose2.wrap(fast[2] - r[2])) < 1e-12

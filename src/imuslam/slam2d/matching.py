@@ -85,7 +85,7 @@ def correlative_search(
     return out, best
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _bilinear(
     prob: F32, u: float, v: float, p_unknown: float
 ) -> tuple[float, float, float]:  # pragma: no cover
@@ -109,7 +109,7 @@ def _bilinear(
     return val, du, dv
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def refine_pose(
     prob: F32,
     x0: float,
@@ -229,7 +229,7 @@ def refine_pose_reference(
 # Branch and bound (Hess 2016, section V)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def precompute_max_grids(prob: F32, depth: int) -> U8:  # pragma: no cover - compiled
     """Levels 0..depth (depth + 1, H + 2 pad, W + 2 pad), pad = 2^depth - 1, uint8 (probability * 255):
     level h at padded (Y, X) is the maximum of level 0 over [Y, Y + 2^h) x [X, X + 2^h) (Hess 2016
@@ -257,7 +257,7 @@ def precompute_max_grids(prob: F32, depth: int) -> U8:  # pragma: no cover - com
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _score(
     levels: U8, h: int, cells: NDArray[np.int64], a: int, ox: int, oy: int
 ) -> float:  # pragma: no cover
@@ -272,7 +272,7 @@ def _score(
     return acc / (255.0 * P)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def branch_and_bound(
     levels: U8, cells: NDArray[np.int64], lin_cells: int, min_score: float
 ) -> tuple[int, int, int, float]:  # pragma: no cover - compiled
