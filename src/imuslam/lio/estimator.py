@@ -153,7 +153,7 @@ class LioEstimator:
         i0, i1 = np.searchsorted(t, t0, side="right"), np.searchsorted(t, t1, side="left")
         inner = np.arange(i0, i1)
         if i1 > i0 and np.max(np.diff(t[max(i0 - 1, 0) : min(i1 + 1, len(t))])) > 0.1:
-            log.warning("IMU gap of more than 0.1 s before t = %.3f s", t1)
+            log.debug("IMU gap of more than 0.1 s before t = %.3f s", t1)
         ts = np.concatenate([[t0], t[inner], [t1]])
         acc = np.column_stack([np.interp(ts, t, self.imu.accel[:, a]) for a in range(3)])
         gyr = np.column_stack([np.interp(ts, t, self.imu.gyro[:, a]) for a in range(3)])

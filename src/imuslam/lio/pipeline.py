@@ -93,6 +93,17 @@ def clean_scan(
     return p[ok], t[ok], ring, int(len(p) - ok.sum())
 
 
+def imu_gaps(t_s: FloatArray, limit_s: float = 0.1) -> str:
+    """A warning (or "") counting the IMU gaps longer than ``limit_s`` in the sample times ``t_s`` (s):
+    the filter propagates across them on interpolated samples, so the prior there is weaker."""
+    dt = np.diff(np.asarray(t_s, dtype=np.float64))
+    big = np.flatnonzero(dt > limit_s)
+    if not len(big):
+        return ""
+    i = int(big[np.argmax(dt[big])])
+    return (f"{len(big)} IMU gaps longer than {limit_s:g} s (longest {dt[i]:.2f} s at t = {t_s[i]:.2f} s)")  # fmt: skip
+
+
 class LioPipeline:
     """Run the odometry over ``dataset``; ``imu`` overrides the dataset's IMU (e.g. after calibration)."""
 
@@ -210,6 +221,10 @@ class LioPipeline:
             warnings.append(f"{n_nan} NaN points dropped by the reader")
         if n_back:
             warnings.append(f"{n_back} scans out of time order skipped")
+        if not lidar_only:
+            gap = imu_gaps(self.imu.t_s)  # type: ignore[union-attr]
+            if gap:
+                warnings.append(gap)
         for w in warnings:
             log.warning("%s: %s", self.dataset.name, w)
         if span is not None and not poses and lidar_span:
