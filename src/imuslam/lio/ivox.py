@@ -167,7 +167,7 @@ class IncrementalVoxelMap:
     as :class:`~imuslam.lio.voxelmap.VoxelMap` (``add``, ``prune``, ``transform``, ``knn``)."""
 
     def __init__(self, voxel_size: float = 0.5, max_per_voxel: int = 1, max_range: float = 100.0,
-                 nsub: int = 2, capacity: int = 1 << 14) -> None:  # fmt: skip
+                 nsub: int = 2, capacity: int = 1 << 10) -> None:  # fmt: skip
         self.voxel_size = float(voxel_size)
         self.max_per_voxel = int(max_per_voxel)
         self.max_range = float(max_range)
