@@ -4,7 +4,7 @@
     PYTHONPATH=src python bench/lio.py imu       # raw vs calibrated IMU x {reduced, full} x {none, kf, stkf, rwnn}
     PYTHONPATH=src python bench/lio.py rotating  # IMU and LiDAR on a 10 Hz rotating platform vs fixed mount
     PYTHONPATH=src python bench/lio.py corridor  # LiDAR-only vs LIO in the corridor (degenerate for LiDAR)
-    PYTHONPATH=src python bench/lio.py memory    # map size and RSS over a long drive
+    PYTHONPATH=src python bench/lio.py memory    # map size and peak RSS over a 30-minute drive (streamed)
 
 Options: --duration S (drive length), --cache DIR (simulated drives are cached there, keyed by their
 parameters). The street drive is seed 001's car loop around an urban block: VLP-16 at 10 Hz (about 28k
@@ -106,7 +106,7 @@ def run_imuslam(d: LidarDrive, mode: str = "direct", state: str = "full", align:
     return res, est
 
 
-def run_kiss(d: LidarDrive) -> tuple[Trajectory, float]:
+def run_kiss(d: LidarDrive) -> tuple[Trajectory, float, float]:
     from kiss_icp.config import KISSConfig
     from kiss_icp.kiss_icp import KissICP
 
@@ -114,22 +114,24 @@ def run_kiss(d: LidarDrive) -> tuple[Trajectory, float]:
     cfg.data.max_range, cfg.data.min_range, cfg.data.deskew = 100.0, 1.0, True
     cfg.mapping.voxel_size = 1.0  # max_range / 100, KISS-ICP's own rule
     k = KissICP(cfg)
-    poses, t_ns, el = [], [], 0.0
+    poses, t_ns, el, cpu = [], [], 0.0, 0.0
     for s in d.scans:
         pts = s.points_l.astype(np.float64)
         ts = s.t_offset_s.astype(np.float64)
         ts = (ts - ts.min()) / max(
             float(ts.max() - ts.min()), 1e-9
         )  # normalised per scan, as its readers do
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         k.register_frame(pts, ts)
         el += time.perf_counter() - t0
+        cpu += time.process_time() - c0  # all of its threads
         poses.append(k.last_pose.copy())
         t_ns.append(s.t_ns + int(round(float(s.t_offset_s.max()) * 1e9)))
     P = np.array(poses)
     T_l_i = np.linalg.inv(d.T_i_l)
     P = P @ T_l_i  # LiDAR poses -> the body (IMU) frame, as the truth
-    return Trajectory(np.array(t_ns), P[:, :3, 3], P[:, :3, :3], "kiss-icp"), len(d.scans) / el
+    traj = Trajectory(np.array(t_ns), P[:, :3, 3], P[:, :3, :3], "kiss-icp")
+    return traj, len(d.scans) / el, len(d.scans) / cpu
 
 
 def row(name: str, m: dict[str, float], sps: float, extra: str = "") -> str:
@@ -144,21 +146,27 @@ def main_bench(args: Any) -> None:
     d = drive("street", args.duration or 137.5, args.cache)  # four laps and a little
     gt = truth(d)
     print(f"street loop: {len(d.scans)} scans, {gt.path_length:.0f} m, closes every {LAP_S:.1f} s")
-    kt, ksps = run_kiss(d)
+    from dataclasses import replace
+
+    for mode in ("features", "direct"):  # load the compiled kernels before any timing
+        run_imuslam(replace(d, scans=d.scans[:20]), mode, "full")
+    kt, ksps, kcpu = run_kiss(d)
     km = metrics(gt, kt)
-    print(HEAD + " drift / KISS | speed / KISS |")
-    print(SEP + "---|---|")
-    print(row("KISS-ICP 1.x (C++, all cores)", km, ksps, " 1 | 1 |"))
-    for mode in ("features", "direct"):
-        for state in ("reduced", "full"):
-            res, est = run_imuslam(d, mode, state, "none", "cal")
-            m = metrics(gt, est)
-            print(row(f"imuslam lio {mode} {state}", m, res.scans_per_s,
-                      f" {m['drift_pct'] / km['drift_pct']:.2f} | {res.scans_per_s / ksps:.2f} |"))  # fmt: skip
-    res, est = run_imuslam(d, "direct", "full", "none", "cal", use_imu=False)
-    m = metrics(gt, est)
-    print(row("imuslam LiDAR-only direct", m, res.scans_per_s,
-              f" {m['drift_pct'] / km['drift_pct']:.2f} | {res.scans_per_s / ksps:.2f} |"))  # fmt: skip
+    print("| run | KITTI drift % | rotation RMSE deg | ATE m | scans per CPU s | scans/s (wall) "
+          "| drift / KISS | CPU speed / KISS | wall speed / KISS |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|")
+
+    def line(name: str, m: dict[str, float], cps: float, sps: float) -> None:
+        print(f"| {name} | {m['drift_pct']:.3f} | {m['rot_deg']:.3f} | {m['ate_m']:.3f} | {cps:.1f} | "
+              f"{sps:.1f} | {m['drift_pct'] / km['drift_pct']:.2f} | {cps / kcpu:.2f} | {sps / ksps:.2f} |", flush=True)  # fmt: skip
+
+    line("KISS-ICP 1.x (C++, all cores)", km, kcpu, ksps)
+    runs = [(f"imuslam lio {mode} {state}", mode, state, True)
+            for mode in ("features", "direct") for state in ("reduced", "full")]  # fmt: skip
+    runs.append(("imuslam LiDAR-only direct", "direct", "full", False))
+    for name, mode, state, use_imu in runs:
+        res, est = run_imuslam(d, mode, state, "none", "cal", use_imu=use_imu)
+        line(name, metrics(gt, est), res.scans_per_cpu_s, res.scans_per_s)
 
 
 def imu_bench(args: Any) -> None:
@@ -217,27 +225,60 @@ def corridor_bench(args: Any) -> None:
 
 
 def memory_bench(args: Any) -> None:
-    import tracemalloc
-
+    """The street loop for ``--duration`` s (default 30 min), each scan simulated, registered and
+    dropped (nothing of the drive is kept but the IMU log), with a coarser LiDAR than the other
+    benches (``--columns``, default 450 per turn: about 7k points a scan) so the simulation is
+    affordable; prints the local map size and the process's peak RSS every ``--every`` scans."""
     from imuslam.lio.estimator import LioEstimator
+    from imuslam.sim.drive import T0_NS
+    from imuslam.sim.imu import ImuErrorSpec, simulate_imu
+    from imuslam.sim.lidar import Lidar3dConfig, simulate_lidar3d_scan
+    from imuslam.sim.trajectory import CarLoop
+    from imuslam.sim.world import urban_block
 
-    dur = args.duration or 300.0
-    d = drive("street", dur, args.cache)
+    dur = args.duration or 1800.0
+    rng = np.random.default_rng(1)
+    traj, world = CarLoop(), urban_block()
+    imu, _ = simulate_imu(traj, dur, rng, ImuErrorSpec.bwt901cl(), 200.0, t0_ns=T0_NS)
+    p_b_l = np.array([0.0, 0.0, 0.2])
+
+    def pose_w_l(t: Any) -> tuple[Any, Any]:  # the fixed mount of sim.drive
+        st = traj.state(t)
+        return st.R_w_b, st.p_w + st.R_w_b @ p_b_l
+
+    lcfg = Lidar3dConfig()
+    lcfg.columns = args.columns
     cfg = LioConfig(frontend=FrontEndConfig(mode="direct", scan_voxel=1.0),
-                    extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])))  # type: ignore[arg-type]  # fmt: skip
-    est = LioEstimator(cfg, true_calibration().correct(d.imu))
-    tracemalloc.start()
-    print("| scans | drive s | local map points | map MB | traced MB | max RSS MB |")
-    print("|---|---|---|---|---|---|")
-    t_ref = d.imu.t_ns[0]
-    for k, s in enumerate(d.scans):
-        t = (s.t_ns - t_ref) * 1e-9 + s.t_offset_s.astype(np.float64)
-        est.register_scan(s.points_l.astype(np.float64), t, s.ring)
-        if (k + 1) % 500 == 0:
-            cur, _ = tracemalloc.get_traced_memory()
+                    extrinsic=ExtrinsicConfig(p_i_l=tuple(p_b_l)))  # type: ignore[arg-type]  # fmt: skip
+    est = LioEstimator(cfg, true_calibration().correct(imu))
+    n = int(np.floor(dur * lcfg.rate_hz + 1e-9))
+    print(
+        f"street loop {dur:g} s, {n} scans, VLP-16 with {lcfg.columns} columns, direct mode, full state"
+    )
+    print(
+        "| scans | drive min | local map points | map MB | peak RSS MB | position error m (from the filter start) | CPU s |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    c0 = time.process_time()
+    anchor = None
+    for k in range(n):
+        sc = simulate_lidar3d_scan(world, pose_w_l, k / lcfg.rate_hz, lcfg, rng)
+        t = k / lcfg.rate_hz + sc.t_offset_s.astype(np.float64)
+        T = est.register_scan(sc.points_l.astype(np.float64), t, sc.ring)
+        st = traj.state(np.array([float(t.max())]))
+        T_true = np.eye(4)
+        T_true[:3, :3], T_true[:3, 3] = st.R_w_b[0], st.p_w[0]
+        if anchor is None and est.eskf is not None:  # the filter's world against the truth's, once
+            anchor = T @ np.linalg.inv(T_true)
+        if (k + 1) % args.every == 0 or k == n - 1:
+            err = (
+                float(np.linalg.norm((anchor @ T_true)[:3, 3] - T[:3, 3]))
+                if anchor is not None
+                else np.nan
+            )
             rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-            print(f"| {k + 1} | {(k + 1) / 10:.0f} | {len(est.map)} | {est.map.nbytes / 1e6:.1f} | "
-                  f"{cur / 1e6:.1f} | {rss:.0f} |")  # fmt: skip
+            print(f"| {k + 1} | {(k + 1) / lcfg.rate_hz / 60:.1f} | {len(est.map)} | {est.map.nbytes / 1e6:.1f} | "
+                  f"{rss:.0f} | {err:.2f} | {time.process_time() - c0:.0f} |", flush=True)  # fmt: skip
 
 
 def main() -> None:
@@ -245,6 +286,8 @@ def main() -> None:
     ap.add_argument("what", choices=["main", "imu", "rotating", "corridor", "memory"])
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/imuslam-bench-lio"))
+    ap.add_argument("--columns", type=int, default=450, help="memory: LiDAR columns per turn")
+    ap.add_argument("--every", type=int, default=1000, help="memory: scans between table rows")
     args = ap.parse_args()
     t0 = time.perf_counter()
     {"main": main_bench, "imu": imu_bench, "rotating": rotating_bench, "corridor": corridor_bench,

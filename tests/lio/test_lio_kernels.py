@@ -16,6 +16,7 @@ from imuslam.lio.features import (
     voxel_downsample,
 )
 from imuslam.lio.features import _smoothness as smoothness_kernel
+from imuslam.lio.ivox import IncrementalVoxelMap
 from imuslam.lio.residuals import (
     fit_lines,
     fit_planes,
@@ -191,6 +192,44 @@ def test_voxel_map_caps_voxels_and_prunes_by_distance() -> None:
     assert len(vm) == 54 and vm.add(far) == 1  # the pruned voxel is free again
     idx = voxel_downsample(pts, 1.0)
     assert len(idx) == 27
+
+
+def test_ivox_matches_the_voxel_map_and_brute_force() -> None:
+    """The incremental voxel-hash map admits the same points as the k-d tree map (one per voxel), grows
+    its table without losing any, and its 27-cell search equals brute force wherever the k nearest lie
+    within one cell (the guarantee); beyond it every returned neighbour is a true stored point and its
+    distance is exact (only farther ones may be missed)."""
+    rng = np.random.default_rng(8)
+    pts = rng.uniform(-15, 15, size=(30000, 3))
+    iv = IncrementalVoxelMap(0.5, 1, 100.0, nsub=2, capacity=64)  # forces several re-hashes
+    vm = VoxelMap(0.5, 1, 100.0)
+    for chunk in np.array_split(pts, 9):
+        assert iv.add(chunk) == vm.add(chunk)
+    assert len(iv) == len(vm)
+    np.testing.assert_array_equal(np.unique(iv.points, axis=0), np.unique(vm.points, axis=0))
+    q = rng.uniform(-15, 15, size=(400, 3))
+    idx, d2 = iv.knn(q, 5)
+    full = np.sum((q[:, None] - vm.points[None]) ** 2, axis=2)
+    ref = np.sort(full, axis=1)[:, :5]
+    inside = ref[:, 4] <= (2 * 0.5) ** 2
+    assert inside.sum() > 20
+    np.testing.assert_allclose(d2[inside], ref[inside], rtol=1e-12)
+    found = idx >= 0
+    got = np.sum((iv.storage[idx[found]] - np.repeat(q, 5, axis=0)[found.ravel()]) ** 2, axis=1)
+    np.testing.assert_allclose(got, d2[found], rtol=1e-12)
+    assert np.all(d2[found] >= np.sort(full, axis=1)[:, :5][found] - 1e-12)
+    # pruning keeps exactly the points within range; a change of frame moves them and re-applies the
+    # one-point-per-voxel rule in the new voxels
+    n_far = int(np.sum(np.linalg.norm(iv.points - [10.0, 0, 0], axis=1) > 12.0))
+    iv.max_range = 12.0
+    assert iv.prune(np.array([10.0, 0, 0])) == n_far
+    before = iv.points
+    R = exp(np.array([0.1, -0.2, 0.3]))
+    iv.transform(R, np.array([1.0, 2.0, 3.0]))
+    moved = before @ R.T + [1.0, 2.0, 3.0]
+    assert len(iv) == len(voxel_downsample(moved, 0.5))
+    d_near = np.min(np.sum((iv.points[:, None] - moved[None]) ** 2, axis=2), axis=1)
+    assert np.all(d_near < 1e-20)
 
 
 def test_pcd_and_ply_round_trip(tmp_path: object) -> None:

@@ -93,24 +93,49 @@ def test_divergence_names_the_scan(street: LidarDrive) -> None:
         LioPipeline(MemoryDataset(street.scans, bad, "sim"), cfg, progress=False).run()
 
 
-def test_nan_and_empty_scans_are_counted(street: LidarDrive) -> None:
+def _lidar_only(scans: list) -> object:  # type: ignore[type-arg]
+    cfg = LioConfig(frontend=FrontEndConfig(mode="direct"), use_imu=False)
+    return LioPipeline(MemoryDataset(scans, None, "sim"), cfg, progress=False).run()
+
+
+def test_nan_points_are_dropped_and_counted(street: LidarDrive) -> None:
     from dataclasses import replace
 
-    scans = [replace(s) for s in street.scans[:12]]
+    scans = list(street.scans[:12])
     pts = scans[3].points_l.copy()
     pts[:100] = np.nan
+    pts[100:107] = 0.0  # a driver's "no return"
     scans[3] = replace(scans[3], points_l=pts)
-    scans[5] = replace(scans[5], points_l=scans[5].points_l[:0], t_offset_s=scans[5].t_offset_s[:0],
-                       ring=scans[5].ring[:0], intensity=scans[5].intensity[:0])  # fmt: skip
-    cfg = _config(street, frontend=FrontEndConfig(mode="direct"), use_imu=False)
-    res = LioPipeline(MemoryDataset(scans, None, "sim"), cfg, progress=False).run()
-    assert "100 NaN / infinite / zero points dropped" in res.warnings
-    assert "1 scans with fewer than 100 valid points skipped" in res.warnings
-    assert len(res.trajectory) == 11
+    res = _lidar_only(scans)
+    assert "107 NaN / infinite / zero points dropped" in res.warnings  # type: ignore[attr-defined]
+    assert len(res.trajectory) == 12  # type: ignore[attr-defined]
+    assert np.all(np.isfinite(res.trajectory.p_w))  # type: ignore[attr-defined]
+
+
+def test_empty_scans_are_skipped_and_counted(street: LidarDrive) -> None:
+    from dataclasses import replace
+
+    scans = list(street.scans[:12])
+    s5 = scans[5]
+    scans[5] = replace(s5, points_l=s5.points_l[:0], t_offset_s=s5.t_offset_s[:0], ring=s5.ring[:0],
+                       intensity=s5.intensity[:0])  # fmt: skip
+    res = _lidar_only(scans)
+    assert "1 scans with fewer than 100 valid points skipped" in res.warnings  # type: ignore[attr-defined]
+    assert len(res.trajectory) == 11  # type: ignore[attr-defined]
+
+
+def test_scans_out_of_order_in_memory_are_skipped(street: LidarDrive) -> None:
+    scans = list(street.scans[:12])
+    scans[6], scans[7] = scans[7], scans[6]
+    res = _lidar_only(scans)
+    assert "1 scans out of time order skipped" in res.warnings  # type: ignore[attr-defined]
+    assert len(res.trajectory) == 11  # type: ignore[attr-defined]
 
 
 @pytest.mark.xfail(
-    strict=True, reason="known: the LIO covariance is overconfident (NEES ~1e3 over 6 s, README)"
+    strict=True,
+    reason="known: the LIO covariance is overconfident (mean NEES 2.7e3 against a bound of 7.6 over "
+    "6 s; 258 when anchored at the filter start; README, Covariance)",
 )
 def test_covariance_is_not_overconfident(street: LidarDrive) -> None:
     """NEES of the [attitude, position] error against the filter's own 6 x 6 covariance block, per scan

@@ -80,7 +80,9 @@ def register(app: typer.Typer) -> None:
             from imuslam.lio.datasets import BagLidarDataset
 
             data = BagLidarDataset(source, points_topic, imu_topic, use_imu=cfg.use_imu)
-            if gt is not None and gt.startswith("/"):
+            if (
+                gt is not None and gt.startswith("/") and not Path(gt).exists()
+            ):  # a topic, not a file
                 from imuslam.io.bag import Bag
 
                 with Bag(source) as b:
@@ -119,8 +121,8 @@ def register(app: typer.Typer) -> None:
                 rows.append(
                     ["KITTI drift (100-800 m)", f"{metrics['kitti_mean_trans_pct']:.4g}", "%"]
                 )
-        for w in res.warnings:
-            rows.append(["warning", w, ""])
         console.print(table(f"imuslam lio {source}", ["quantity", "value", "unit"], rows))
+        for w in res.warnings:
+            console.print(f"warning: {w}", markup=False, highlight=False, soft_wrap=True)
         console.print(f"wrote {out}/trajectory.tum, map.ply, map.pcd, config.yaml, scans.csv, trajectory.png"
                       + (", metrics.json" if metrics else ""))  # fmt: skip

@@ -52,13 +52,14 @@ class FrontEndConfig(BaseModel):
 
 class MapConfig(BaseModel):
     """voxel: map voxel size, m; max_per_voxel: points per voxel; radius: local map radius, m;
-    knn: the k-nearest-neighbour library."""
+    knn: the k-nearest-neighbour search: ``ivox`` (the incremental voxel-hash map searched over the
+    27 cells around a query, ``lio.ivox``, never rebuilt) or a k-d tree library rebuilt after each insertion."""
 
     model_config = ConfigDict(extra="forbid")
     voxel: float = Field(0.5, gt=0)
     max_per_voxel: int = Field(1, ge=1)
     radius: float = Field(100.0, gt=0)
-    knn: Literal["pykdtree", "small_gicp", "scipy"] = "pykdtree"
+    knn: Literal["ivox", "pykdtree", "small_gicp", "scipy"] = "ivox"
 
 
 class FilterConfig(BaseModel):
@@ -67,7 +68,9 @@ class FilterConfig(BaseModel):
     lidar_dof: independent residuals a scan is worth (map and plane-fit errors are shared by many points,
     so thousands of residuals do not carry thousands of independent errors; R is scaled by M / lidar_dof
     when a scan has M > lidar_dof residuals, which keeps the covariance consistent, see NEES in the tests);
-    max_iterations and the convergence threshold of the iterated update (on |dx|); max_speed /
+    max_iterations and the convergence threshold of the iterated update (on |dx|); reassociate: an
+    iterate searches the map's neighbours again only when it moved a point 20 m away by more than this
+    since the last search, m (0: at every iterate, as FAST-LIO2); max_speed /
     max_rate bound a physically possible state (divergence check)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -79,6 +82,7 @@ class FilterConfig(BaseModel):
     lidar_std: float = Field(0.05, gt=0)
     lidar_dof: float = Field(30.0, gt=0)
     max_iterations: int = Field(5, ge=1)
+    reassociate: float = Field(0.02, ge=0)
     converge: float = Field(1e-3, gt=0)
     max_speed: float = Field(60.0, gt=0)
     g: float = Field(9.80665, gt=0)

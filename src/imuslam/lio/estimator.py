@@ -33,7 +33,7 @@ from imuslam.lio.config import LioConfig
 from imuslam.lio.deskew import deskew
 from imuslam.lio.frontend import select_points
 from imuslam.lio.lidar_only import LidarOdometry
-from imuslam.lio.matcher import LocalMap, huber_weights
+from imuslam.lio.matcher import Correspondences, LocalMap, huber_weights
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -52,15 +52,22 @@ def level_rotation(f_b: FloatArray) -> FloatArray:
 
 
 class LidarMeasurement:
-    """Point-to-plane / point-to-line residuals of one scan against the local map, re-associated at each
-    iterate; ``linearize`` returns the innovation -r (M,), H (M, dim) and the diagonal R (M,) inflated
+    """Point-to-plane / point-to-line residuals of one scan against the local map, re-associated at an
+    iterate whose pose moved a point at ``reach`` m by more than ``reassociate`` m since the last
+    association (else the same planes are re-evaluated at the new pose: the nearest neighbours of a few
+    mm moved points are the same, and the search is the cost); ``linearize`` returns the innovation -r (M,), H (M, dim) and the diagonal R (M,) inflated
     by the Huber weights (iteratively reweighted least squares)."""
 
     kind = "lidar"
 
     def __init__(self, local_map: LocalMap, surf_i: FloatArray, edge_i: FloatArray, std: float,
-                 huber: float, dof: float = np.inf) -> None:  # fmt: skip
+                 huber: float, dof: float = np.inf, reassociate: float = 0.0,
+                 reach: float = 20.0) -> None:  # fmt: skip
         self.map = local_map
+        self.reassociate = reassociate
+        self.reach = reach
+        self._at: tuple[FloatArray, FloatArray] | None = None
+        self._corr: Correspondences | None = None
         self.surf_i = surf_i
         self.edge_i = edge_i
         self.var = std * std
@@ -68,11 +75,23 @@ class LidarMeasurement:
         self.dof = dof
         self.n_corr = 0
         self.n_calls = 0
+        self.n_assoc = 0
+
+    def _moved(self, x: InsState) -> float:
+        """How far the pose moved a point at ``reach`` m since the last association, m (bound)."""
+        assert self._at is not None
+        R0, p0 = self._at
+        c = np.clip((np.trace(R0.T @ x.R_n_b) - 1.0) / 2.0, -1.0, 1.0)
+        return float(np.linalg.norm(x.p_n - p0) + self.reach * np.arccos(c))
 
     def linearize(
         self, x: InsState, layout: ErrorLayout
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        corr = self.map.associate(self.surf_i, self.edge_i, x.R_n_b, x.p_n)
+        corr = self._corr
+        if corr is None or self._at is None or self._moved(x) > self.reassociate:
+            corr = self.map.associate(self.surf_i, self.edge_i, x.R_n_b, x.p_n)
+            self._corr, self._at = corr, (x.R_n_b.copy(), x.p_n.copy())
+            self.n_assoc += 1
         self.n_corr = len(corr)
         self.n_calls += 1
         r, J = corr.system(x.R_n_b, x.p_n)
@@ -134,7 +153,7 @@ class LioEstimator:
         i0, i1 = np.searchsorted(t, t0, side="right"), np.searchsorted(t, t1, side="left")
         inner = np.arange(i0, i1)
         if i1 > i0 and np.max(np.diff(t[max(i0 - 1, 0) : min(i1 + 1, len(t))])) > 0.1:
-            log.warning("IMU gap of more than 0.1 s before t = %.3f s", t1)
+            log.debug("IMU gap of more than 0.1 s before t = %.3f s", t1)
         ts = np.concatenate([[t0], t[inner], [t1]])
         acc = np.column_stack([np.interp(ts, t, self.imu.accel[:, a]) for a in range(3)])
         gyr = np.column_stack([np.interp(ts, t, self.imu.gyro[:, a]) for a in range(3)])
@@ -252,7 +271,7 @@ class LioEstimator:
         R_i_l, p_i_l = self.T_i_l[:3, :3], self.T_i_l[:3, 3]
         surf_i, edge_i = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
         meas = LidarMeasurement(self.map, surf_i, edge_i, self.config.filter.lidar_std, 0.2,
-                                self.config.filter.lidar_dof)  # fmt: skip
+                                self.config.filter.lidar_dof, self.config.filter.reassociate)  # fmt: skip
         fc = self.config.filter
         # at least as many rows as states, else the IMU carries the filter through (corridors, fog)
         meas.linearize(eskf.x, self.layout)

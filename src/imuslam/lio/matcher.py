@@ -6,10 +6,12 @@ the LiDAR-only Gauss-Newton) uses; and the insertion of a registered scan into t
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.lio.ivox import IncrementalVoxelMap
 from imuslam.lio.residuals import fit_lines, fit_planes, point_to_plane_system
 from imuslam.lio.voxelmap import KnnBackend, VoxelMap
 
@@ -59,11 +61,18 @@ class LocalMap:
         voxel_size: float = 0.5,
         max_range: float = 100.0,
         max_per_voxel: int = 1,
-        backend: KnnBackend = "pykdtree",
+        backend: KnnBackend | Literal["ivox"] = "ivox",
         params: MatchParams | None = None,
     ) -> None:
-        self.surf = VoxelMap(voxel_size, max_per_voxel, max_range, backend)
-        self.edge = VoxelMap(voxel_size * 0.5, max_per_voxel, max_range, backend)
+        self.surf: VoxelMap | IncrementalVoxelMap
+        self.edge: VoxelMap | IncrementalVoxelMap
+        if backend == "ivox":
+            # edges are sparse: cells of 4 voxels a side so the 27 cells reach 1 m around a query
+            self.surf = IncrementalVoxelMap(voxel_size, max_per_voxel, max_range, nsub=2)
+            self.edge = IncrementalVoxelMap(voxel_size * 0.5, max_per_voxel, max_range, nsub=4)
+        else:
+            self.surf = VoxelMap(voxel_size, max_per_voxel, max_range, backend)
+            self.edge = VoxelMap(voxel_size * 0.5, max_per_voxel, max_range, backend)
         self.params = params or MatchParams()
 
     def __len__(self) -> int:
@@ -81,9 +90,11 @@ class LocalMap:
             q = pts @ R_w_i.T + p_w
             nbr, d2 = vmap.knn(q, pr.k)
             if kind == 0:
-                n, c, ok = fit_planes(q, nbr, d2, vmap.points, pr.max_nbr_dist**2, pr.max_plane_res)
+                n, c, ok = fit_planes(
+                    q, nbr, d2, vmap.storage, pr.max_nbr_dist**2, pr.max_plane_res
+                )
             else:
-                n, c, ok = fit_lines(q, nbr, d2, vmap.points, pr.max_nbr_dist**2, pr.line_ratio)
+                n, c, ok = fit_lines(q, nbr, d2, vmap.storage, pr.max_nbr_dist**2, pr.line_ratio)
             r = np.einsum("mk,mk->m", n, q - c)
             ok &= np.abs(r) < pr.max_residual
             out_p.append(pts[ok])

@@ -40,7 +40,7 @@ class LidarDataset(Protocol):
 @dataclass
 class ScanStats:
     """Per scan: stamp of its end (ns), points read, dropped (NaN / zero), registered, iterations,
-    correspondences and the wall time of the estimator step, s."""
+    correspondences, the wall time of the estimator step, s, and its CPU time (process), s."""
 
     t_ns: int
     n_points: int
@@ -49,6 +49,7 @@ class ScanStats:
     iterations: int
     n_corr: int
     time_s: float
+    cpu_s: float = 0.0
 
 
 @dataclass
@@ -69,6 +70,12 @@ class LioResult:
         t = sum(s.time_s for s in self.stats)
         return len(self.stats) / t if t > 0 else float("nan")
 
+    @property
+    def scans_per_cpu_s(self) -> float:
+        """Scans per second of CPU time of the estimator step (all threads of the process)."""
+        t = sum(s.cpu_s for s in self.stats)
+        return len(self.stats) / t if t > 0 else float("nan")
+
 
 def clean_scan(
     scan: Scan3d, index: int
@@ -84,6 +91,17 @@ def clean_scan(
     ok = np.isfinite(p).all(axis=1) & np.isfinite(t) & (np.abs(p).sum(axis=1) > 0)
     ring = np.asarray(scan.ring)[ok] if len(scan.ring) == len(p) and len(p) else None
     return p[ok], t[ok], ring, int(len(p) - ok.sum())
+
+
+def imu_gaps(t_s: FloatArray, limit_s: float = 0.1) -> str:
+    """A warning (or "") counting the IMU gaps longer than ``limit_s`` in the sample times ``t_s`` (s):
+    the filter propagates across them on interpolated samples, so the prior there is weaker."""
+    dt = np.diff(np.asarray(t_s, dtype=np.float64))
+    big = np.flatnonzero(dt > limit_s)
+    if not len(big):
+        return ""
+    i = int(big[np.argmax(dt[big])])
+    return (f"{len(big)} IMU gaps longer than {limit_s:g} s (longest {dt[i]:.2f} s at t = {t_s[i]:.2f} s)")  # fmt: skip
 
 
 class LioPipeline:
@@ -166,12 +184,12 @@ class LioPipeline:
                 n_back += 1
                 continue
             t_s = (stamp - t_ref) * 1e-9 + toff
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             try:
                 T = est.register_scan(pts, t_s, ring)
             except EstimatorError:
                 raise
-            dt = time.perf_counter() - t0
+            dt, dc = time.perf_counter() - t0, time.process_time() - c0
             if not np.all(np.isfinite(T)):
                 from imuslam.errors import FilterDivergence
 
@@ -183,7 +201,7 @@ class LioPipeline:
             t_ns.append(end_ns)
             poses.append(T_w)
             stats.append(ScanStats(end_ns, len(pts) + dropped, dropped, est.last_n_used, est.last_iterations,
-                                   est.last_n_corr, dt))  # fmt: skip
+                                   est.last_n_corr, dt, dc))  # fmt: skip
             if k % 5 == 0:
                 used = pts[voxel_downsample(pts, self.map_voxel)]
                 gmap.add(used @ T[:3, :3].T + T[:3, 3])
@@ -203,6 +221,10 @@ class LioPipeline:
             warnings.append(f"{n_nan} NaN points dropped by the reader")
         if n_back:
             warnings.append(f"{n_back} scans out of time order skipped")
+        if not lidar_only:
+            gap = imu_gaps(self.imu.t_s)  # type: ignore[union-attr]
+            if gap:
+                warnings.append(gap)
         for w in warnings:
             log.warning("%s: %s", self.dataset.name, w)
         if span is not None and not poses and lidar_span:

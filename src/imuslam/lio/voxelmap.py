@@ -146,5 +146,10 @@ class VoxelMap:
         return self._index.query(q_w, k)
 
     @property
+    def storage(self) -> FloatArray:
+        """The points that ``knn``'s indices index."""
+        return self.points
+
+    @property
     def nbytes(self) -> int:
         return int(self.points.nbytes) + 16 * len(self._counts)
