@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
-from scipy.stats import chi2
+from scipy.special import chdtri  # chi-square quantile; scipy.stats costs ~1 s to import
 
 from imuslam.imu.model import misalignment_matrix
 
@@ -360,7 +360,7 @@ def joint_refine(
             a, b = bounds[k], bounds[k + 1]
             rho = max(dof[k] - float(hat[a:b].sum()), 1.0)
             factors[k] = float(r[a:b] @ r[a:b]) / rho
-            if factors[k] * rho > float(chi2.ppf(0.997, rho)):
+            if factors[k] * rho > float(chdtri(rho, 1.0 - 0.997)):
                 c[a:b] = factors[k]
         if np.any(c != 1.0):
             cov_free = cov_free @ (J.T @ (J * c[:, None])) @ cov_free
