@@ -113,6 +113,15 @@ def test_demo(tmp_path: Path) -> None:
 
     runs = {r["variant"]: r for r in json.loads((tmp_path / "d" / "ins_benefit.json").read_text())}
     assert (tmp_path / "d" / "ins_benefit.png").exists() and len(runs) == 5
+    # metrics.json: the INS rows as ins_benefit.json, and the calibration's errors against the truth
+    metrics = json.loads((tmp_path / "d" / "metrics.json").read_text())
+    assert metrics["ins_benefit"] == list(runs.values())
+    assert (tmp_path / "d" / "config.yaml").exists()
+    # every parameter against the simulator's truth within 5 of the fit's own 1-sigma (the demo's
+    # calibration is consistent: its error/sigma column)
+    for kind in ("accel", "gyro"):
+        par = metrics[kind]
+        assert len(par) == 9 and all(abs(p["error"]) < 5 * p["sigma"] for p in par.values()), par
     # progress is shown before the long steps, and the report shows the INS result it computed
     assert r.output.index("compiles the numerical kernels") < r.output.index("Accelerometer")
     report = (tmp_path / "d" / "report.html").read_text()

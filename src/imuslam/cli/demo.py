@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import html
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -32,7 +33,12 @@ def register(app: typer.Typer) -> None:
 
         from imuslam.demo import ins_benefit
         from imuslam.imu.calibrate import CalibrationConfig, calibrate
-        from imuslam.imu.model import ImuCalibration, TriadModel
+        from imuslam.imu.model import (
+            ACCEL_PARAM_NAMES,
+            GYRO_PARAM_NAMES,
+            ImuCalibration,
+            TriadModel,
+        )
         from imuslam.io.figures import save_figure
         from imuslam.io.load import write_imu
         from imuslam.io.results import results_folder
@@ -81,12 +87,33 @@ def register(app: typer.Typer) -> None:
             write_outputs(res, sim.log, tmp, extra_html=_ins_html(title, cols, rows),
                           truth_accel=truth.accel_params, truth_gyro=truth.gyro_params)  # fmt: skip
             save_figure(fig, tmp / "ins_benefit.png")
-            write_json(tmp / "ins_benefit.json", [{"variant": r.name, "attitude_err_deg": r.attitude_err_deg,
-                                                   "position_err_m": r.position_err_m} for r in runs])  # fmt: skip
+            ins_rows = [{"variant": r.name, "attitude_err_deg": r.attitude_err_deg,
+                         "position_err_m": r.position_err_m} for r in runs]  # fmt: skip
+            write_json(tmp / "ins_benefit.json", ins_rows)
+            # metrics.json as every command writes it: the calibration against the simulator's truth
+            # (estimate - truth per parameter, and the fit's 1-sigma) and the INS runs.
+            cal = res.calibration
+            write_json(tmp / "metrics.json", {
+                "accel": _param_metrics(ACCEL_PARAM_NAMES, cal.accel_params, truth.accel_params, cal.cov_accel),
+                "gyro": _param_metrics(GYRO_PARAM_NAMES, cal.gyro_params, truth.gyro_params, cal.cov_gyro),
+                "ins_benefit": ins_rows,
+            })  # fmt: skip
         console.print(
             f"wrote {out}/report.html (calibration and INS), calibration.yaml, acc.calib, gyro.calib, "
-            "raw and corrected MCAP bags, ins_benefit.png, ins_benefit.json"
+            "raw and corrected MCAP bags, ins_benefit.png, ins_benefit.json, config.yaml, metrics.json"
         )
+
+
+def _param_metrics(
+    names: tuple[str, ...], est: Any, truth: Any, cov: Any
+) -> dict[str, dict[str, float | None]]:
+    """Per parameter: the estimate's error against the truth and the fit's 1-sigma (None without a
+    covariance)."""
+    import numpy as np
+
+    sig = [None] * len(names) if cov is None else np.sqrt(np.diag(cov)).tolist()
+    err = (np.asarray(est) - np.asarray(truth)).tolist()
+    return {n: {"error": e, "sigma": s} for n, e, s in zip(names, err, sig, strict=True)}
 
 
 def _ins_html(title: str, cols: list[str], rows: list[list[str]]) -> str:
