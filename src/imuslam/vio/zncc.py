@@ -86,32 +86,6 @@ def _score(img: F32Array, U: int, V: int, h: int, tpl: FloatArray) -> float:  # 
     return st / np.sqrt(var)
 
 
-@nb.njit(cache=True)
-def _score_at(
-    img: F32Array, u: float, v: float, h: int, tpl: FloatArray
-) -> float:  # pragma: no cover
-    """ZNCC of a normalised template with the bilinear patch of ``img`` centred at sub-pixel (u, v)."""
-    H, W = img.shape
-    if u - h < 0 or v - h < 0 or u + h + 1 >= W - 1 or v + h + 1 >= H - 1:
-        return -2.0
-    n = (2 * h + 1) * (2 * h + 1)
-    s = 0.0
-    ss = 0.0
-    st = 0.0
-    k = 0
-    for dv in range(-h, h + 1):
-        for du in range(-h, h + 1):
-            x = _bilinear(img, u + du, v + dv)
-            s += x
-            ss += x * x
-            st += x * tpl[k]
-            k += 1
-    var = ss - s * s / n
-    if var < 1e-6 * n:
-        return -1.0
-    return st / np.sqrt(var)
-
-
 @nb.njit(cache=True, fastmath=True)
 def _zncc_pair(
     a: F32Array, ua: float, va: float, b: F32Array, ub: float, vb: float, h: int
