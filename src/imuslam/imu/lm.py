@@ -103,7 +103,7 @@ def levenberg_marquardt(
             J = np.asarray(jac(x), dtype=np.float64)
             Js = J / d
             A = Js.T @ Js
-            mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            mu *= max(0.1, 1.0 - (2.0 * rho - 1.0) ** 3)
             nu = 2.0
             if small:
                 message, success = "the cost reduction is below ftol", True
