@@ -22,24 +22,27 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, Field, field_validator
-from scipy.optimize import least_squares
-from scipy.special import chdtri  # chi-square quantile; scipy.stats costs ~1 s to import
 
 from imuslam.errors import InputError
-from imuslam.imu.joint import JointFit, joint_refine, measured_noise
+from imuslam.imu.lm import levenberg_marquardt
 from imuslam.imu.model import (
     ACCEL_PARAM_NAMES,
     GYRO_PARAM_NAMES,
     ImuCalibration,
     TriadModel,
     misalignment_matrix,
+)
+from imuslam.imu.rk4 import (
+    integrate_segments,
+    integrate_segments_numpy,
+    integrate_segments_sensitivity,
 )
 from imuslam.imu.static import (
     StaticDetection,
@@ -50,9 +53,12 @@ from imuslam.imu.static import (
 )
 from imuslam.interfaces.imu import ImuLog
 
+if TYPE_CHECKING:
+    from imuslam.imu.joint import JointFit
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+Integrator = Callable[..., FloatArray]
 
 
 class CalibrationConfig(BaseModel):
@@ -263,10 +269,11 @@ def _solve_accel(
     x_scale = np.concatenate(
         [np.full(3, 1e-3), np.abs(theta0[3:6]), np.abs(theta0[3:6]) ** -1 * 1e-2]
     )
-    res = least_squares(
-        fun, theta0, jac=jac, method="lm", x_scale=x_scale, xtol=1e-12, ftol=1e-12, max_nfev=2000
+    res = levenberg_marquardt(
+        fun, theta0, jac, x_scale=x_scale, xtol=1e-12, ftol=1e-12, max_nfev=2000
     )
-    if not res.success:
+    x, ok, message = res.x, res.success, res.message
+    if not ok:
         # Poses clustered in a few directions leave the norm fit a valley along which LM can walk to
         # the degenerate solution (scales to zero, bias to infinity). Retry inside a physical box:
         # misalignments within 0.3 rad, scales within a factor 2, offsets within 0.5 g of the guess.
@@ -274,165 +281,19 @@ def _solve_accel(
         lo = np.concatenate([np.full(3, -0.3), 0.5 * theta0[3:6], theta0[6:9] - half_b])
         hi = np.concatenate([np.full(3, 0.3), 2.0 * theta0[3:6], theta0[6:9] + half_b])
         lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
-        res = least_squares(
+        from scipy.optimize import least_squares  # only on this rare path: ~0.5 s to import
+
+        box = least_squares(
             fun, theta0, jac=jac, method="trf", bounds=(lo, hi), x_scale=x_scale, xtol=1e-12,
             ftol=1e-12, max_nfev=2000,
         )  # fmt: skip
-    r, J = accel_residual_jacobian(res.x, samples, g, sign)
-    return res.x, r, J, bool(res.success and np.all(np.isfinite(res.x))), str(res.message)
+        x, ok, message = box.x, bool(box.success), str(box.message)
+    r, J = accel_residual_jacobian(x, samples, g, sign)
+    return x, r, J, bool(ok and np.all(np.isfinite(x))), message
 
 
 # ----------------------------------------------------------------------------------------------
 # Gyroscope
-
-
-@numba.njit(cache=True, inline="always")
-def _qdot(
-    qw: float, qx: float, qy: float, qz: float, wx: float, wy: float, wz: float
-) -> tuple[float, float, float, float]:  # pragma: no cover - compiled
-    """``0.5 q (x) [0, w]``."""
-    return (
-        0.5 * (-qx * wx - qy * wy - qz * wz),
-        0.5 * (qw * wx + qy * wz - qz * wy),
-        0.5 * (qw * wy - qx * wz + qz * wx),
-        0.5 * (qw * wz + qx * wy - qy * wx),
-    )
-
-
-@numba.njit(cache=True, parallel=True)
-def _rk4_segments(
-    w: FloatArray,
-    t_s: FloatArray,
-    segs: IntArray,
-    Ms: FloatArray,
-    offs: FloatArray,
-    Gs: FloatArray,
-    f: FloatArray,
-) -> FloatArray:  # pragma: no cover - compiled
-    """Integrated rotations R_start_end (P, S, 3, 3) of ``M_p (w - o_p) - G_p f`` over each segment [a, b].
-
-    RK4 on the quaternion with the rate at the step midpoint taken as the mean of its ends
-    (Tedaldi 2014, eq. 14); the slow reference is ``imuslam.geometry.rk4_integrate_gyro``.
-    """
-    P = Ms.shape[0]
-    S = segs.shape[0]
-    out = np.empty((P, S, 3, 3))
-    for ps in numba.prange(P * S):  # every (parameter set, segment) pair is independent
-        p = ps // S
-        s = ps % S
-        M = Ms[p]
-        G = Gs[p]
-        o0, o1, o2 = offs[p, 0], offs[p, 1], offs[p, 2]
-        a, b = segs[s, 0], segs[s, 1]
-        qw, qx, qy, qz = 1.0, 0.0, 0.0, 0.0
-        v0, v1, v2 = w[a, 0] - o0, w[a, 1] - o1, w[a, 2] - o2
-        f0, f1, f2 = f[a, 0], f[a, 1], f[a, 2]
-        x0 = (
-            M[0, 0] * v0
-            + M[0, 1] * v1
-            + M[0, 2] * v2
-            - (G[0, 0] * f0 + G[0, 1] * f1 + G[0, 2] * f2)
-        )
-        y0 = (
-            M[1, 0] * v0
-            + M[1, 1] * v1
-            + M[1, 2] * v2
-            - (G[1, 0] * f0 + G[1, 1] * f1 + G[1, 2] * f2)
-        )
-        z0 = (
-            M[2, 0] * v0
-            + M[2, 1] * v1
-            + M[2, 2] * v2
-            - (G[2, 0] * f0 + G[2, 1] * f1 + G[2, 2] * f2)
-        )
-        for k in range(a, b):
-            v0, v1, v2 = w[k + 1, 0] - o0, w[k + 1, 1] - o1, w[k + 1, 2] - o2
-            f0, f1, f2 = f[k + 1, 0], f[k + 1, 1], f[k + 1, 2]
-            x1 = (
-                M[0, 0] * v0
-                + M[0, 1] * v1
-                + M[0, 2] * v2
-                - (G[0, 0] * f0 + G[0, 1] * f1 + G[0, 2] * f2)
-            )
-            y1 = (
-                M[1, 0] * v0
-                + M[1, 1] * v1
-                + M[1, 2] * v2
-                - (G[1, 0] * f0 + G[1, 1] * f1 + G[1, 2] * f2)
-            )
-            z1 = (
-                M[2, 0] * v0
-                + M[2, 1] * v1
-                + M[2, 2] * v2
-                - (G[2, 0] * f0 + G[2, 1] * f1 + G[2, 2] * f2)
-            )
-            h = t_s[k + 1] - t_s[k]
-            xm, ym, zm = 0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.5 * (z0 + z1)
-            a1 = _qdot(qw, qx, qy, qz, x0, y0, z0)
-            a2 = _qdot(
-                qw + 0.5 * h * a1[0],
-                qx + 0.5 * h * a1[1],
-                qy + 0.5 * h * a1[2],
-                qz + 0.5 * h * a1[3],
-                xm,
-                ym,
-                zm,
-            )
-            a3 = _qdot(
-                qw + 0.5 * h * a2[0],
-                qx + 0.5 * h * a2[1],
-                qy + 0.5 * h * a2[2],
-                qz + 0.5 * h * a2[3],
-                xm,
-                ym,
-                zm,
-            )
-            a4 = _qdot(qw + h * a3[0], qx + h * a3[1], qy + h * a3[2], qz + h * a3[3], x1, y1, z1)
-            c = h / 6.0
-            qw = qw + c * (a1[0] + 2.0 * a2[0] + 2.0 * a3[0] + a4[0])
-            qx = qx + c * (a1[1] + 2.0 * a2[1] + 2.0 * a3[1] + a4[1])
-            qy = qy + c * (a1[2] + 2.0 * a2[2] + 2.0 * a3[2] + a4[2])
-            qz = qz + c * (a1[3] + 2.0 * a2[3] + 2.0 * a3[3] + a4[3])
-            nrm = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-            qw, qx, qy, qz = qw / nrm, qx / nrm, qy / nrm, qz / nrm
-            x0, y0, z0 = x1, y1, z1
-        out[p, s, 0, 0] = 1 - 2 * (qy * qy + qz * qz)
-        out[p, s, 0, 1] = 2 * (qx * qy - qw * qz)
-        out[p, s, 0, 2] = 2 * (qx * qz + qw * qy)
-        out[p, s, 1, 0] = 2 * (qx * qy + qw * qz)
-        out[p, s, 1, 1] = 1 - 2 * (qx * qx + qz * qz)
-        out[p, s, 1, 2] = 2 * (qy * qz - qw * qx)
-        out[p, s, 2, 0] = 2 * (qx * qz - qw * qy)
-        out[p, s, 2, 1] = 2 * (qy * qz + qw * qx)
-        out[p, s, 2, 2] = 1 - 2 * (qx * qx + qy * qy)
-    return out
-
-
-def integrate_segments(
-    w: FloatArray,
-    t_s: FloatArray,
-    segs: IntArray,
-    Ms: FloatArray,
-    offsets: FloatArray | None = None,
-    Gs: FloatArray | None = None,
-    f: FloatArray | None = None,
-) -> FloatArray:
-    """Rotations R_start_end (P, S, 3, 3) of the rates ``Ms[p] @ (w - offsets[p]) - Gs[p] @ f`` over the
-    segments (S, 2) of samples; ``offsets`` (P, 3) default to zero, ``Gs`` (P, 3, 3) with the specific
-    force ``f`` (N, 3) to none (the g-sensitivity term)."""
-    P = Ms.shape[0]
-    offs = np.zeros((P, 3)) if offsets is None else offsets
-    if Gs is None or f is None:
-        Gs, f = np.zeros((P, 3, 3)), np.zeros_like(np.asarray(w, dtype=np.float64))
-    return _rk4_segments(
-        np.ascontiguousarray(w, dtype=np.float64),
-        np.ascontiguousarray(t_s, dtype=np.float64),
-        np.ascontiguousarray(segs, dtype=np.int64),
-        np.ascontiguousarray(Ms, dtype=np.float64),
-        np.ascontiguousarray(offs, dtype=np.float64).reshape(P, 3),
-        np.ascontiguousarray(Gs, dtype=np.float64).reshape(P, 3, 3),
-        np.ascontiguousarray(f, dtype=np.float64),
-    )
 
 
 def _gyro_M(theta: FloatArray) -> FloatArray:
@@ -447,23 +308,51 @@ def gyro_residuals(
     segs: IntArray,
     u0: FloatArray,
     u1: FloatArray,
+    integrate: Integrator = integrate_segments,
 ) -> FloatArray:
     """Gravity-direction residuals (P, 3S) ``R^T u0 - u1`` for each parameter vector of ``theta_stack``.
 
     ``theta_stack`` (P, 9 or 12): gyro misalignment (6), scale (3) and optionally a bias refinement (3);
     ``w`` (N, 3) raw rates at ``t_s``; ``segs`` (S, 2) sample ranges of the rotations between static
     poses; ``u0`` / ``u1`` (S, 3) the unit gravity directions measured before and after each one. ``R``
-    is the rotation integrated with the corrected rates (Tedaldi 2014, eq. 16-17). Used by the fit and
-    by the pose planner (``imu.poseplan``).
+    is the rotation integrated with the corrected rates (Tedaldi 2014, eq. 16-17) by ``integrate``
+    (``imu.rk4``: compiled or numpy). Used by the fit and by the pose planner (``imu.poseplan``).
     """
     P = theta_stack.shape[0]
     Ms = np.stack([_gyro_M(th) for th in theta_stack])
     if theta_stack.shape[1] == 12:
         # bias refinement: rates M (w - db); integrate each parameter set with its own shifted samples
-        R = integrate_segments(w, t_s, segs, Ms, theta_stack[:, 9:12])
+        R = integrate(w, t_s, segs, Ms, theta_stack[:, 9:12])
         return (np.einsum("psji,sj->psi", R, u0) - u1[None]).reshape(P, -1)
-    R = integrate_segments(w, t_s, segs, Ms)
+    R = integrate(w, t_s, segs, Ms)
     return (np.einsum("psji,sj->psi", R, u0) - u1[None]).reshape(P, -1)
+
+
+def gyro_residual_jacobian(
+    theta: FloatArray,
+    w: FloatArray,
+    t_s: FloatArray,
+    segs: IntArray,
+    u0: FloatArray,
+    u1: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """``gyro_residuals`` of one parameter vector (9 or 12) and its Jacobian (3S, 9 or 12), analytic.
+
+    With ``a = R^T u0`` and the rotation perturbed on the right, ``R Exp(dtheta)``, the residual moves
+    by ``a x dtheta`` (Sola et al. 2018, eq. 145); ``dtheta`` per parameter comes from
+    ``imu.rk4.integrate_segments_sensitivity``. ``M = T diag(s)`` is affine in each single parameter,
+    so ``M(theta + e_j) - M(theta)`` is its exact derivative.
+    """
+    n = theta.size
+    M = _gyro_M(theta[:9])
+    R, Z, Y = integrate_segments_sensitivity(w, t_s, segs, M, theta[9:12] if n == 12 else None)
+    a = np.einsum("sji,sj->si", R, u0)
+    dM = np.stack([_gyro_M(theta[:9] + np.eye(9)[j]) - M for j in range(9)])  # (9, 3, 3)
+    dtheta = np.einsum("siab,jab->jsi", Z, dM)  # (9, S, 3)
+    if n == 12:
+        dtheta = np.concatenate([dtheta, np.einsum("sia,aj->jsi", Y, -M)])  # rates M (w - o)
+    J = np.cross(a[None], dtheta).reshape(n, -1).T
+    return (a - u1).ravel(), J
 
 
 def _gyro_solve(
@@ -473,26 +362,48 @@ def _gyro_solve(
     segs: IntArray,
     u0: FloatArray,
     u1: FloatArray,
+    integrate: Integrator = integrate_segments,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     n = theta0.size
     step = np.concatenate([np.full(6, 1e-7), np.abs(theta0[6:9]) * 1e-7])
     if n == 12:
         step = np.concatenate([step, np.full(3, 1e-7) / np.maximum(np.abs(theta0[6:9]), 1e-12)])
-
-    def fun(th: FloatArray) -> FloatArray:
-        return gyro_residuals(th[None], w, t_s, segs, u0, u1)[0]
-
-    def jac(th: FloatArray) -> FloatArray:
-        stack = np.repeat(th[None], n + 1, axis=0)
-        stack[1:] += np.diag(step)
-        r = gyro_residuals(stack, w, t_s, segs, u0, u1)
-        return ((r[1:] - r[0]) / step[:, None]).T
-
     x_scale = np.concatenate([np.full(6, 1e-2), np.abs(theta0[6:9])])
     if n == 12:
         x_scale = np.concatenate([x_scale, 1e-3 / np.abs(theta0[6:9])])
-    res = least_squares(fun, theta0, jac=jac, method="lm", x_scale=x_scale, xtol=1e-12, ftol=1e-12)
-    return res.x, fun(res.x), jac(res.x)
+    if integrate is integrate_segments_numpy:
+        # numpy: the analytic Jacobian of one integration replaces n + 1 integrations
+        pair: dict[bytes, tuple[FloatArray, FloatArray]] = {}
+
+        def both(th: FloatArray) -> tuple[FloatArray, FloatArray]:
+            key = th.tobytes()
+            if key not in pair:
+                pair.clear()
+                pair[key] = gyro_residual_jacobian(th, w, t_s, segs, u0, u1)
+            return pair[key]
+
+        res = levenberg_marquardt(
+            lambda th: both(th)[0], theta0, lambda th: both(th)[1], x_scale=x_scale, xtol=1e-12,
+            ftol=1e-12,
+        )  # fmt: skip
+        return res.x, res.fun, res.jac
+    # LM asks for the Jacobian where it just evaluated the residual
+    last: dict[bytes, FloatArray] = {}
+
+    def fun(th: FloatArray) -> FloatArray:
+        r = gyro_residuals(th[None], w, t_s, segs, u0, u1, integrate)[0]
+        last.clear()
+        last[th.tobytes()] = r
+        return r
+
+    def jac(th: FloatArray) -> FloatArray:
+        stack = np.repeat(th[None], n, axis=0) + np.diag(step)
+        r = gyro_residuals(stack, w, t_s, segs, u0, u1, integrate)
+        r0 = last[th.tobytes()] if th.tobytes() in last else fun(th)
+        return ((r - r0) / step[:, None]).T
+
+    res = levenberg_marquardt(fun, theta0, jac, x_scale=x_scale, xtol=1e-12, ftol=1e-12)
+    return res.x, res.fun, res.jac
 
 
 def _gyro_scale_guess(
@@ -790,22 +701,20 @@ def calibrate(
             f"{log_.source}: the static poses span too few directions (gravity stays within a cone): "
             "turn the IMU about at least two axes"
         )
+    # One tedaldi fit integrates a few hundred times: numpy beats importing numba and loading its
+    # kernel (about 0.6 s of a whole process); the joint fit and its many refits use the compiled one.
+    integ: Integrator = integrate_segments if cfg.method == "joint" else integrate_segments_numpy
     s_g0 = _gyro_scale_guess(w, t_s, segs, u0, u1)
     theta_g0 = np.concatenate([np.zeros(6), np.full(3, s_g0)])
     # A one-dimensional refinement of the common scale before LM keeps LM in its basin for any unit.
     cands = s_g0 * np.linspace(0.8, 1.25, 10)
-    cost = [
-        np.sum(
-            gyro_residuals(np.concatenate([np.zeros(6), np.full(3, c)])[None], w, t_s, segs, u0, u1)
-            ** 2
-        )
-        for c in cands
-    ]
+    cand_thetas = np.concatenate([np.zeros((len(cands), 6)), np.repeat(cands[:, None], 3, 1)], 1)
+    cost = np.sum(gyro_residuals(cand_thetas, w, t_s, segs, u0, u1, integ) ** 2, axis=1)
     theta_g0[6:9] = cands[int(np.argmin(cost))]
-    R_before = integrate_segments(w, t_s, segs, _gyro_M(theta_g0)[None])[0]
+    R_before = integ(w, t_s, segs, _gyro_M(theta_g0)[None])[0]
     if cfg.estimate_gyro_bias:
         theta_g0 = np.concatenate([theta_g0, np.zeros(3)])
-    theta_g, r_g, J_g = _gyro_solve(theta_g0, w, t_s, segs, u0, u1)
+    theta_g, r_g, J_g = _gyro_solve(theta_g0, w, t_s, segs, u0, u1, integ)
     # Each residual R^T u0 - u1 has two degrees of freedom (both are unit vectors).
     cov_g_full = _cov(J_g, r_g, 2 * len(segs) - theta_g.size)
     bias_total = gyro_bias + (theta_g[9:12] if cfg.estimate_gyro_bias else 0.0)
@@ -818,7 +727,7 @@ def calibrate(
     # Two-step estimation: the gyro fit takes the accelerometer calibration (through u0, u1) and the
     # still-period bias as known. Their uncertainty is propagated into the gyro covariance
     # (Murphy & Topel 1985): d theta_g = -(J^T J)^-1 J^T D d theta_other.
-    R_fit = integrate_segments(w, t_s, segs, _gyro_M(theta_g[:9])[None])[0]
+    R_fit = integ(w, t_s, segs, _gyro_M(theta_g[:9])[None])[0]
     raw_means = np.stack([acc[s : e + 1].mean(axis=0) for s, e in iv])
 
     def resid_for_accel(th_a: FloatArray) -> FloatArray:
@@ -842,7 +751,7 @@ def calibrate(
                 [
                     (
                         _angle_free_resid(
-                            integrate_segments(w - h_b[j] * np.eye(3)[j], t_s, segs, Mfit)[0],
+                            integ(w - h_b[j] * np.eye(3)[j], t_s, segs, Mfit)[0],
                             u0,
                             u1,
                         )
@@ -862,6 +771,10 @@ def calibrate(
     drift_notes: dict[str, object] = {}
     f_c = np.zeros((1, 3))
     if cfg.method == "joint":
+        from scipy.special import chdtri  # chi-square quantile (scipy.stats costs ~1 s to import)
+
+        from imuslam.imu.joint import joint_refine, measured_noise
+
         use_g = cfg.gyro_g_sensitivity
         f_c = accel_model.apply(acc) if use_g else np.zeros((1, 3))
         # Each pose is referred to the middle sample of its interval, and the gyro is integrated from
@@ -953,7 +866,7 @@ def calibrate(
         r_a = cfg.g - np.linalg.norm(accel_model.apply(acc[idx]), axis=1)
     gyro_b = -bias_total if cfg.bias_sign == "plus" else bias_total
     gyro_model = TriadModel(misalignment_matrix(*theta_g[:6]), theta_g[6:9], gyro_b, cfg.bias_sign)
-    R_after = integrate_segments(
+    R_after = integ(
         w,
         t_s,
         segs,
