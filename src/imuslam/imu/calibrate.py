@@ -965,10 +965,11 @@ def calibrate(
                     break
                 jf = run_joint(use_g, with_drift, lam)
             log.debug("gravity-norm weight %g (norm-only fit: %.5f m/s^2)", lam, ref)
+        drift_notes["gravity_norm_weight"] = lam
         theta_a, theta_g, db = jf.theta_a, jf.theta_g, jf.db
         if with_drift:
             # the fitted bias is the one at the middle of the poses' time span
-            drift_notes = {
+            drift_notes |= {
                 "accel_bias_drift_per_s": jf.drift.tolist(),
                 "accel_bias_drift_t_ref_s": float(0.5 * (pose_t.min() + pose_t.max())),
             }
