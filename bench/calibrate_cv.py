@@ -53,7 +53,8 @@ METHODS = {
         "accel_bias_drift": False,
     },
     "imuslam joint, no g-sensitivity": {"method": "joint", "gyro_g_sensitivity": False},
-    "imuslam joint (default: measured-noise weights, G and drift if significant)": {},
+    "imuslam joint, norm weight 1 (maximum likelihood; former default)": {"norm_weight": 1.0},
+    "imuslam joint (default: measured-noise weights, G and drift if significant, norm weight auto)": {},
     "imuslam joint, measured-noise weights, constant bias": {"accel_bias_drift": False},
     "imuslam joint + accel bias drift": {"accel_bias_drift": True},
 }

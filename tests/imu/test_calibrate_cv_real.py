@@ -41,8 +41,10 @@ FILES = {
 @pytest.mark.parametrize("name", ["xsens", "t265"])
 def test_default_predicts_unseen_poses_better_than_imutk(shared_data: Path, name: str) -> None:
     """Issue 12's target: the held-out gravity-direction error at least 20 % below that of imu_tk's
-    parameters on all poses. The gravity-norm error is checked where it is met (xsens); on t265 it is
-    higher (README: the accelerometer bias drifts there), which the README reports as missed."""
+    parameters on all poses, and the gravity-norm error of the calibration fitted on all poses no higher
+    than that of imu_tk's (fitted on all poses too: like for like, both scored on the same poses). The
+    held-out norm error on t265 is higher (README: the accelerometer bias drifts there), reported as
+    missed in the README."""
     log = load_imu(shared_data / FILES[name][0], shared_data / FILES[name][1])
     ref = IMUTK[name]
     poses = detect_poses(log)
@@ -52,6 +54,5 @@ def test_default_predicts_unseen_poses_better_than_imutk(shared_data: Path, name
     cv = cross_validate(log, cfg, res.intervals)
     assert np.all(np.isfinite(cv.norm_error))
     assert cv.direction_rms_deg <= 0.8 * rms(imutk.direction_error_deg)
-    if name == "xsens":
-        own = pose_errors(log, res.calibration, poses, ref.g)
-        assert rms(own.norm_error) <= rms(imutk.norm_error)
+    own = pose_errors(log, res.calibration, poses, ref.g)
+    assert rms(own.norm_error) <= rms(imutk.norm_error)

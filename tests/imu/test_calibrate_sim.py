@@ -77,6 +77,16 @@ def test_monte_carlo_errors_consistent_with_covariance() -> None:
         nse_t = np.mean(np.square(np.asarray(err["t" + t]) / sig_t), axis=0)
         nse_j = np.mean(np.square(np.asarray(err["j" + t]) / sig_t), axis=0)
         norm_ratio[t] = float(np.mean(nse_j / nse_t))
+    boot_rng = np.random.default_rng(0)  # paired bootstrap over the runs: how sure the raw ratio is
+    boots = []
+    for _ in range(2000):
+        i = boot_rng.integers(0, N_RUNS, N_RUNS)
+        eg_j, eg_t = np.asarray(err["jg"])[i], np.asarray(err["tg"])[i]
+        boots.append(np.mean(np.mean(eg_j**2, axis=0) / np.mean(eg_t**2, axis=0)))
+    lo, hi = np.percentile(boots, [2.5, 97.5])
+    print(
+        f"gyro mean squared error ratio, 95 % bootstrap interval over the runs: [{lo:.2f}, {hi:.2f}]"
+    )
     print(f"joint / tedaldi mean squared error ratio: accel {ratio['a']:.3f}, gyro {ratio['g']:.3f}; "
           f"normalised by tedaldi's 1-sigma: accel {norm_ratio['a']:.3f}, gyro {norm_ratio['g']:.3f}; "
           f"NEES joint accel {np.mean(nees['ja']):.2f} gyro {np.mean(nees['jg']):.2f}, "

@@ -125,6 +125,23 @@ class CalibrationConfig(BaseModel):
         description="joint method: keep the g-sensitivity G only if it differs from zero significantly "
         "(Wald test, chi-square 9 dof, 99.9 %); otherwise refit without it",
     )
+    norm_weight: float | Literal["auto"] = Field(
+        "auto",
+        description="joint method: factor (>= 1) on the weight of each pose's gravity-norm error over its "
+        "measured noise (1: maximum likelihood; larger trades gyro-predicted direction for gravity norm "
+        "where an unmodelled error such as an in-session bias drift makes the two disagree); auto: 1 "
+        "unless the accelerometer residuals exceed their measured noise significantly and the fit's "
+        "gravity norm (constant bias) is worse than the norm-only fit's on the same poses, then the "
+        "smallest of 2, 4, 8 that brings it level",
+    )
+
+    @field_validator("norm_weight")
+    @classmethod
+    def _norm_weight(cls, v: float | str) -> float | str:
+        if v != "auto" and not float(v) >= 1.0:
+            raise ValueError("norm_weight must be 'auto' or a number >= 1")
+        return v
+
     min_intervals: int = Field(12, ge=9, description="fewest static intervals a threshold may give")
     gyro_margin_s: float = Field(
         0.5,
@@ -809,12 +826,13 @@ def calibrate(
 
         pose_t = t_s[(iv[:, 0] + iv[:, 1]) // 2]
 
-        def run_joint(with_g: bool, with_drift: bool) -> JointFit:
+        def run_joint(with_g: bool, with_drift: bool, norm_weight: float = 1.0) -> JointFit:
             return joint_refine(
                 pose_means, gyro_means, w, f_c, t_s, segs, pairs, theta_a, theta_g[:9], cfg.g, sign,
                 cfg.estimate_gyro_bias or cfg.gyro_g_sensitivity, with_g, integrate_segments,
                 pose_t=pose_t if with_drift else None,
                 pose_n=pose_n if cfg.weigh_by_length else None, noise=noise,
+                norm_weight=norm_weight,
             )  # fmt: skip
 
         def wald(jf: JointFit, a: int, b: int, x: FloatArray) -> float:
@@ -827,25 +845,44 @@ def calibrate(
         # Optional terms are fitted and kept only if significant (Wald test at 99.9 %): an insignificant
         # g-sensitivity or bias drift only adds variance to the parameters that matter.
         with_drift = cfg.accel_bias_drift is not False
-        jf = run_joint(use_g, with_drift)
+        lam = 1.0 if cfg.norm_weight == "auto" else float(cfg.norm_weight)
+        jf = run_joint(use_g, with_drift, lam)
         n_b = 3 if (cfg.estimate_gyro_bias or cfg.gyro_g_sensitivity) else 0
         if use_g and cfg.g_sensitivity_test:
             w_G = wald(jf, 18 + n_b, 27 + n_b, jf.G.ravel())
             if w_G < float(chdtri(9, 1.0 - 0.999)):
                 use_g = False
                 log.debug("g-sensitivity not significant (Wald %.1f): left out", w_G)
-                jf = run_joint(False, with_drift)
+                jf = run_joint(False, with_drift, lam)
+
+        def norm_rms(th: FloatArray) -> float:
+            """Gravity-norm RMS over the poses of the accelerometer ``th`` with a constant bias."""
+            T, Kd, off = _accel_model(th, sign)
+            e = np.linalg.norm(((pose_means + off) * Kd) @ T.T, axis=1) - cfg.g
+            return float(np.sqrt(np.mean(e**2)))
+
         if with_drift and cfg.accel_bias_drift == "auto":
             a = 18 + n_b + (9 if use_g else 0)
             w_d = wald(jf, a, a + 3, jf.drift)
             if w_d < float(chdtri(3, 1.0 - 0.999)):
                 with_drift = False
                 log.debug("accelerometer bias drift not significant (Wald %.1f): left out", w_d)
-                jf = run_joint(use_g, False)
+                jf = run_joint(use_g, False, lam)
+        if cfg.norm_weight == "auto" and jf.accel_misfit:
+            # An unmodelled error (in-session drift) makes the rotations and the gravity norms disagree;
+            # the calibration file keeps one constant bias, so its gravity norm is kept no worse than the
+            # norm-only (two-step) fit's on the same poses, at the least cost in direction.
+            ref = norm_rms(theta_a)
+            for lam in (2.0, 4.0, 8.0):
+                if norm_rms(jf.theta_a) <= ref:
+                    break
+                jf = run_joint(use_g, with_drift, lam)
+            log.debug("gravity-norm weight %g (norm-only fit: %.5f m/s^2)", lam, ref)
+        drift_notes["gravity_norm_weight"] = lam
         theta_a, theta_g, db = jf.theta_a, jf.theta_g, jf.db
         if with_drift:
             # the fitted bias is the one at the middle of the poses' time span
-            drift_notes = {
+            drift_notes |= {
                 "accel_bias_drift_per_s": jf.drift.tolist(),
                 "accel_bias_drift_t_ref_s": float(0.5 * (pose_t.min() + pose_t.max())),
             }

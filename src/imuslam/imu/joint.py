@@ -65,6 +65,9 @@ class JointFit:
     norm_residual: FloatArray  # (K,) |h| - g, m/s^2
     dir_residual: FloatArray  # (S, 3) R^T u_i - u_j
     iterations: int
+    # whether the accelerometer residuals exceed their measured noise significantly (chi-square, 99.7 %;
+    # False without measured noise)
+    accel_misfit: bool = False
 
 
 def _accel_h(theta_a: FloatArray, means: FloatArray, sign: float) -> FloatArray:
@@ -116,6 +119,7 @@ def joint_refine(
     pose_t: FloatArray | None = None,
     pose_n: FloatArray | None = None,
     noise: tuple[FloatArray, FloatArray, FloatArray] | None = None,
+    norm_weight: float = 1.0,
     max_iter: int = 50,
 ) -> JointFit:
     """Refine ``theta_a0`` (9,) and ``theta_g0`` (9,) jointly (see the module doc).
@@ -139,6 +143,11 @@ def joint_refine(
         tested against chi-square with ``rho_k`` degrees of freedom (99.7 %); a group whose misfit
         exceeds its noise significantly (unmodelled errors: drift, vibration) gets the sandwich covariance
         ``N^-1 J^T C J N^-1`` with ``C`` its factor, so the reported covariance stays honest either way.
+    norm_weight: factor (>= 1) on the weight of each pose's gravity-norm error ``|h_i| - g`` (the radial
+        part of its accelerometer residual): rows ``sqrt(norm_weight^2 - 1) (|h_i| - g) w_i`` are added,
+        so that part of the residual weighs ``norm_weight`` times its noise. A bias that drifts within
+        the log is not in the model; where it is, the misalignments the rotations demand cost gravity
+        norm, and this factor sets that trade (1: the measured-noise optimum).
     """
     use_static = estimate_bias or estimate_g_sensitivity
     n_b = 3 if use_static else 0
@@ -212,7 +221,9 @@ def joint_refine(
             return integrate(w, t_s, segs, Ms, offs, np.stack([p[3] for p in parts]), f)
         return integrate(w, t_s, segs, Ms, offs)
 
-    def raw_resid(x: FloatArray, R: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def raw_resid(
+        x: FloatArray, R: FloatArray
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         th_a, th_g, db, G = unpack(x)
         h = _accel_h(th_a, means + sign * drift(x), sign)
         u = pose_u(x)
@@ -221,10 +232,11 @@ def joint_refine(
         )  # the accelerometer measures g along the pose's direction (norm and direction)
         rd = np.einsum("sji,sj->si", R, u[pairs[:, 0]]) - u[pairs[:, 1]]
         rw = (gyro_means - db) @ _gyro_M(th_g).T - h @ G.T if use_static else np.zeros((0, 3))
-        return rn, rd, rw
+        return rn, rd, rw, np.linalg.norm(h, axis=1) - g
 
-    n_rows = [3 * K, 3 * S, 3 * K if use_static else 0]
-    weights = np.ones(3)
+    extra_w = float(np.sqrt(max(norm_weight**2 - 1.0, 0.0)))
+    n_rows = [3 * K, 3 * S, 3 * K if use_static else 0, K if extra_w > 0 else 0]
+    weights = np.ones(4)
 
     wp = np.ones((K, 1)) if pose_n is None else np.sqrt(pose_n / np.mean(pose_n))[:, None]
     wd = np.ones((S, 1))
@@ -234,13 +246,14 @@ def joint_refine(
         wd = 1.0 / np.asarray(noise[1], dtype=np.float64).reshape(S, 1)
         wr = 1.0 / np.asarray(noise[2], dtype=np.float64).reshape(K, 1)
 
-    def stack(rn: FloatArray, rd: FloatArray, rw: FloatArray) -> FloatArray:
+    def stack(rn: FloatArray, rd: FloatArray, rw: FloatArray, rx: FloatArray) -> FloatArray:
         rw = rw * wr if rw.size else rw
         return np.concatenate(
             [
                 (rn * wp).ravel() * weights[0],
                 (rd * wd).ravel() * weights[1],
                 rw.ravel() * weights[2],
+                (rx * wp[:, 0]) * (extra_w * weights[0]) if extra_w > 0 else np.zeros(0),
             ]
         )
 
@@ -292,7 +305,7 @@ def joint_refine(
         return stack(*raw_resid(x, gyro_rot(x[None])[0]))
 
     # First weights from the starting point's residuals (each group its own RMS).
-    rn0, rd0, rw0 = raw_resid(x_full0, gyro_rot(x_full0[None])[0])
+    rn0, rd0, rw0, _ = raw_resid(x_full0, gyro_rot(x_full0[None])[0])
     if noise is None:
         weights[0] = 1.0 / max(float(np.sqrt(np.sum((rn0 * wp) ** 2) / K)), 1e-12)
         weights[1] = 1.0 / max(float(np.sqrt(np.sum(rd0**2) / (2 * S))), 1e-12)
@@ -318,6 +331,9 @@ def joint_refine(
         w_changed = float(np.max(np.abs(new / weights - 1.0)))
         if w_changed > 0:
             ratio = np.repeat(new / weights, n_rows)
+            ratio[bounds[3] :] = (
+                new[0] / weights[0]
+            )  # the extra norm rows follow the accelerometer's
             r, J = r * ratio, J * ratio[:, None]
             weights[:] = new
         N = J.T @ J
@@ -362,13 +378,15 @@ def joint_refine(
             factors[k] = float(r[a:b] @ r[a:b]) / rho
             if factors[k] * rho > float(chdtri(rho, 1.0 - 0.997)):
                 c[a:b] = factors[k]
-        if np.any(c != 1.0):
-            cov_free = cov_free @ (J.T @ (J * c[:, None])) @ cov_free
+        nm = bounds[3]  # the extra norm rows only re-weight: the noise enters through the others
+        if np.any(c != 1.0) or extra_w > 0:
+            Jm = J[:nm]
+            cov_free = cov_free @ (Jm.T @ (Jm * c[:nm, None])) @ cov_free
     cov_all = np.zeros((free.size, free.size))
     cov_all[np.ix_(free, free)] = cov_free
     cov = cov_all[:n_th, :n_th]  # the directions' block is marginalised out
     xf = full(x)
-    _, rd, _ = raw_resid(xf, gyro_rot(xf[None])[0])
+    _, rd, _, _ = raw_resid(xf, gyro_rot(xf[None])[0])
     th_a, th_g, db, G = unpack(xf)
     rn = np.linalg.norm(_accel_h(th_a, means + sign * drift(xf), sign), axis=1) - g
     sig = {"accel": 1.0 / weights[0], "direction": 1.0 / weights[1]}
@@ -389,6 +407,7 @@ def joint_refine(
         norm_residual=rn,
         dir_residual=rd,
         iterations=n_iter,
+        accel_misfit=bool(c[0] != 1.0) if noise is not None else False,
     )
 
 
