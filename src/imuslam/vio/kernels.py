@@ -2,8 +2,8 @@
 
 :func:`frame_step` runs, for one VO frame, what :class:`imuslam.vio.pipeline.VioFilter` does in Python
 per event: the non-holonomic pseudo-measurements due before the frame's mid-time (predict to each, gated
-update, record), the prediction to the mid-time, the gated VO velocity and VO rate updates, and the
-record. The prediction is the inertial core's own kernel (:func:`imuslam.ins.core.propagate`), the update
+update, record), the prediction to the mid-time, the gated VO rate and VO velocity updates (the velocity
+conditioned on the rate), and the record. The prediction is the inertial core's own kernel (:func:`imuslam.ins.core.propagate`), the update
 its :func:`~imuslam.ins.core.kalman_update` (Joseph form) and attitude perturbation
 :func:`~imuslam.ins.core.boxplus_attitude`; only the three measurement models are written again here, as
 compiled twins of :mod:`imuslam.vio.measurements` (which stay the reference: ``tests/vio`` runs both
@@ -191,8 +191,8 @@ def _update(
 
 
 # layout of frame_step's packed inputs (one array each: fewer arguments to type-check per call)
-M_T, M_VEL, M_COV_V, M_OMEGA, M_COV_W, M_T0, M_T1, M_VEL_ON, M_RATE_ON, M_LEN = (
-    0, 1, 4, 13, 16, 25, 26, 27, 28, 29)  # fmt: skip
+M_T, M_VEL, M_COV_V, M_OMEGA, M_COV_W, M_T0, M_T1, M_VEL_ON, M_RATE_ON, M_COV_WV, M_JOINT, M_LEN = (
+    0, 1, 4, 13, 16, 25, 26, 27, 28, 29, 38, 39)  # fmt: skip
 C_NHC_ON, C_NHC_STD, C_NHC_DT, C_GYRO_Q, C_GATE_ON, C_THR2, C_THR3, C_LEN = 0, 1, 2, 3, 4, 5, 6, 7
 
 
@@ -207,9 +207,11 @@ def frame_step(
     nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
 ) -> int:  # fmt: skip  # pragma: no cover - compiled
     """One VO frame (see the module docstring): NHC updates due before the frame's mid-time (each at
-    its time, then recorded), prediction to it, the VO velocity and rate updates (when their flags are
-    set), and a record. ``meas`` (M_LEN,): mid-time, velocity (3,) m/s, its covariance (9,), rate (3,)
-    rad/s, its covariance (9,), the interval [t0, t1] s, the two flags; ``const`` (C_LEN,): NHC on,
+    its time, then recorded), prediction to it, the VO rate and velocity updates (when their flags are
+    set; with the joint flag and an accepted rate, the velocity conditioned on the rate as in
+    ``measurements.VoVelocityGivenRate``), and a record. ``meas`` (M_LEN,): mid-time, velocity (3,)
+    m/s, its covariance (9,), rate (3,) rad/s, its covariance (9,), the interval [t0, t1] s, the two
+    flags, the rate-velocity cross-covariance (9,), the joint flag; ``const`` (C_LEN,): NHC on,
     its sigma m/s and period s, gyro density^2, gate on, chi-square thresholds for 2 and 3 dof.
     Returns OK or DIVERGED (the time is in clock[0])."""
     t_target = meas[M_T]
@@ -245,16 +247,9 @@ def frame_step(
     if not _advance(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, t_target, q, off,
                     tr_t, tr_p, tr_R, cnt):  # fmt: skip
         return DIVERGED
-    if meas[M_VEL_ON] != 0.0:
-        vel_b = meas[M_VEL : M_VEL + 3]
-        cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3))
-        vb = R.T @ v
-        H = np.zeros((3, m))
-        H[:, off[2] : off[2] + 3] = R.T
-        H[:, off[0] : off[0] + 3] = hat_nb(vb)
-        if _update(vel_b - vb, H, cov_v, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_VEL,
-                   nis_buf, acc_buf, cnt) < 0:  # fmt: skip
-            return DIVERGED
+    rate_ok = False
+    r_w = np.zeros(3)
+    Rm_w = np.eye(3)
     if meas[M_RATE_ON] != 0.0:
         omega_b = meas[M_OMEGA : M_OMEGA + 3]
         cov_w = np.ascontiguousarray(meas[M_COV_W : M_COV_W + 9]).reshape((3, 3))
@@ -265,9 +260,30 @@ def frame_step(
         for i in range(3):
             H[i, off[4] + i] = -1.0
         r = omega_b - (g_mean - bg)
-        Rm = cov_w + np.eye(3) * (const[C_GYRO_Q] / (t1 - t0))
-        if _update(r, H, Rm, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_RATE, nis_buf,
-                   acc_buf, cnt) < 0:  # fmt: skip
+        Rm_w = cov_w + np.eye(3) * (const[C_GYRO_Q] / (t1 - t0))
+        st = _update(r, H, Rm_w, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_RATE, nis_buf,
+                     acc_buf, cnt)  # fmt: skip
+        if st < 0:
+            return DIVERGED
+        rate_ok = st == 1
+        r_w = omega_b - (g_mean - bg)  # at the updated gyro bias
+    if meas[M_VEL_ON] != 0.0:
+        vel_b = meas[M_VEL : M_VEL + 3]
+        cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3))
+        vb = R.T @ v
+        H = np.zeros((3, m))
+        H[:, off[2] : off[2] + 3] = R.T
+        H[:, off[0] : off[0] + 3] = hat_nb(vb)
+        r = vel_b - vb
+        if rate_ok and meas[M_JOINT] != 0.0:  # conditioned on the rate (VoVelocityGivenRate)
+            C_wv = np.ascontiguousarray(meas[M_COV_WV : M_COV_WV + 9]).reshape((3, 3))
+            G = np.linalg.solve(Rm_w, C_wv).T
+            r = r - G @ r_w
+            H[:, off[4] : off[4] + 3] += G
+            cov_v = cov_v - G @ C_wv
+            cov_v = 0.5 * (cov_v + cov_v.T)
+        if _update(r, H, cov_v, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_VEL,
+                   nis_buf, acc_buf, cnt) < 0:  # fmt: skip
             return DIVERGED
     mark_state(clock[0], p, R, ba, bg, P, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, cnt)
     return OK

@@ -5,7 +5,8 @@
 interpolated at block ends), applies the measurements of :mod:`imuslam.vio.measurements` through the
 core's gated ``update`` (chi-square test per measurement kind, ``gate_prob``), counts accepted and rejected
 updates and keeps their NIS, and records the trajectory. :func:`run_vio` drives it from a stereo dataset:
-VO per frame pair, a VO velocity and a VO rate update at each pair's mid-time, and the non-holonomic
+VO per frame pair, a VO rate and a VO velocity update at each pair's mid-time (the velocity conditioned on
+the rate: one motion fit gives both, with strongly correlated errors), and the non-holonomic
 pseudo-measurements at ``nhc_rate_hz``; beside it, VO alone (relative poses chained) and the IMU alone
 (the core's strapdown from the same initial state) for comparison.
 """
@@ -36,7 +37,7 @@ from imuslam.ins.core import (
 from imuslam.io.imulog import ImuLog
 from imuslam.io.trajectory import Trajectory
 from imuslam.vio.frontend import StereoVO, VoConfig, VoMeasurement, VoStats
-from imuslam.vio.measurements import NonHolonomic, VoRate, VoVelocity
+from imuslam.vio.measurements import NonHolonomic, VoRate, VoVelocity, VoVelocityGivenRate
 
 FloatArray = NDArray[np.float64]
 U8Image = NDArray[np.uint8]
@@ -94,6 +95,12 @@ class VioConfig(BaseModel):
         "calibrated on another run with known truth, e.g. by bench/vio.py sim)",
     )
     vo_rate_cov_scale: float = Field(1.0, gt=0, description="the same for the VO rate covariance")
+    vo_joint: bool = Field(
+        True,
+        description="VO rate and velocity of a frame pair as one measurement with their cross-covariance "
+        "(the rate update, then the velocity conditioned on the rate; measurements.VoVelocityGivenRate); "
+        "False: two independent updates, the cross-covariance dropped",
+    )
     compiled: bool = Field(
         True,
         description="the compiled frame step (vio/kernels.py); False: the Python reference filter",
@@ -280,13 +287,16 @@ class VioFilter:
         cov_omega: FloatArray | None = None,
         t0_s: float = 0.0,
         t1_s: float = 0.0,
+        cov_wv: FloatArray | None = None,
     ) -> bool:
         """Everything up to one VO frame's mid-time ``t_s``: the non-holonomic updates due before it
-        (when ``cfg.nhc``), the prediction to ``t_s``, the VO velocity update (``vel_b`` (3,) m/s, body,
-        covariance (3, 3)) and the VO rate update (``omega_b`` (3,) rad/s over [t0_s, t1_s], covariance
-        (3, 3)) when given, and a record. Returns whether the velocity update was accepted (True without
-        one). This is the reference (one Python call per event); :class:`CompiledVioFilter` does the
-        same in one compiled call."""
+        (when ``cfg.nhc``), the prediction to ``t_s``, the VO rate update (``omega_b`` (3,) rad/s over
+        [t0_s, t1_s], covariance (3, 3)) and the VO velocity update (``vel_b`` (3,) m/s, body, covariance
+        (3, 3)) when given, and a record. With ``cov_wv`` (3, 3), the rate-velocity cross-covariance,
+        and an accepted rate update, the velocity is conditioned on the rate
+        (:class:`~imuslam.vio.measurements.VoVelocityGivenRate`); otherwise it is applied alone. Returns
+        whether the velocity update was accepted (True without one). This is the reference (one Python
+        call per event); :class:`CompiledVioFilter` does the same in one compiled call."""
         cfg = self.cfg
         while cfg.nhc and self.next_nhc < t_s:
             self.advance(self.next_nhc)
@@ -295,13 +305,23 @@ class VioFilter:
             self.mark()
             self.next_nhc += 1.0 / cfg.nhc_rate_hz
         self.advance(t_s)
-        ok_v = True
-        if vel_b is not None and cov_vel is not None:
-            ok_v = self.update(VoVelocity(vel_b, cov_vel), 3)
+        ok_v = ok_w = True
+        rate = None
         if omega_b is not None and cov_omega is not None:
             g_mean = self.gyro_mean(t0_s, t1_s)
             gv = self.noise.gyro**2 / (t1_s - t0_s)
-            self.update(VoRate(omega_b, cov_omega, g_mean, gv), 3)
+            rate = VoRate(omega_b, cov_omega, g_mean, gv)
+            ok_w = self.update(rate, 3)
+        if vel_b is not None and cov_vel is not None:
+            if rate is not None and ok_w and cov_wv is not None:
+                ok_v = self.update(
+                    VoVelocityGivenRate.from_joint(
+                        vel_b, rate.omega_b, rate.gyro_mean, rate.cov + np.eye(3) * rate.gyro_var,
+                        cov_wv, cov_vel,
+                    ), 3,
+                )  # fmt: skip
+            else:
+                ok_v = self.update(VoVelocity(vel_b, cov_vel), 3)
         self.mark()
         return ok_v
 
@@ -410,6 +430,7 @@ class CompiledVioFilter(VioFilter):
         cov_omega: FloatArray | None = None,
         t0_s: float = 0.0,
         t1_s: float = 0.0,
+        cov_wv: FloatArray | None = None,
     ) -> bool:
         from imuslam.errors import FilterDivergence
         from imuslam.vio.kernels import (
@@ -417,6 +438,8 @@ class CompiledVioFilter(VioFilter):
             KIND_VEL,
             M_COV_V,
             M_COV_W,
+            M_COV_WV,
+            M_JOINT,
             M_OMEGA,
             M_RATE_ON,
             M_T,
@@ -449,6 +472,9 @@ class CompiledVioFilter(VioFilter):
             meas[M_OMEGA : M_OMEGA + 3] = omega_b
             meas[M_COV_W : M_COV_W + 9] = np.ravel(cov_omega)
             meas[M_T0], meas[M_T1], meas[M_RATE_ON] = t0_s, t1_s, 1.0
+            if cov_wv is not None:
+                meas[M_COV_WV : M_COV_WV + 9] = np.ravel(cov_wv)
+                meas[M_JOINT] = 1.0
         status = frame_step(
             self.t_imu, self.acc, self.gyr, x.p_n, x.v_n, x.R_n_b, x.accel_bias, x.gyro_bias, x.g_n,
             self.kf.P, self._clock, meas, self._const, self.R_b_v, self.p_b_v, self._q, self._off,
@@ -704,6 +730,7 @@ def run_vio(
             m.vel_b if cfg.vo_velocity else None, cov[3:, 3:],
             m.omega_b if cfg.vo_rate else None, cov[:3, :3],
             (m.t0_ns - t_ref) * 1e-9, (m.t1_ns - t_ref) * 1e-9,
+            cov[:3, 3:] if cfg.vo_joint else None,
         )  # fmt: skip
         meas_all.append(m)
         corrupted.append(bad)
