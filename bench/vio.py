@@ -116,15 +116,30 @@ def _sim_vo(duration: float, rate: float, seed: int):  # type: ignore[no-untyped
     from tqdm import tqdm
 
     from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
-    from imuslam.vio.frontend import VoConfig
-    from imuslam.vio.pipeline import compute_vo
+    from imuslam.vio.frontend import VoConfig, VoStats
+    from imuslam.vio.pipeline import VoRun, compute_vo
 
     run = SimStereoRun(StereoRunConfig(duration_s=duration, image_hz=rate, seed=seed))
     CACHE.mkdir(exist_ok=True)
     cache = CACHE / f"vo_sim_{duration:g}s_{rate:g}hz_seed{seed}_v2.pkl"
+    # a longer run of the same seed renders the same images first (the image noise is drawn frame by
+    # frame), so its VO measurements cut to this duration are this run's (the IMU noise differs)
+    longer = sorted(
+        (float(p.name.split("_")[2][:-1]), p)
+        for p in CACHE.glob(f"vo_sim_*s_{rate:g}hz_seed{seed}_v2.pkl")
+        if float(p.name.split("_")[2][:-1]) > duration
+    )
     if cache.is_file():
         vo_run = pickle.loads(cache.read_bytes())
         print(f"VO measurements from {cache}")
+    elif longer:
+        full = pickle.loads(longer[0][1].read_bytes())
+        frames = [f for f in full.frames if f[0] <= run.t_frames_ns[-1]]
+        n_meas = sum(m is not None for _, m in frames)
+        st = VoStats(len(frames), n_meas, tracked=full.stats.tracked[: len(frames) - 1],
+                     inliers=full.stats.inliers[:n_meas])  # fmt: skip
+        vo_run = VoRun(frames, st, len(frames), 0)
+        print(f"VO measurements from {longer[0][1]}, cut to {duration:g} s")
     else:
         t0 = time.perf_counter()
         with tqdm(total=len(run), unit="frame", desc="render + VO") as bar:
@@ -134,21 +149,55 @@ def _sim_vo(duration: float, rate: float, seed: int):  # type: ignore[no-untyped
     return run, vo_run
 
 
-def sim(duration: float, rate: float, seed: int, calib_duration: float) -> None:
+def _nis_ess_band(nis: np.ndarray, dof: int, max_lag: int = 20) -> tuple[float, float, float]:
+    """Effective sample size of a NIS sequence (positive autocorrelations summed up to the first
+    non-positive one, at most ``max_lag``: Geyer's initial positive sequence, simplified) and the 95 %
+    band of its mean for that many independent chi-square(dof) draws. Reported BESIDE the plain band."""
+    from scipy.stats import chi2
+
+    x = nis - nis.mean()
+    n = len(x)
+    var = float(x @ x) / n
+    tau = 1.0
+    for k in range(1, max_lag + 1):
+        r = float(x[:-k] @ x[k:]) / (n * var)
+        if r <= 0:
+            break
+        tau += 2 * r
+    ess = n / tau
+    return ess, float(chi2.ppf(0.025, ess * dof) / ess), float(chi2.ppf(0.975, ess * dof) / ess)
+
+
+def sim(
+    duration: float, rate: float, seed: int, calib_duration: float, calib_seed: int | None,
+    correction: bool,
+) -> dict[str, float]:  # fmt: skip
     from imuslam.eval.vio_compare import compare_tracks
+    from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
     from imuslam.vio.pipeline import VioConfig, run_vio
 
-    # the VO covariance scales are calibrated on ANOTHER rendered run (seed + 1, its own truth) and then
-    # applied unchanged to the evaluated run: per VO block the scale whose filter mean NIS there equals
-    # the 3 dof (fixed point s <- s * NIS / 3; the NIS is not linear in s, the prior shrinks with it)
-    cal_run, cal_vo = _sim_vo(calib_duration, rate, seed + 1)
+    # the VO covariance is calibrated on ANOTHER rendered run (seed + 1, its own truth) and then
+    # applied unchanged to the evaluated run: first its shape (vio/covcal.py: the second moment M of
+    # the VO errors whitened by the front end's covariance, against the truth), then per VO block the
+    # scale whose filter mean NIS there equals the 3 dof (fixed point s <- s * NIS / 3; the NIS is not
+    # linear in s, the prior shrinks with it)
+    cseed = seed + 1 if calib_seed is None else calib_seed
+    cal_run, cal_vo = _sim_vo(calib_duration, rate, cseed)
+    M = None
+    if correction:
+        E, C = vo_errors([m for _, m in cal_vo.frames if m is not None], cal_run.truth)
+        M = learn_vo_cov_correction(E, C)
+        print(f"VO covariance shape learnt on seed {cseed} ({len(E)} frames): eigenvalues of M "
+              f"{np.array2string(np.linalg.eigvalsh(M), precision=2)}")  # fmt: skip
+    corr = {"vo_cov_correction": M.tolist() if M is not None else None}
     s_vel = s_rate = 1.0
     for _ in range(6):
         cal = run_vio(cal_run, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel,
-                                         vo_rate_cov_scale=s_rate), vo_run=cal_vo).summary()["gating"]  # fmt: skip
+                                         vo_rate_cov_scale=s_rate, **corr),  # type: ignore[arg-type]
+                      vo_run=cal_vo).summary()["gating"]  # fmt: skip
         s_vel *= cal["vo_velocity"]["nis_mean_accepted"] / 3.0
         s_rate *= cal["vo_rate"]["nis_mean_accepted"] / 3.0
-    print(f"VO covariance scales calibrated on seed {seed + 1} ({calib_duration:g} s): "
+    print(f"VO covariance scales calibrated on seed {cseed} ({calib_duration:g} s): "
           f"velocity {s_vel:.3f}, rate {s_rate:.3f} (mean NIS there "
           f"{cal['vo_velocity']['nis_mean_accepted']:.2f}, {cal['vo_rate']['nis_mean_accepted']:.2f})")  # fmt: skip
     run, vo_run = _sim_vo(duration, rate, seed)
@@ -157,7 +206,7 @@ def sim(duration: float, rate: float, seed: int, calib_duration: float) -> None:
     results = {}
     # this robot's constraint noise: the body origin is the axle centre (no lateral slip); the simulated
     # pitch / roll oscillation (0.005 rad) at 0.3-0.4 m/s makes about 0.002 m/s of vertical velocity.
-    base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate}
+    base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate, **corr}
     for name, cfg in (
         ("VO + IMU, NHC off", VioConfig(**base)),  # type: ignore[arg-type]
         ("VO + IMU, NHC on", VioConfig(nhc=True, **base)),  # type: ignore[arg-type]
@@ -177,24 +226,34 @@ def sim(duration: float, rate: float, seed: int, calib_duration: float) -> None:
         s = res.summary()
         o = s["outliers"]
         g = s["gating"]
+        ess = {}
+        for kind in ("vo_velocity", "vo_rate"):
+            st = res.gating[kind]
+            ess[kind] = _nis_ess_band(np.asarray(st.nis)[np.asarray(st.accepted_mask, bool)], 3)
         rows.append((
             name, f"{ev['fused'].ape_trans.rmse:.3f}", f"{ev['vo'].ape_trans.rmse:.3f}",
             f"{ev['imu'].ape_trans.rmse:.1f}",
             f"{o['corrupted_rejected']}/{o['corrupted']}" if o["corrupted"] else "-",
             f"{o['good_rejected']}/{o['good']}",
             f"{g['vo_velocity'].get('nis_mean_accepted', float('nan')):.2f} "
-            f"[{g['vo_velocity']['nis_mean_band_95'][0]:.2f}, {g['vo_velocity']['nis_mean_band_95'][1]:.2f}]",
+            f"[{g['vo_velocity']['nis_mean_band_95'][0]:.2f}, {g['vo_velocity']['nis_mean_band_95'][1]:.2f}]"
+            f" (ESS {ess['vo_velocity'][0]:.0f}: [{ess['vo_velocity'][1]:.2f}, {ess['vo_velocity'][2]:.2f}])",
             f"{g['vo_rate'].get('nis_mean_accepted', float('nan')):.2f} "
-            f"({100 * g['vo_velocity'].get('nis_share_in_95_band', float('nan')):.0f} % of vo_velocity's in its 95 % band)",
+            f"[{g['vo_rate']['nis_mean_band_95'][0]:.2f}, {g['vo_rate']['nis_mean_band_95'][1]:.2f}]"
+            f" (ESS {ess['vo_rate'][0]:.0f}: [{ess['vo_rate'][1]:.2f}, {ess['vo_rate'][2]:.2f}])",
             f"{g['nhc']['nis_mean_accepted']:.2f}" if "nhc" in g else "-",
         ))  # fmt: skip
     print(f"rendered ground robot, {duration:g} s figure eight, {rate:g} Hz stereo 752x480, seed {seed}; "
           f"ATE (SE(3) aligned) at the frame times, m")  # fmt: skip
     _table(["run", "ATE fused", "ATE VO only", "ATE IMU only", "corrupted rejected", "good rejected",
-            "mean NIS vo_velocity (3) [95 % band]", "mean NIS vo_rate (3)", "mean NIS nhc (2)"], rows)  # fmt: skip
+            "mean NIS vo_velocity (3) [95 % band] (effective n: band)",
+            "mean NIS vo_rate (3) [95 % band] (effective n: band)", "mean NIS nhc (2)"], rows)  # fmt: skip
     a = results["VO + IMU, NHC off"][1]["fused"].ape_trans.rmse
     b = results["VO + IMU, NHC on"][1]["fused"].ape_trans.rmse
     print(f"NHC cuts the fused ATE by {100 * (1 - b / a):.1f} % (target >= 30 %)")
+    g = results["VO + IMU, NHC on"][0].summary()["gating"]
+    return {"nhc_cut": 1 - b / a, "nis_vel": g["vo_velocity"]["nis_mean_accepted"],
+            "nis_rate": g["vo_rate"]["nis_mean_accepted"], "s_vel": s_vel, "s_rate": s_rate}  # fmt: skip
 
 
 def main(argv: list[str]) -> None:
@@ -206,12 +265,15 @@ def main(argv: list[str]) -> None:
     ap.add_argument(
         "--calib-duration", type=float, default=60.0, help="sim: the calibration run, s"
     )
+    ap.add_argument("--calib-seed", type=int, default=None, help="sim: default seed + 1")
+    ap.add_argument("--no-correction", action="store_true",
+                    help="sim: block scales only, no learnt covariance shape")  # fmt: skip
     ap.add_argument("--only", choices=["all", "vo", "ekf"], default="all", help="speed: one part")
     a = ap.parse_args(argv)
     if a.what == "speed":
         speed(a.only)
     elif a.what == "sim":
-        sim(a.duration, a.rate, a.seed, a.calib_duration)
+        sim(a.duration, a.rate, a.seed, a.calib_duration, a.calib_seed, not a.no_correction)
     else:
         from imuslam.vio.wheel import husky_study
 

@@ -21,10 +21,32 @@ def sim_case() -> tuple[SimStereoRun, VoRun]:
     return run, truth_vo_run(run, 0.01, 0.003, seed=2)
 
 
+def _correlated(vo_run: VoRun, seed: int) -> VoRun:
+    """The same frames with rate-velocity correlated noise (0.9 and -0.85, as the front end's fits)
+    and that full covariance: exercises the velocity conditioned on the rate."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(seed)
+    corr = np.eye(6)
+    corr[1, 5] = corr[5, 1] = 0.9
+    corr[2, 4] = corr[4, 2] = -0.85
+    sd = np.r_[[0.003] * 3, [0.01] * 3]
+    C = corr * np.outer(sd, sd)
+    L = np.linalg.cholesky(C)
+    frames = []
+    for t, m in vo_run.frames:
+        if m is not None:
+            n = L @ rng.normal(size=6)
+            m = replace(m, omega_b=m.omega_b + n[:3], vel_b=m.vel_b + n[3:], cov=C.copy())
+        frames.append((t, m))
+    return VoRun(frames, vo_run.stats, vo_run.seen, vo_run.unreadable)
+
+
 @pytest.mark.parametrize(
     "kw",
     [
-        {"nhc": True, "outlier_fraction": 0.2, "outlier_seed": 4},
+        {"nhc": True, "outlier_fraction": 0.2, "outlier_seed": 4, "correlated": True},
+        {"nhc": True, "vo_joint": False, "correlated": True},
         {"nhc": False},
         {"nhc": True, "nhc_rate_hz": 33.0, "gate_prob": None, "vehicle_p_b": (-0.2, 0.0, 0.1),
          "vehicle_rpy_deg": (1.0, -2.0, 3.0)},
@@ -32,6 +54,9 @@ def sim_case() -> tuple[SimStereoRun, VoRun]:
 )  # fmt: skip
 def test_compiled_filter_equals_reference(sim_case, kw) -> None:  # type: ignore[no-untyped-def]
     run, vo_run = sim_case
+    kw = dict(kw)
+    if kw.pop("correlated", False):
+        vo_run = _correlated(vo_run, 8)
     fast = run_vio(run, VioConfig(compiled=True, **kw), vo_run=vo_run)
     ref = run_vio(run, VioConfig(compiled=False, **kw), vo_run=vo_run)
     # same records at the same times (IMU samples, NHC times, frame mid-times)

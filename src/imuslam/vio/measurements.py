@@ -169,7 +169,7 @@ class VoVelocityGivenRate:
         cov_vv: FloatArray,
     ) -> VoVelocityGivenRate:
         """From the joint blocks (``cov_ww`` with the gyro noise already added)."""
-        G = np.linalg.solve(cov_ww, cov_wv).T  # C_vw C_ww^-1 (C_ww symmetric)
+        G = np.asarray(np.linalg.solve(cov_ww, cov_wv).T, dtype=np.float64)  # C_vw C_ww^-1
         cov = cov_vv - G @ cov_wv
         return cls(vel_b, 0.5 * (cov + cov.T), G, omega_b, gyro_mean)
 

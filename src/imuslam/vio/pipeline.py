@@ -36,6 +36,7 @@ from imuslam.ins.core import (
 )
 from imuslam.io.imulog import ImuLog
 from imuslam.io.trajectory import Trajectory
+from imuslam.vio.covcal import apply_vo_cov_correction
 from imuslam.vio.frontend import StereoVO, VoConfig, VoMeasurement, VoStats
 from imuslam.vio.measurements import NonHolonomic, VoRate, VoVelocity, VoVelocityGivenRate
 
@@ -95,6 +96,12 @@ class VioConfig(BaseModel):
         "calibrated on another run with known truth, e.g. by bench/vio.py sim)",
     )
     vo_rate_cov_scale: float = Field(1.0, gt=0, description="the same for the VO rate covariance")
+    vo_cov_correction: list[list[float]] | None = Field(
+        None,
+        description="6x6 second moment of the VO errors whitened by the front end's covariance, learnt "
+        "on a run with truth (vio.covcal); the filter uses L M L^T (L L^T the reported covariance), "
+        "then the block scales",
+    )
     vo_joint: bool = Field(
         True,
         description="VO rate and velocity of a frame pair as one measurement with their cross-covariance "
@@ -577,18 +584,35 @@ class VioResult:
         }
 
 
-def vo_cov(m: VoMeasurement, cfg: VioConfig) -> FloatArray:
+def vo_cov(m: VoMeasurement, cfg: VioConfig, M: FloatArray | None = None) -> FloatArray:
     """The (6, 6) covariance of ``[omega_b, vel_b]`` the filter uses for a VO measurement (see
-    ``VioConfig.vo_cov_model``), its rate and velocity blocks scaled by ``vo_rate_cov_scale`` and
+    ``VioConfig.vo_cov_model``), reshaped by the correction ``M`` (6, 6) (``L M L^T``, see
+    :mod:`imuslam.vio.covcal`), its rate and velocity blocks scaled by ``vo_rate_cov_scale`` and
     ``vo_cov_scale``."""
     if cfg.vo_cov_model == "residual" and m.cov_fit is not None:
         cov = m.cov_fit * m.var_factor
     else:
         cov = m.cov
+    if M is not None:
+        cov = apply_vo_cov_correction(cov, M)
     if cfg.vo_rate_cov_scale == 1.0 and cfg.vo_cov_scale == 1.0:
         return cov
     s = np.sqrt(np.r_[[cfg.vo_rate_cov_scale] * 3, [cfg.vo_cov_scale] * 3])
     return np.asarray(cov * np.outer(s, s), dtype=np.float64)
+
+
+def _correction(cfg: VioConfig) -> FloatArray | None:
+    """``cfg.vo_cov_correction`` as a (6, 6) array, checked symmetric positive definite."""
+    if cfg.vo_cov_correction is None:
+        return None
+    M = np.asarray(cfg.vo_cov_correction, dtype=float)
+    if M.shape != (6, 6) or not np.all(np.isfinite(M)) or not np.allclose(M, M.T, atol=1e-9):
+        raise InputError(
+            f"config: vo_cov_correction has shape {M.shape}; expected a finite symmetric 6x6 matrix"
+        )
+    if np.linalg.eigvalsh(M).min() <= 0:
+        raise InputError("config: vo_cov_correction is not positive definite")
+    return M
 
 
 def _check_imu_span(imu: ImuLog, t_first: int, t_last: int, source: str) -> None:
@@ -645,6 +669,7 @@ def run_vio(
     if vo_run is None:
         vo_run = compute_vo(data, cfg.vo, progress)
     rng = np.random.default_rng(cfg.outlier_seed)
+    M_cov = _correction(cfg)
 
     filt: VioFilter | None = None
     t_ref = 0
@@ -724,7 +749,7 @@ def run_vio(
                 m.vel_b + dv / np.linalg.norm(dv) * rng.uniform(*cfg.outlier_vel), m.cov, m.T_b0_b1,
                 m.n_inliers, m.cov_fit, m.var_factor,
             )  # fmt: skip
-        cov = vo_cov(m, cfg)
+        cov = vo_cov(m, cfg, M_cov)
         ok_v = filt.frame(
             (m.t_mid_ns - t_ref) * 1e-9,
             m.vel_b if cfg.vo_velocity else None, cov[3:, 3:],
