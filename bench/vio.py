@@ -3,9 +3,10 @@
     python bench/vio.py speed [--only vo|ekf]
                                          # VO frames/s on the EuRoC excerpt (752x480); EKF IMU samples/s
                                          # (compiled and Python reference; sim 120 s and the excerpt)
-    python bench/vio.py sim [--duration 180 --rate 5 --seed 0 --calib-duration 60]
+    python bench/vio.py sim [--duration 180 --rate 5 --seed 0 --calib-duration 60 --calib-seeds 1 3]
                                          # rendered ground robot: NHC off/on, 10 % corrupted VO, NIS;
-                                         # VO covariance scale calibrated on the run with seed + 1
+                                         # VO covariance shape and scales calibrated on the run(s)
+                                         # with --calib-seeds (default seed + 1)
     python bench/vio.py husky            # wheel odometry + IMU EKF against GPS (robot_localization bag)
 
 The sim study renders every stereo pair (the slow part) once, caches the VO measurements in
@@ -169,7 +170,7 @@ def _nis_ess_band(nis: np.ndarray, dof: int, max_lag: int = 20) -> tuple[float, 
 
 
 def sim(
-    duration: float, rate: float, seed: int, calib_duration: float, calib_seed: int | None,
+    duration: float, rate: float, seed: int, calib_duration: float, calib_seeds: list[int] | None,
     correction: bool,
 ) -> dict[str, float]:  # fmt: skip
     from imuslam.eval.vio_compare import compare_tracks
@@ -181,25 +182,37 @@ def sim(
     # the VO errors whitened by the front end's covariance, against the truth), then per VO block the
     # scale whose filter mean NIS there equals the 3 dof (fixed point s <- s * NIS / 3; the NIS is not
     # linear in s, the prior shrinks with it)
-    cseed = seed + 1 if calib_seed is None else calib_seed
-    cal_run, cal_vo = _sim_vo(calib_duration, rate, cseed)
+    # several calibration runs pool their frames: the scale's own sampling error shrinks with them
+    cseeds = [seed + 1] if not calib_seeds else calib_seeds
+    cals = [_sim_vo(calib_duration, rate, cs) for cs in cseeds]
     M = None
     if correction:
-        E, C = vo_errors([m for _, m in cal_vo.frames if m is not None], cal_run.truth)
-        M = learn_vo_cov_correction(E, C)
-        print(f"VO covariance shape learnt on seed {cseed} ({len(E)} frames): eigenvalues of M "
-              f"{np.array2string(np.linalg.eigvalsh(M), precision=2)}")  # fmt: skip
+        errs = [vo_errors([m for _, m in cv.frames if m is not None], cr.truth) for cr, cv in cals]
+        M = learn_vo_cov_correction(np.concatenate([e for e, _ in errs]),
+                                    np.concatenate([c for _, c in errs]))  # fmt: skip
+        print(f"VO covariance shape learnt on seed(s) {cseeds} ({sum(len(e) for e, _ in errs)} "
+              f"frames): eigenvalues of M {np.array2string(np.linalg.eigvalsh(M), precision=2)}")  # fmt: skip
     corr = {"vo_cov_correction": M.tolist() if M is not None else None}
     s_vel = s_rate = 1.0
     for _ in range(6):
-        cal = run_vio(cal_run, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel,
-                                         vo_rate_cov_scale=s_rate, **corr),  # type: ignore[arg-type]
-                      vo_run=cal_vo).summary()["gating"]  # fmt: skip
-        s_vel *= cal["vo_velocity"]["nis_mean_accepted"] / 3.0
-        s_rate *= cal["vo_rate"]["nis_mean_accepted"] / 3.0
-    print(f"VO covariance scales calibrated on seed {cseed} ({calib_duration:g} s): "
-          f"velocity {s_vel:.3f}, rate {s_rate:.3f} (mean NIS there "
-          f"{cal['vo_velocity']['nis_mean_accepted']:.2f}, {cal['vo_rate']['nis_mean_accepted']:.2f})")  # fmt: skip
+        nis = {"vo_velocity": [], "vo_rate": []}  # type: dict[str, list[float]]
+        for cr, cv in cals:
+            r = run_vio(cr, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel,
+                                      vo_rate_cov_scale=s_rate, **corr),  # type: ignore[arg-type]
+                        vo_run=cv)  # fmt: skip
+            for k in nis:
+                nis[k] += [
+                    x for x, a in zip(r.gating[k].nis, r.gating[k].accepted_mask, strict=True) if a
+                ]
+        cal = {k: float(np.mean(v)) for k, v in nis.items()}
+        s_vel *= cal["vo_velocity"] / 3.0
+        s_rate *= cal["vo_rate"] / 3.0
+    # the calibration's own sampling error: the scale is a mean NIS over n updates
+    sd = {k: float(np.std(v) / np.sqrt(_nis_ess_band(np.asarray(v), 3)[0])) for k, v in nis.items()}
+    print(f"VO covariance scales calibrated on seed(s) {cseeds} ({calib_duration:g} s each): "
+          f"velocity {s_vel:.3f}, rate {s_rate:.3f} (mean NIS there {cal['vo_velocity']:.2f} "
+          f"+- {sd['vo_velocity']:.2f}, {cal['vo_rate']:.2f} +- {sd['vo_rate']:.2f}, 1-sigma of the "
+          "calibration's mean: carried into this run's mean NIS as well)")  # fmt: skip
     run, vo_run = _sim_vo(duration, rate, seed)
     truth = run.truth()
     rows = []
@@ -265,7 +278,8 @@ def main(argv: list[str]) -> None:
     ap.add_argument(
         "--calib-duration", type=float, default=60.0, help="sim: the calibration run, s"
     )
-    ap.add_argument("--calib-seed", type=int, default=None, help="sim: default seed + 1")
+    ap.add_argument("--calib-seeds", type=int, nargs="+", default=None,
+                    help="sim: calibration run seed(s), default seed + 1")  # fmt: skip
     ap.add_argument("--no-correction", action="store_true",
                     help="sim: block scales only, no learnt covariance shape")  # fmt: skip
     ap.add_argument("--only", choices=["all", "vo", "ekf"], default="all", help="speed: one part")
@@ -273,7 +287,7 @@ def main(argv: list[str]) -> None:
     if a.what == "speed":
         speed(a.only)
     elif a.what == "sim":
-        sim(a.duration, a.rate, a.seed, a.calib_duration, a.calib_seed, not a.no_correction)
+        sim(a.duration, a.rate, a.seed, a.calib_duration, a.calib_seeds, not a.no_correction)
     else:
         from imuslam.vio.wheel import husky_study
 
