@@ -392,8 +392,10 @@ class CompiledVioFilter(VioFilter):
         self._thr3 = chi2_threshold(cfg.gate_prob, 3) if cfg.gate_prob is not None else np.inf
         self._q = self.noise.q
         self._off = self.kf.layout.offsets
+        import imuslam.vio.kernels as kern
         from imuslam.vio.kernels import C_LEN, M_LEN
 
+        self._kern = kern
         self._meas = np.zeros(M_LEN)
         self._const = np.zeros(C_LEN)
         self._const[:] = (float(cfg.nhc), cfg.nhc_std, 1.0 / cfg.nhc_rate_hz, self.noise.gyro**2,
@@ -439,24 +441,7 @@ class CompiledVioFilter(VioFilter):
         t1_s: float = 0.0,
         cov_wv: FloatArray | None = None,
     ) -> bool:
-        from imuslam.errors import FilterDivergence
-        from imuslam.vio.kernels import (
-            DIVERGED,
-            KIND_VEL,
-            M_COV_V,
-            M_COV_W,
-            M_COV_WV,
-            M_JOINT,
-            M_OMEGA,
-            M_RATE_ON,
-            M_T,
-            M_T0,
-            M_T1,
-            M_VEL,
-            M_VEL_ON,
-            frame_step,
-        )  # fmt: skip
-
+        K = self._kern  # the kernels module (imported once: this runs per frame)
         cfg = self.cfg
         t_now, t_nhc = float(self._clock[0]), float(self._clock[1])
         n_nhc = int(np.ceil((t_s - t_nhc) * cfg.nhc_rate_hz)) + 2 if cfg.nhc and t_s > t_nhc else 0
@@ -470,25 +455,27 @@ class CompiledVioFilter(VioFilter):
         vel_on = vel_b is not None and cov_vel is not None
         meas = self._meas
         meas[:] = 0.0
-        meas[M_T] = t_s
+        meas[K.M_T] = t_s
         if vel_b is not None and cov_vel is not None:
-            meas[M_VEL : M_VEL + 3] = vel_b
-            meas[M_COV_V : M_COV_V + 9] = np.ravel(cov_vel)
-            meas[M_VEL_ON] = 1.0
+            meas[K.M_VEL : K.M_VEL + 3] = vel_b
+            meas[K.M_COV_V : K.M_COV_V + 9] = cov_vel.reshape(9)
+            meas[K.M_VEL_ON] = 1.0
         if omega_b is not None and cov_omega is not None:
-            meas[M_OMEGA : M_OMEGA + 3] = omega_b
-            meas[M_COV_W : M_COV_W + 9] = np.ravel(cov_omega)
-            meas[M_T0], meas[M_T1], meas[M_RATE_ON] = t0_s, t1_s, 1.0
+            meas[K.M_OMEGA : K.M_OMEGA + 3] = omega_b
+            meas[K.M_COV_W : K.M_COV_W + 9] = cov_omega.reshape(9)
+            meas[K.M_T0], meas[K.M_T1], meas[K.M_RATE_ON] = t0_s, t1_s, 1.0
             if cov_wv is not None:
-                meas[M_COV_WV : M_COV_WV + 9] = np.ravel(cov_wv)
-                meas[M_JOINT] = 1.0
-        status = frame_step(
+                meas[K.M_COV_WV : K.M_COV_WV + 9] = cov_wv.reshape(9)
+                meas[K.M_JOINT] = 1.0
+        status = K.frame_step(
             self.t_imu, self.acc, self.gyr, x.p_n, x.v_n, x.R_n_b, x.accel_bias, x.gyro_bias, x.g_n,
             self.kf.P, self._clock, meas, self._const, self.R_b_v, self.p_b_v, self._q, self._off,
             self._tr_t, self._tr_p, self._tr_R, self._b_t, self._b, self._b_s,
             self._nis, self._acc, self._cnt,
         )  # fmt: skip
-        if status == DIVERGED:
+        if status == K.DIVERGED:
+            from imuslam.errors import FilterDivergence
+
             raise FilterDivergence(
                 f"filter diverged at t = {self._clock[0]:.3f} s after the start (frame mid-time "
                 f"{t_s:.3f} s): covariance not positive definite or state not finite; check the noise "
@@ -496,7 +483,7 @@ class CompiledVioFilter(VioFilter):
             )
         self.t = float(self._clock[0])
         self.next_nhc = float(self._clock[1])
-        return bool(self._acc[KIND_VEL, self._cnt[3] - 1]) if vel_on else True
+        return bool(self._acc[K.KIND_VEL, self._cnt[3] - 1]) if vel_on else True
 
     def mark(self) -> None:
         from imuslam.vio.kernels import mark_state
