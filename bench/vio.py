@@ -7,6 +7,8 @@
                                          # rendered ground robot: NHC off/on, 10 % corrupted VO, NIS;
                                          # VO covariance shape and scales calibrated on the run(s)
                                          # with --calib-seeds (default seed + 1)
+    python bench/vio.py vostats          # the cached rendered runs' VO errors against the truth: rate-
+                                         # velocity correlation, NEES with the learnt shape, its tail
     python bench/vio.py husky            # wheel odometry + IMU EKF against GPS (robot_localization bag)
 
 The sim study renders every stereo pair (the slow part) once, caches the VO measurements in
@@ -305,9 +307,62 @@ def sim(
             "nis_rate": g["vo_rate"]["nis_mean_accepted"], "s_vel": s_vel, "s_rate": s_rate}  # fmt: skip
 
 
+def vostats(rate: float, calib_seeds: list[int] | None) -> None:
+    """The VO errors of the cached rendered runs against their truth (``sim`` renders them): the
+    rate-velocity correlation, the NEES with the shape learnt on ``calib_seeds`` (default 1 and 3, 120 s),
+    its variance (chi-square(3): 6) and tail, and the filter NIS variance with and without the shape."""
+    from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
+    from imuslam.vio.pipeline import VioConfig, run_vio
+
+    runs = {}
+    for p in sorted(CACHE.glob(f"vo_sim_*s_{rate:g}hz_seed*_v2.pkl")):
+        dur, seed = float(p.name.split("_")[2][:-1]), int(p.name.split("seed")[1].split("_")[0])
+        if seed not in runs or runs[seed][0] < dur:
+            runs[seed] = (dur, *_sim_vo(dur, rate, seed))
+    errs = {}
+    for seed, (_, run, vo) in runs.items():
+        ms = [m for _, m in vo.frames if m is not None]
+        errs[seed] = (ms, *vo_errors(ms, run.truth))
+    cs = calib_seeds or [1, 3]
+    M = learn_vo_cov_correction(np.concatenate([errs[s][1] for s in cs]),
+                                np.concatenate([errs[s][2] for s in cs]))  # fmt: skip
+    rows = []
+    for seed, (ms, E, C) in sorted(errs.items()):
+        sd = np.sqrt(np.einsum("nii->ni", C))
+        rep_corr = np.abs((C / (sd[:, :, None] * sd[:, None, :])).mean(0)[:3, 3:]).max()
+        emp_corr = np.abs(np.corrcoef(E.T)[:3, 3:]).max()
+        L = np.linalg.cholesky(C)
+        Cc = L @ M @ np.swapaxes(L, 1, 2)
+        nv = np.einsum("ni,nij,nj->n", E[:, 3:], np.linalg.inv(Cc[:, 3:, 3:]), E[:, 3:])
+        nw = np.einsum("ni,nij,nj->n", E[:, :3], np.linalg.inv(Cc[:, :3, :3]), E[:, :3])
+        top = nv > np.percentile(nv, 95)
+        inl = np.array([m.n_inliers for m in ms], float)
+        vf = np.array([m.var_factor for m in ms])
+        rows.append((
+            f"{seed} ({runs[seed][0]:g} s)", f"{rep_corr:.2f} / {emp_corr:.2f}",
+            f"{nv.mean():.2f} / {nw.mean():.2f}", f"{nv.var():.1f}",
+            f"{nv[top].sum() / nv.sum():.2f}",
+            f"{np.corrcoef(nv, inl)[0, 1]:.2f} / {np.corrcoef(nv, vf)[0, 1]:.2f}",
+        ))  # fmt: skip
+    print(f"VO errors against the truth, shape learnt on seeds {cs}: eigenvalues of M "
+          f"{np.array2string(np.linalg.eigvalsh(M), precision=2)}")  # fmt: skip
+    _table(["run (seed)", "max |corr| rate-velocity reported / against truth",
+            "NEES velocity / rate (3) with the shape", "NEES velocity variance (6)",
+            "top 5 % share of the NEES sum", "corr(NEES, inliers) / corr(NEES, variance factor)"],
+           rows)  # fmt: skip
+    if 0 in runs:
+        _, run, vo = runs[0]
+        for name, kw in (("with the shape", {"vo_cov_correction": M.tolist()}), ("without", {})):
+            res = run_vio(run, VioConfig(nhc=True, nhc_std=0.002, **kw), vo_run=vo)  # type: ignore[arg-type]
+            st = res.gating["vo_velocity"]
+            x = np.asarray(st.nis)[np.asarray(st.accepted_mask, bool)]
+            print(f"seed 0, NHC on, scales 1, {name}: VO-velocity NIS mean {x.mean():.2f}, variance "
+                  f"{x.var():.1f} (chi-square(3): 6)")  # fmt: skip
+
+
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("what", choices=["speed", "sim", "husky"])
+    ap.add_argument("what", choices=["speed", "sim", "vostats", "husky"])
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--rate", type=float, default=5.0)
     ap.add_argument("--seed", type=int, default=0)
@@ -322,6 +377,8 @@ def main(argv: list[str]) -> None:
     a = ap.parse_args(argv)
     if a.what == "speed":
         speed(a.only)
+    elif a.what == "vostats":
+        vostats(a.rate, a.calib_seeds)
     elif a.what == "sim":
         sim(a.duration, a.rate, a.seed, a.calib_duration, a.calib_seeds, not a.no_correction)
     else:
