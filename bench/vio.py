@@ -3,9 +3,12 @@
     python bench/vio.py speed [--only vo|ekf]
                                          # VO frames/s on the EuRoC excerpt (752x480); EKF IMU samples/s
                                          # (compiled and Python reference; sim 120 s and the excerpt)
-    python bench/vio.py sim [--duration 180 --rate 5 --seed 0 --calib-duration 60]
+    python bench/vio.py sim [--duration 180 --rate 5 --seed 0 --calib-duration 60 --calib-seeds 1 3]
                                          # rendered ground robot: NHC off/on, 10 % corrupted VO, NIS;
-                                         # VO covariance scale calibrated on the run with seed + 1
+                                         # VO covariance shape and scales calibrated on the run(s)
+                                         # with --calib-seeds (default seed + 1)
+    python bench/vio.py vostats          # the cached rendered runs' VO errors against the truth: rate-
+                                         # velocity correlation, NEES with the learnt shape, its tail
     python bench/vio.py husky            # wheel odometry + IMU EKF against GPS (robot_localization bag)
 
 The sim study renders every stereo pair (the slow part) once, caches the VO measurements in
@@ -70,7 +73,43 @@ def ekf_speed() -> list[tuple[str, ...]]:
                     f" + rate at 20 Hz{', NHC at 20 Hz' if nhc else ''}"
                 )
                 rows.append((name, f"{w:,.0f}", f"{c:,.0f}", "IMU samples/s", ">= 50,000"))
+            # the same runs split: the filter's frame steps alone (prediction over the samples and the
+            # updates) against the per-run set-up and bookkeeping (initial state, noise estimate, the
+            # IMU-only track, VO chaining, trajectory assembly)
+            wf, cf, wt, ct = _filter_share(data, VioConfig(g=g, nhc=nhc), vo_run)
+            rows.append((f"  of which the filter's frame steps alone, {label}{', NHC' if nhc else ''}",
+                         f"{n / wf:,.0f}", f"{n / cf:,.0f}", "IMU samples/s",
+                         f"set-up: {100 * (1 - cf / ct):.0f} % of the run's CPU"))  # fmt: skip
     return rows
+
+
+def _filter_share(data, cfg, vo_run, repeat: int = 5):  # type: ignore[no-untyped-def]
+    """Best-of-``repeat`` wall and CPU seconds of a whole ``run_vio`` and of its filter frame steps."""
+    from imuslam.vio import pipeline
+
+    orig = pipeline.CompiledVioFilter.frame
+    acc = [0.0, 0.0]
+
+    def timed(self, *a, **k):  # type: ignore[no-untyped-def]
+        w0, c0 = time.perf_counter(), time.process_time()
+        r = orig(self, *a, **k)
+        acc[0] += time.perf_counter() - w0
+        acc[1] += time.process_time() - c0
+        return r
+
+    best = (np.inf, np.inf, np.inf, np.inf)
+    pipeline.CompiledVioFilter.frame = timed  # type: ignore[method-assign]
+    try:
+        for _ in range(repeat):
+            acc[:] = [0.0, 0.0]
+            w0, c0 = time.perf_counter(), time.process_time()
+            pipeline.run_vio(data, cfg, vo_run=vo_run)
+            wt, ct = time.perf_counter() - w0, time.process_time() - c0
+            if ct < best[3]:
+                best = (acc[0], acc[1], wt, ct)
+    finally:
+        pipeline.CompiledVioFilter.frame = orig  # type: ignore[method-assign]
+    return best
 
 
 def speed(only: str) -> None:
@@ -116,15 +155,30 @@ def _sim_vo(duration: float, rate: float, seed: int):  # type: ignore[no-untyped
     from tqdm import tqdm
 
     from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
-    from imuslam.vio.frontend import VoConfig
-    from imuslam.vio.pipeline import compute_vo
+    from imuslam.vio.frontend import VoConfig, VoStats
+    from imuslam.vio.pipeline import VoRun, compute_vo
 
     run = SimStereoRun(StereoRunConfig(duration_s=duration, image_hz=rate, seed=seed))
     CACHE.mkdir(exist_ok=True)
     cache = CACHE / f"vo_sim_{duration:g}s_{rate:g}hz_seed{seed}_v2.pkl"
+    # a longer run of the same seed renders the same images first (the image noise is drawn frame by
+    # frame), so its VO measurements cut to this duration are this run's (the IMU noise differs)
+    longer = sorted(
+        (float(p.name.split("_")[2][:-1]), p)
+        for p in CACHE.glob(f"vo_sim_*s_{rate:g}hz_seed{seed}_v2.pkl")
+        if float(p.name.split("_")[2][:-1]) > duration
+    )
     if cache.is_file():
         vo_run = pickle.loads(cache.read_bytes())
         print(f"VO measurements from {cache}")
+    elif longer:
+        full = pickle.loads(longer[0][1].read_bytes())
+        frames = [f for f in full.frames if f[0] <= run.t_frames_ns[-1]]
+        n_meas = sum(m is not None for _, m in frames)
+        st = VoStats(len(frames), n_meas, tracked=full.stats.tracked[: len(frames) - 1],
+                     inliers=full.stats.inliers[:n_meas])  # fmt: skip
+        vo_run = VoRun(frames, st, len(frames), 0)
+        print(f"VO measurements from {longer[0][1]}, cut to {duration:g} s")
     else:
         t0 = time.perf_counter()
         with tqdm(total=len(run), unit="frame", desc="render + VO") as bar:
@@ -134,30 +188,76 @@ def _sim_vo(duration: float, rate: float, seed: int):  # type: ignore[no-untyped
     return run, vo_run
 
 
-def sim(duration: float, rate: float, seed: int, calib_duration: float) -> None:
+def _nis_ess_band(nis: np.ndarray, dof: int, max_lag: int = 20) -> tuple[float, float, float]:
+    """Effective sample size of a NIS sequence (positive autocorrelations summed up to the first
+    non-positive one, at most ``max_lag``: Geyer's initial positive sequence, simplified) and the 95 %
+    band of its mean for that many independent chi-square(dof) draws. Reported BESIDE the plain band."""
+    from scipy.stats import chi2
+
+    x = nis - nis.mean()
+    n = len(x)
+    var = float(x @ x) / n
+    tau = 1.0
+    for k in range(1, max_lag + 1):
+        r = float(x[:-k] @ x[k:]) / (n * var)
+        if r <= 0:
+            break
+        tau += 2 * r
+    ess = n / tau
+    return ess, float(chi2.ppf(0.025, ess * dof) / ess), float(chi2.ppf(0.975, ess * dof) / ess)
+
+
+def sim(
+    duration: float, rate: float, seed: int, calib_duration: float, calib_seeds: list[int] | None,
+    correction: bool,
+) -> dict[str, float]:  # fmt: skip
     from imuslam.eval.vio_compare import compare_tracks
+    from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
     from imuslam.vio.pipeline import VioConfig, run_vio
 
-    # the VO covariance scales are calibrated on ANOTHER rendered run (seed + 1, its own truth) and then
-    # applied unchanged to the evaluated run: per VO block the scale whose filter mean NIS there equals
-    # the 3 dof (fixed point s <- s * NIS / 3; the NIS is not linear in s, the prior shrinks with it)
-    cal_run, cal_vo = _sim_vo(calib_duration, rate, seed + 1)
+    # the VO covariance is calibrated on ANOTHER rendered run (seed + 1, its own truth) and then
+    # applied unchanged to the evaluated run: first its shape (vio/covcal.py: the second moment M of
+    # the VO errors whitened by the front end's covariance, against the truth), then per VO block the
+    # scale whose filter mean NIS there equals the 3 dof (fixed point s <- s * NIS / 3; the NIS is not
+    # linear in s, the prior shrinks with it)
+    # several calibration runs pool their frames: the scale's own sampling error shrinks with them
+    cseeds = [seed + 1] if not calib_seeds else calib_seeds
+    cals = [_sim_vo(calib_duration, rate, cs) for cs in cseeds]
+    M = None
+    if correction:
+        errs = [vo_errors([m for _, m in cv.frames if m is not None], cr.truth) for cr, cv in cals]
+        M = learn_vo_cov_correction(np.concatenate([e for e, _ in errs]),
+                                    np.concatenate([c for _, c in errs]))  # fmt: skip
+        print(f"VO covariance shape learnt on seed(s) {cseeds} ({sum(len(e) for e, _ in errs)} "
+              f"frames): eigenvalues of M {np.array2string(np.linalg.eigvalsh(M), precision=2)}")  # fmt: skip
+    corr = {"vo_cov_correction": M.tolist() if M is not None else None}
     s_vel = s_rate = 1.0
     for _ in range(6):
-        cal = run_vio(cal_run, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel,
-                                         vo_rate_cov_scale=s_rate), vo_run=cal_vo).summary()["gating"]  # fmt: skip
-        s_vel *= cal["vo_velocity"]["nis_mean_accepted"] / 3.0
-        s_rate *= cal["vo_rate"]["nis_mean_accepted"] / 3.0
-    print(f"VO covariance scales calibrated on seed {seed + 1} ({calib_duration:g} s): "
-          f"velocity {s_vel:.3f}, rate {s_rate:.3f} (mean NIS there "
-          f"{cal['vo_velocity']['nis_mean_accepted']:.2f}, {cal['vo_rate']['nis_mean_accepted']:.2f})")  # fmt: skip
+        nis = {"vo_velocity": [], "vo_rate": []}  # type: dict[str, list[float]]
+        for cr, cv in cals:
+            r = run_vio(cr, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel,
+                                      vo_rate_cov_scale=s_rate, **corr),  # type: ignore[arg-type]
+                        vo_run=cv)  # fmt: skip
+            for k in nis:
+                nis[k] += [
+                    x for x, a in zip(r.gating[k].nis, r.gating[k].accepted_mask, strict=True) if a
+                ]
+        cal = {k: float(np.mean(v)) for k, v in nis.items()}
+        s_vel *= cal["vo_velocity"] / 3.0
+        s_rate *= cal["vo_rate"] / 3.0
+    # the calibration's own sampling error: the scale is a mean NIS over n updates
+    sd = {k: float(np.std(v) / np.sqrt(_nis_ess_band(np.asarray(v), 3)[0])) for k, v in nis.items()}
+    print(f"VO covariance scales calibrated on seed(s) {cseeds} ({calib_duration:g} s each): "
+          f"velocity {s_vel:.3f}, rate {s_rate:.3f} (mean NIS there {cal['vo_velocity']:.2f} "
+          f"+- {sd['vo_velocity']:.2f}, {cal['vo_rate']:.2f} +- {sd['vo_rate']:.2f}, 1-sigma of the "
+          "calibration's mean: carried into this run's mean NIS as well)")  # fmt: skip
     run, vo_run = _sim_vo(duration, rate, seed)
     truth = run.truth()
     rows = []
     results = {}
     # this robot's constraint noise: the body origin is the axle centre (no lateral slip); the simulated
     # pitch / roll oscillation (0.005 rad) at 0.3-0.4 m/s makes about 0.002 m/s of vertical velocity.
-    base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate}
+    base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate, **corr}
     for name, cfg in (
         ("VO + IMU, NHC off", VioConfig(**base)),  # type: ignore[arg-type]
         ("VO + IMU, NHC on", VioConfig(nhc=True, **base)),  # type: ignore[arg-type]
@@ -177,41 +277,110 @@ def sim(duration: float, rate: float, seed: int, calib_duration: float) -> None:
         s = res.summary()
         o = s["outliers"]
         g = s["gating"]
+        ess = {}
+        for kind in ("vo_velocity", "vo_rate"):
+            st = res.gating[kind]
+            ess[kind] = _nis_ess_band(np.asarray(st.nis)[np.asarray(st.accepted_mask, bool)], 3)
         rows.append((
             name, f"{ev['fused'].ape_trans.rmse:.3f}", f"{ev['vo'].ape_trans.rmse:.3f}",
             f"{ev['imu'].ape_trans.rmse:.1f}",
             f"{o['corrupted_rejected']}/{o['corrupted']}" if o["corrupted"] else "-",
             f"{o['good_rejected']}/{o['good']}",
             f"{g['vo_velocity'].get('nis_mean_accepted', float('nan')):.2f} "
-            f"[{g['vo_velocity']['nis_mean_band_95'][0]:.2f}, {g['vo_velocity']['nis_mean_band_95'][1]:.2f}]",
+            f"[{g['vo_velocity']['nis_mean_band_95'][0]:.2f}, {g['vo_velocity']['nis_mean_band_95'][1]:.2f}]"
+            f" (ESS {ess['vo_velocity'][0]:.0f}: [{ess['vo_velocity'][1]:.2f}, {ess['vo_velocity'][2]:.2f}])",
             f"{g['vo_rate'].get('nis_mean_accepted', float('nan')):.2f} "
-            f"({100 * g['vo_velocity'].get('nis_share_in_95_band', float('nan')):.0f} % of vo_velocity's in its 95 % band)",
+            f"[{g['vo_rate']['nis_mean_band_95'][0]:.2f}, {g['vo_rate']['nis_mean_band_95'][1]:.2f}]"
+            f" (ESS {ess['vo_rate'][0]:.0f}: [{ess['vo_rate'][1]:.2f}, {ess['vo_rate'][2]:.2f}])",
             f"{g['nhc']['nis_mean_accepted']:.2f}" if "nhc" in g else "-",
         ))  # fmt: skip
     print(f"rendered ground robot, {duration:g} s figure eight, {rate:g} Hz stereo 752x480, seed {seed}; "
           f"ATE (SE(3) aligned) at the frame times, m")  # fmt: skip
     _table(["run", "ATE fused", "ATE VO only", "ATE IMU only", "corrupted rejected", "good rejected",
-            "mean NIS vo_velocity (3) [95 % band]", "mean NIS vo_rate (3)", "mean NIS nhc (2)"], rows)  # fmt: skip
+            "mean NIS vo_velocity (3) [95 % band] (effective n: band)",
+            "mean NIS vo_rate (3) [95 % band] (effective n: band)", "mean NIS nhc (2)"], rows)  # fmt: skip
     a = results["VO + IMU, NHC off"][1]["fused"].ape_trans.rmse
     b = results["VO + IMU, NHC on"][1]["fused"].ape_trans.rmse
     print(f"NHC cuts the fused ATE by {100 * (1 - b / a):.1f} % (target >= 30 %)")
+    g = results["VO + IMU, NHC on"][0].summary()["gating"]
+    return {"nhc_cut": 1 - b / a, "nis_vel": g["vo_velocity"]["nis_mean_accepted"],
+            "nis_rate": g["vo_rate"]["nis_mean_accepted"], "s_vel": s_vel, "s_rate": s_rate}  # fmt: skip
+
+
+def vostats(rate: float, calib_seeds: list[int] | None) -> None:
+    """The VO errors of the cached rendered runs against their truth (``sim`` renders them): the
+    rate-velocity correlation, the NEES with the shape learnt on ``calib_seeds`` (default 1 and 3, 120 s),
+    its variance (chi-square(3): 6) and tail, and the filter NIS variance with and without the shape."""
+    from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
+    from imuslam.vio.pipeline import VioConfig, run_vio
+
+    runs = {}
+    for p in sorted(CACHE.glob(f"vo_sim_*s_{rate:g}hz_seed*_v2.pkl")):
+        dur, seed = float(p.name.split("_")[2][:-1]), int(p.name.split("seed")[1].split("_")[0])
+        if seed not in runs or runs[seed][0] < dur:
+            runs[seed] = (dur, *_sim_vo(dur, rate, seed))
+    errs = {}
+    for seed, (_, run, vo) in runs.items():
+        ms = [m for _, m in vo.frames if m is not None]
+        errs[seed] = (ms, *vo_errors(ms, run.truth))
+    cs = calib_seeds or [1, 3]
+    M = learn_vo_cov_correction(np.concatenate([errs[s][1] for s in cs]),
+                                np.concatenate([errs[s][2] for s in cs]))  # fmt: skip
+    rows = []
+    for seed, (ms, E, C) in sorted(errs.items()):
+        sd = np.sqrt(np.einsum("nii->ni", C))
+        rep_corr = np.abs((C / (sd[:, :, None] * sd[:, None, :])).mean(0)[:3, 3:]).max()
+        emp_corr = np.abs(np.corrcoef(E.T)[:3, 3:]).max()
+        L = np.linalg.cholesky(C)
+        Cc = L @ M @ np.swapaxes(L, 1, 2)
+        nv = np.einsum("ni,nij,nj->n", E[:, 3:], np.linalg.inv(Cc[:, 3:, 3:]), E[:, 3:])
+        nw = np.einsum("ni,nij,nj->n", E[:, :3], np.linalg.inv(Cc[:, :3, :3]), E[:, :3])
+        top = nv > np.percentile(nv, 95)
+        inl = np.array([m.n_inliers for m in ms], float)
+        vf = np.array([m.var_factor for m in ms])
+        rows.append((
+            f"{seed} ({runs[seed][0]:g} s)", f"{rep_corr:.2f} / {emp_corr:.2f}",
+            f"{nv.mean():.2f} / {nw.mean():.2f}", f"{nv.var():.1f}",
+            f"{nv[top].sum() / nv.sum():.2f}",
+            f"{np.corrcoef(nv, inl)[0, 1]:.2f} / {np.corrcoef(nv, vf)[0, 1]:.2f}",
+        ))  # fmt: skip
+    print(f"VO errors against the truth, shape learnt on seeds {cs}: eigenvalues of M "
+          f"{np.array2string(np.linalg.eigvalsh(M), precision=2)}")  # fmt: skip
+    _table(["run (seed)", "max |corr| rate-velocity reported / against truth",
+            "NEES velocity / rate (3) with the shape", "NEES velocity variance (6)",
+            "top 5 % share of the NEES sum", "corr(NEES, inliers) / corr(NEES, variance factor)"],
+           rows)  # fmt: skip
+    if 0 in runs:
+        _, run, vo = runs[0]
+        for name, kw in (("with the shape", {"vo_cov_correction": M.tolist()}), ("without", {})):
+            res = run_vio(run, VioConfig(nhc=True, nhc_std=0.002, **kw), vo_run=vo)  # type: ignore[arg-type]
+            st = res.gating["vo_velocity"]
+            x = np.asarray(st.nis)[np.asarray(st.accepted_mask, bool)]
+            print(f"seed 0, NHC on, scales 1, {name}: VO-velocity NIS mean {x.mean():.2f}, variance "
+                  f"{x.var():.1f} (chi-square(3): 6)")  # fmt: skip
 
 
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("what", choices=["speed", "sim", "husky"])
+    ap.add_argument("what", choices=["speed", "sim", "vostats", "husky"])
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--rate", type=float, default=5.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument(
         "--calib-duration", type=float, default=60.0, help="sim: the calibration run, s"
     )
+    ap.add_argument("--calib-seeds", type=int, nargs="+", default=None,
+                    help="sim: calibration run seed(s), default seed + 1")  # fmt: skip
+    ap.add_argument("--no-correction", action="store_true",
+                    help="sim: block scales only, no learnt covariance shape")  # fmt: skip
     ap.add_argument("--only", choices=["all", "vo", "ekf"], default="all", help="speed: one part")
     a = ap.parse_args(argv)
     if a.what == "speed":
         speed(a.only)
+    elif a.what == "vostats":
+        vostats(a.rate, a.calib_seeds)
     elif a.what == "sim":
-        sim(a.duration, a.rate, a.seed, a.calib_duration)
+        sim(a.duration, a.rate, a.seed, a.calib_duration, a.calib_seeds, not a.no_correction)
     else:
         from imuslam.vio.wheel import husky_study
 

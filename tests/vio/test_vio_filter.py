@@ -21,10 +21,32 @@ def sim_case() -> tuple[SimStereoRun, VoRun]:
     return run, truth_vo_run(run, 0.01, 0.003, seed=2)
 
 
+def _correlated(vo_run: VoRun, seed: int) -> VoRun:
+    """The same frames with rate-velocity correlated noise (0.9 and -0.85, as the front end's fits)
+    and that full covariance: exercises the velocity conditioned on the rate."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(seed)
+    corr = np.eye(6)
+    corr[1, 5] = corr[5, 1] = 0.9
+    corr[2, 4] = corr[4, 2] = -0.85
+    sd = np.r_[[0.003] * 3, [0.01] * 3]
+    C = corr * np.outer(sd, sd)
+    L = np.linalg.cholesky(C)
+    frames = []
+    for t, m in vo_run.frames:
+        if m is not None:
+            n = L @ rng.normal(size=6)
+            m = replace(m, omega_b=m.omega_b + n[:3], vel_b=m.vel_b + n[3:], cov=C.copy())
+        frames.append((t, m))
+    return VoRun(frames, vo_run.stats, vo_run.seen, vo_run.unreadable)
+
+
 @pytest.mark.parametrize(
     "kw",
     [
-        {"nhc": True, "outlier_fraction": 0.2, "outlier_seed": 4},
+        {"nhc": True, "outlier_fraction": 0.2, "outlier_seed": 4, "correlated": True},
+        {"nhc": True, "vo_joint": False, "correlated": True},
         {"nhc": False},
         {"nhc": True, "nhc_rate_hz": 33.0, "gate_prob": None, "vehicle_p_b": (-0.2, 0.0, 0.1),
          "vehicle_rpy_deg": (1.0, -2.0, 3.0)},
@@ -32,6 +54,9 @@ def sim_case() -> tuple[SimStereoRun, VoRun]:
 )  # fmt: skip
 def test_compiled_filter_equals_reference(sim_case, kw) -> None:  # type: ignore[no-untyped-def]
     run, vo_run = sim_case
+    kw = dict(kw)
+    if kw.pop("correlated", False):
+        vo_run = _correlated(vo_run, 8)
     fast = run_vio(run, VioConfig(compiled=True, **kw), vo_run=vo_run)
     ref = run_vio(run, VioConfig(compiled=False, **kw), vo_run=vo_run)
     # same records at the same times (IMU samples, NHC times, frame mid-times)
@@ -58,3 +83,31 @@ def test_compiled_filter_equals_reference(sim_case, kw) -> None:  # type: ignore
     # walk of about 0.01 * sqrt(12 * 0.1) ~ 1 cm; 5 cm leaves room for the gated outliers' gaps
     ev = compare_tracks(run.truth(), {"fused": fast.fused}, run.t_frames_ns)
     assert ev["fused"].ape_trans.rmse < 0.05
+
+
+@pytest.mark.parametrize("gravity", [False, True])
+def test_sparse_propagation_equals_the_core_kernel(gravity: bool) -> None:
+    """vio/kernels.py's block-wise covariance propagation against the core's dense one (the VIO's
+    layout, and one with the gravity error block)."""
+    from imuslam.ins.core import ErrorLayout, propagate
+    from imuslam.vio.kernels import propagate_sparse
+
+    rng = np.random.default_rng(11)
+    lay = ErrorLayout.full(gravity=gravity)
+    off = lay.offsets
+    assert (off[5] >= 0) == gravity
+    n = 12
+    acc = rng.normal(0, 0.5, (n, 3)) + np.array([0.0, 0.0, 9.81])
+    gyr = rng.normal(0, 0.2, (n, 3))
+    dt = rng.uniform(0.003, 0.006, n - 1)
+    A = rng.normal(size=(lay.dim, lay.dim)) * 1e-2
+    P = A @ A.T + np.eye(lay.dim) * 1e-6
+    args = (acc, gyr, dt, rng.normal(size=3), rng.normal(size=3), np.eye(3),
+            rng.normal(0, 0.05, 3), rng.normal(0, 0.01, 3), np.array([0.0, 0.0, -9.81]))  # fmt: skip
+    q = np.array([4e-6, 3e-8, 1e-8, 4e-10])
+    Ps0, Vs0, Rs0, P0, _ = propagate(*args, P, q, off)
+    Ps1, Vs1, Rs1, P1 = propagate_sparse(*args, P, q, off)
+    np.testing.assert_array_equal(Ps1, Ps0)
+    np.testing.assert_array_equal(Vs1, Vs0)
+    np.testing.assert_array_equal(Rs1, Rs0)
+    np.testing.assert_allclose(P1, P0, rtol=0, atol=1e-14 * np.abs(P0).max())

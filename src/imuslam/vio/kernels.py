@@ -2,8 +2,9 @@
 
 :func:`frame_step` runs, for one VO frame, what :class:`imuslam.vio.pipeline.VioFilter` does in Python
 per event: the non-holonomic pseudo-measurements due before the frame's mid-time (predict to each, gated
-update, record), the prediction to the mid-time, the gated VO velocity and VO rate updates, and the
-record. The prediction is the inertial core's own kernel (:func:`imuslam.ins.core.propagate`), the update
+update, record), the prediction to the mid-time, the gated VO rate and VO velocity updates (the velocity
+conditioned on the rate), and the record. The prediction is the inertial core's (:func:`imuslam.ins.core.propagate`: its strapdown step, its
+transition matrix) with the covariance product taken block by block (:func:`propagate_sparse`), the update
 its :func:`~imuslam.ins.core.kalman_update` (Joseph form) and attitude perturbation
 :func:`~imuslam.ins.core.boxplus_attitude`; only the three measurement models are written again here, as
 compiled twins of :mod:`imuslam.vio.measurements` (which stay the reference: ``tests/vio`` runs both
@@ -21,8 +22,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.geometry.so3_nb import hat_nb
-from imuslam.ins.core import boxplus_attitude, is_pd, kalman_update, propagate
+from imuslam.geometry.so3_nb import exp_nb, hat_nb
+from imuslam.ins.core import boxplus_attitude, is_pd, kalman_update, strapdown_step
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -63,6 +64,103 @@ def gyro_mean_nb(
     for j in range(n + 1):
         s += 0.5 * (gs[j + 1] + gs[j]) * (ts[j + 1] - ts[j])
     return s / max(t1 - t0, 1e-12)
+
+
+@numba.njit(cache=True)
+def _blk_rows(
+    dst: FloatArray, src: FloatArray, i: int, j: int, M: FloatArray
+) -> None:  # pragma: no cover - compiled
+    """dst[i:i+3, :] += M (3, 3) @ src[j:j+3, :]."""
+    for a in range(3):
+        for c in range(src.shape[1]):
+            dst[i + a, c] += M[a, 0] * src[j, c] + M[a, 1] * src[j + 1, c] + M[a, 2] * src[j + 2, c]
+
+
+@numba.njit(cache=True)
+def _blk_cols(
+    dst: FloatArray, src: FloatArray, i: int, j: int, M: FloatArray
+) -> None:  # pragma: no cover - compiled
+    """dst[:, i:i+3] += src[:, j:j+3] @ M^T (M (3, 3))."""
+    for r in range(src.shape[0]):
+        s0, s1, s2 = src[r, j], src[r, j + 1], src[r, j + 2]
+        for a in range(3):
+            dst[r, i + a] += s0 * M[a, 0] + s1 * M[a, 1] + s2 * M[a, 2]
+
+
+@numba.njit(cache=True)
+def propagate_sparse(
+    accel: FloatArray, gyro: FloatArray, dt: FloatArray,
+    p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
+    P: FloatArray, q: FloatArray, off: IntArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # fmt: skip  # pragma: no cover - compiled
+    """The core's prediction (:func:`imuslam.ins.core.propagate`: the same strapdown steps, the same
+    transition matrix and process noise) with the covariance product ``Phi P Phi^T`` done block by
+    block: ``Phi`` is the identity but for six 3x3 blocks, so the two dense (m, m) products per sample
+    become a few (3, m) row and column operations, and the strong-tracking noise sum the core also
+    keeps is not formed. Returns p (N, 3), v (N, 3), R_n_b (N, 3, 3) per sample and P; equal to the
+    core's kernel to rounding (``tests/vio/test_vio_filter.py``)."""
+    n = accel.shape[0]
+    f_b = accel - ba
+    w_b = gyro - bg
+    Ps = np.empty((n, 3))
+    Vs = np.empty((n, 3))
+    Rs = np.empty((n, 3, 3))
+    Ps[0], Vs[0], Rs[0] = p, v, R
+    fn_sum = np.zeros(3)
+    w_ie = np.zeros(3)
+    for k in range(n - 1):
+        pn, vn, Rn, f0_n = strapdown_step(
+            Ps[k], Vs[k], Rs[k], f_b[k], f_b[k + 1], w_b[k], w_b[k + 1], dt[k], g_n, w_ie
+        )
+        Ps[k + 1], Vs[k + 1], Rs[k + 1] = pn, vn, Rn
+        fn_sum += f0_n
+    fn = fn_sum / max(dt.shape[0], 1)
+    ith, ip, iv, iba, ibg, ig = off[0], off[1], off[2], off[3], off[4], off[5]
+    Fx = hat_nb(fn)
+    eye3 = np.eye(3)
+    m = P.shape[0]
+    P = P.copy()
+    A = np.empty((m, m))
+    B = np.empty((m, m))
+    for k in range(dt.shape[0]):
+        h = dt[k]
+        E = exp_nb(-(0.5 * (gyro[k] + gyro[k + 1]) - bg) * h)
+        C = -(Fx @ Rs[k]) * h
+        Rh = -Rs[k] * h
+        Ih = eye3 * h
+        # A = Phi P (row blocks from P's rows)
+        A[:, :] = P
+        A[ith : ith + 3, :] = 0.0
+        _blk_rows(A, P, ith, ith, E)
+        if ibg >= 0:
+            _blk_rows(A, P, ith, ibg, -Ih)
+        _blk_rows(A, P, ip, iv, Ih)
+        _blk_rows(A, P, iv, ith, C)
+        if iba >= 0:
+            _blk_rows(A, P, iv, iba, Rh)
+        if ig >= 0:
+            _blk_rows(A, P, iv, ig, Ih)
+        # P = A Phi^T (column blocks from A's columns)
+        B[:, :] = A
+        B[:, ith : ith + 3] = 0.0
+        _blk_cols(B, A, ith, ith, E)
+        if ibg >= 0:
+            _blk_cols(B, A, ith, ibg, -Ih)
+        _blk_cols(B, A, ip, iv, Ih)
+        _blk_cols(B, A, iv, ith, C)
+        if iba >= 0:
+            _blk_cols(B, A, iv, iba, Rh)
+        if ig >= 0:
+            _blk_cols(B, A, iv, ig, Ih)
+        for i in range(3):
+            B[iv + i, iv + i] += q[0] * h
+            B[ith + i, ith + i] += q[1] * h
+            if iba >= 0:
+                B[iba + i, iba + i] += q[2] * h
+            if ibg >= 0:
+                B[ibg + i, ibg + i] += q[3] * h
+        P[:, :] = B
+    return Ps, Vs, Rs, P
 
 
 @numba.njit(cache=True)
@@ -118,7 +216,7 @@ def _advance(
         else:
             A[k], W[k] = acc[i0 + j - 1], gyr[i0 + j - 1]
         k += 1
-    Ps, Vs, Rs, Pn, _ = propagate(A, W, np.diff(ts), p, v, R, ba, bg, g_n, P, q, off)
+    Ps, Vs, Rs, Pn = propagate_sparse(A, W, np.diff(ts), p, v, R, ba, bg, g_n, P, q, off)
     p[:] = Ps[n - 1]
     v[:] = Vs[n - 1]
     R[:, :] = Rs[n - 1]
@@ -191,8 +289,8 @@ def _update(
 
 
 # layout of frame_step's packed inputs (one array each: fewer arguments to type-check per call)
-M_T, M_VEL, M_COV_V, M_OMEGA, M_COV_W, M_T0, M_T1, M_VEL_ON, M_RATE_ON, M_LEN = (
-    0, 1, 4, 13, 16, 25, 26, 27, 28, 29)  # fmt: skip
+M_T, M_VEL, M_COV_V, M_OMEGA, M_COV_W, M_T0, M_T1, M_VEL_ON, M_RATE_ON, M_COV_WV, M_JOINT, M_LEN = (
+    0, 1, 4, 13, 16, 25, 26, 27, 28, 29, 38, 39)  # fmt: skip
 C_NHC_ON, C_NHC_STD, C_NHC_DT, C_GYRO_Q, C_GATE_ON, C_THR2, C_THR3, C_LEN = 0, 1, 2, 3, 4, 5, 6, 7
 
 
@@ -207,9 +305,11 @@ def frame_step(
     nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
 ) -> int:  # fmt: skip  # pragma: no cover - compiled
     """One VO frame (see the module docstring): NHC updates due before the frame's mid-time (each at
-    its time, then recorded), prediction to it, the VO velocity and rate updates (when their flags are
-    set), and a record. ``meas`` (M_LEN,): mid-time, velocity (3,) m/s, its covariance (9,), rate (3,)
-    rad/s, its covariance (9,), the interval [t0, t1] s, the two flags; ``const`` (C_LEN,): NHC on,
+    its time, then recorded), prediction to it, the VO rate and velocity updates (when their flags are
+    set; with the joint flag and an accepted rate, the velocity conditioned on the rate as in
+    ``measurements.VoVelocityGivenRate``), and a record. ``meas`` (M_LEN,): mid-time, velocity (3,)
+    m/s, its covariance (9,), rate (3,) rad/s, its covariance (9,), the interval [t0, t1] s, the two
+    flags, the rate-velocity cross-covariance (9,), the joint flag; ``const`` (C_LEN,): NHC on,
     its sigma m/s and period s, gyro density^2, gate on, chi-square thresholds for 2 and 3 dof.
     Returns OK or DIVERGED (the time is in clock[0])."""
     t_target = meas[M_T]
@@ -245,16 +345,9 @@ def frame_step(
     if not _advance(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, t_target, q, off,
                     tr_t, tr_p, tr_R, cnt):  # fmt: skip
         return DIVERGED
-    if meas[M_VEL_ON] != 0.0:
-        vel_b = meas[M_VEL : M_VEL + 3]
-        cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3))
-        vb = R.T @ v
-        H = np.zeros((3, m))
-        H[:, off[2] : off[2] + 3] = R.T
-        H[:, off[0] : off[0] + 3] = hat_nb(vb)
-        if _update(vel_b - vb, H, cov_v, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_VEL,
-                   nis_buf, acc_buf, cnt) < 0:  # fmt: skip
-            return DIVERGED
+    rate_ok = False
+    r_w = np.zeros(3)
+    Rm_w = np.eye(3)
     if meas[M_RATE_ON] != 0.0:
         omega_b = meas[M_OMEGA : M_OMEGA + 3]
         cov_w = np.ascontiguousarray(meas[M_COV_W : M_COV_W + 9]).reshape((3, 3))
@@ -265,9 +358,30 @@ def frame_step(
         for i in range(3):
             H[i, off[4] + i] = -1.0
         r = omega_b - (g_mean - bg)
-        Rm = cov_w + np.eye(3) * (const[C_GYRO_Q] / (t1 - t0))
-        if _update(r, H, Rm, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_RATE, nis_buf,
-                   acc_buf, cnt) < 0:  # fmt: skip
+        Rm_w = cov_w + np.eye(3) * (const[C_GYRO_Q] / (t1 - t0))
+        st = _update(r, H, Rm_w, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_RATE, nis_buf,
+                     acc_buf, cnt)  # fmt: skip
+        if st < 0:
+            return DIVERGED
+        rate_ok = st == 1
+        r_w = omega_b - (g_mean - bg)  # at the updated gyro bias
+    if meas[M_VEL_ON] != 0.0:
+        vel_b = meas[M_VEL : M_VEL + 3]
+        cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3))
+        vb = R.T @ v
+        H = np.zeros((3, m))
+        H[:, off[2] : off[2] + 3] = R.T
+        H[:, off[0] : off[0] + 3] = hat_nb(vb)
+        r = vel_b - vb
+        if rate_ok and meas[M_JOINT] != 0.0:  # conditioned on the rate (VoVelocityGivenRate)
+            C_wv = np.ascontiguousarray(meas[M_COV_WV : M_COV_WV + 9]).reshape((3, 3))
+            G = np.linalg.solve(Rm_w, C_wv).T
+            r = r - G @ r_w
+            H[:, off[4] : off[4] + 3] += G
+            cov_v = cov_v - G @ C_wv
+            cov_v = 0.5 * (cov_v + cov_v.T)
+        if _update(r, H, cov_v, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_VEL,
+                   nis_buf, acc_buf, cnt) < 0:  # fmt: skip
             return DIVERGED
     mark_state(clock[0], p, R, ba, bg, P, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, cnt)
     return OK

@@ -1,6 +1,6 @@
 """The VIO filter's measurements, each linearising itself for the shared inertial core
-(:class:`imuslam.ins.core.Measurement`): VO body velocity, VO body rate, the non-holonomic constraint and
-a wheel speed.
+(:class:`imuslam.ins.core.Measurement`): VO body velocity (alone, or conditioned on the VO rate of the
+same frame pair), VO body rate, the non-holonomic constraint and a wheel speed.
 
 The error state is the core's ``[dtheta, dp, dv, db_a, db_g]`` with the right perturbation
 ``R_true = R exp(dtheta)``. Seed 004 writes the velocity measurement as ``v^b = C_n^b v^n``; with the right
@@ -133,3 +133,51 @@ class WheelYawRate:
         H[0, layout.BG] = -ez
         r = self.yaw_rate - ez @ (self.gyro_mean - x.gyro_bias)
         return np.array([r]), H, np.array([[self.std**2]])
+
+
+@dataclass
+class VoVelocityGivenRate:
+    """VO body velocity conditioned on the VO rate of the same frame pair (applied after the rate).
+
+    One motion fit gives both, and their errors are strongly correlated (a forward-looking camera
+    confuses a turn with a sideways shift: correlation coefficients of 0.9 and more between the rate
+    about one axis and the velocity along another, in the fit's covariance and against the truth alike).
+    Two independent updates would count that shared error twice. With the joint covariance
+    ``[[C_ww, C_wv], [C_vw, C_vv]]`` (``C_ww`` including the averaged gyro noise) and
+    ``G = C_vw C_ww^-1``, the transformed measurement ``z_v - G z_w`` has the noise ``n_v - G n_w``,
+    independent of the rate's (the block LDL^T decorrelation of a measurement vector before sequential
+    processing, as in Grewal and Andrews, *Kalman Filtering: Theory and Practice*, on correlated
+    measurement noise): so the rate update followed by this one equals the joint 6-dof update,
+    and each keeps its own gate and NIS. Residual ``r_v - G r_w``, Jacobian ``H_v - G H_w``, covariance
+    ``C_vv - G C_wv``."""
+
+    vel_b: FloatArray
+    cov: FloatArray  # the conditional covariance C_vv - G C_wv (3, 3)
+    gain: FloatArray  # G (3, 3)
+    omega_b: FloatArray
+    gyro_mean: FloatArray
+    kind: str = "vo_velocity"
+
+    @classmethod
+    def from_joint(
+        cls,
+        vel_b: FloatArray,
+        omega_b: FloatArray,
+        gyro_mean: FloatArray,
+        cov_ww: FloatArray,
+        cov_wv: FloatArray,
+        cov_vv: FloatArray,
+    ) -> VoVelocityGivenRate:
+        """From the joint blocks (``cov_ww`` with the gyro noise already added)."""
+        G = np.asarray(np.linalg.solve(cov_ww, cov_wv).T, dtype=np.float64)  # C_vw C_ww^-1
+        cov = cov_vv - G @ cov_wv
+        return cls(vel_b, 0.5 * (cov + cov.T), G, omega_b, gyro_mean)
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        r_v, H_v, _ = VoVelocity(self.vel_b, self.cov).linearize(x, layout)
+        r_w = self.omega_b - (self.gyro_mean - x.gyro_bias)
+        H = H_v.copy()
+        H[:, layout.BG] += self.gain  # - G H_w with H_w = -I on the gyro bias
+        return r_v - self.gain @ r_w, H, self.cov

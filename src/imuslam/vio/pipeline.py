@@ -5,7 +5,8 @@
 interpolated at block ends), applies the measurements of :mod:`imuslam.vio.measurements` through the
 core's gated ``update`` (chi-square test per measurement kind, ``gate_prob``), counts accepted and rejected
 updates and keeps their NIS, and records the trajectory. :func:`run_vio` drives it from a stereo dataset:
-VO per frame pair, a VO velocity and a VO rate update at each pair's mid-time, and the non-holonomic
+VO per frame pair, a VO rate and a VO velocity update at each pair's mid-time (the velocity conditioned on
+the rate: one motion fit gives both, with strongly correlated errors), and the non-holonomic
 pseudo-measurements at ``nhc_rate_hz``; beside it, VO alone (relative poses chained) and the IMU alone
 (the core's strapdown from the same initial state) for comparison.
 """
@@ -35,8 +36,9 @@ from imuslam.ins.core import (
 )
 from imuslam.io.imulog import ImuLog
 from imuslam.io.trajectory import Trajectory
+from imuslam.vio.covcal import apply_vo_cov_correction
 from imuslam.vio.frontend import StereoVO, VoConfig, VoMeasurement, VoStats
-from imuslam.vio.measurements import NonHolonomic, VoRate, VoVelocity
+from imuslam.vio.measurements import NonHolonomic, VoRate, VoVelocity, VoVelocityGivenRate
 
 FloatArray = NDArray[np.float64]
 U8Image = NDArray[np.uint8]
@@ -94,6 +96,18 @@ class VioConfig(BaseModel):
         "calibrated on another run with known truth, e.g. by bench/vio.py sim)",
     )
     vo_rate_cov_scale: float = Field(1.0, gt=0, description="the same for the VO rate covariance")
+    vo_cov_correction: list[list[float]] | None = Field(
+        None,
+        description="6x6 second moment of the VO errors whitened by the front end's covariance, learnt "
+        "on a run with truth (vio.covcal); the filter uses L M L^T (L L^T the reported covariance), "
+        "then the block scales",
+    )
+    vo_joint: bool = Field(
+        True,
+        description="VO rate and velocity of a frame pair as one measurement with their cross-covariance "
+        "(the rate update, then the velocity conditioned on the rate; measurements.VoVelocityGivenRate); "
+        "False: two independent updates, the cross-covariance dropped",
+    )
     compiled: bool = Field(
         True,
         description="the compiled frame step (vio/kernels.py); False: the Python reference filter",
@@ -280,13 +294,16 @@ class VioFilter:
         cov_omega: FloatArray | None = None,
         t0_s: float = 0.0,
         t1_s: float = 0.0,
+        cov_wv: FloatArray | None = None,
     ) -> bool:
         """Everything up to one VO frame's mid-time ``t_s``: the non-holonomic updates due before it
-        (when ``cfg.nhc``), the prediction to ``t_s``, the VO velocity update (``vel_b`` (3,) m/s, body,
-        covariance (3, 3)) and the VO rate update (``omega_b`` (3,) rad/s over [t0_s, t1_s], covariance
-        (3, 3)) when given, and a record. Returns whether the velocity update was accepted (True without
-        one). This is the reference (one Python call per event); :class:`CompiledVioFilter` does the
-        same in one compiled call."""
+        (when ``cfg.nhc``), the prediction to ``t_s``, the VO rate update (``omega_b`` (3,) rad/s over
+        [t0_s, t1_s], covariance (3, 3)) and the VO velocity update (``vel_b`` (3,) m/s, body, covariance
+        (3, 3)) when given, and a record. With ``cov_wv`` (3, 3), the rate-velocity cross-covariance,
+        and an accepted rate update, the velocity is conditioned on the rate
+        (:class:`~imuslam.vio.measurements.VoVelocityGivenRate`); otherwise it is applied alone. Returns
+        whether the velocity update was accepted (True without one). This is the reference (one Python
+        call per event); :class:`CompiledVioFilter` does the same in one compiled call."""
         cfg = self.cfg
         while cfg.nhc and self.next_nhc < t_s:
             self.advance(self.next_nhc)
@@ -295,13 +312,23 @@ class VioFilter:
             self.mark()
             self.next_nhc += 1.0 / cfg.nhc_rate_hz
         self.advance(t_s)
-        ok_v = True
-        if vel_b is not None and cov_vel is not None:
-            ok_v = self.update(VoVelocity(vel_b, cov_vel), 3)
+        ok_v = ok_w = True
+        rate = None
         if omega_b is not None and cov_omega is not None:
             g_mean = self.gyro_mean(t0_s, t1_s)
             gv = self.noise.gyro**2 / (t1_s - t0_s)
-            self.update(VoRate(omega_b, cov_omega, g_mean, gv), 3)
+            rate = VoRate(omega_b, cov_omega, g_mean, gv)
+            ok_w = self.update(rate, 3)
+        if vel_b is not None and cov_vel is not None:
+            if rate is not None and ok_w and cov_wv is not None:
+                ok_v = self.update(
+                    VoVelocityGivenRate.from_joint(
+                        vel_b, rate.omega_b, rate.gyro_mean, rate.cov + np.eye(3) * rate.gyro_var,
+                        cov_wv, cov_vel,
+                    ), 3,
+                )  # fmt: skip
+            else:
+                ok_v = self.update(VoVelocity(vel_b, cov_vel), 3)
         self.mark()
         return ok_v
 
@@ -365,8 +392,10 @@ class CompiledVioFilter(VioFilter):
         self._thr3 = chi2_threshold(cfg.gate_prob, 3) if cfg.gate_prob is not None else np.inf
         self._q = self.noise.q
         self._off = self.kf.layout.offsets
+        import imuslam.vio.kernels as kern
         from imuslam.vio.kernels import C_LEN, M_LEN
 
+        self._kern = kern
         self._meas = np.zeros(M_LEN)
         self._const = np.zeros(C_LEN)
         self._const[:] = (float(cfg.nhc), cfg.nhc_std, 1.0 / cfg.nhc_rate_hz, self.noise.gyro**2,
@@ -410,23 +439,9 @@ class CompiledVioFilter(VioFilter):
         cov_omega: FloatArray | None = None,
         t0_s: float = 0.0,
         t1_s: float = 0.0,
+        cov_wv: FloatArray | None = None,
     ) -> bool:
-        from imuslam.errors import FilterDivergence
-        from imuslam.vio.kernels import (
-            DIVERGED,
-            KIND_VEL,
-            M_COV_V,
-            M_COV_W,
-            M_OMEGA,
-            M_RATE_ON,
-            M_T,
-            M_T0,
-            M_T1,
-            M_VEL,
-            M_VEL_ON,
-            frame_step,
-        )  # fmt: skip
-
+        K = self._kern  # the kernels module (imported once: this runs per frame)
         cfg = self.cfg
         t_now, t_nhc = float(self._clock[0]), float(self._clock[1])
         n_nhc = int(np.ceil((t_s - t_nhc) * cfg.nhc_rate_hz)) + 2 if cfg.nhc and t_s > t_nhc else 0
@@ -440,22 +455,27 @@ class CompiledVioFilter(VioFilter):
         vel_on = vel_b is not None and cov_vel is not None
         meas = self._meas
         meas[:] = 0.0
-        meas[M_T] = t_s
+        meas[K.M_T] = t_s
         if vel_b is not None and cov_vel is not None:
-            meas[M_VEL : M_VEL + 3] = vel_b
-            meas[M_COV_V : M_COV_V + 9] = np.ravel(cov_vel)
-            meas[M_VEL_ON] = 1.0
+            meas[K.M_VEL : K.M_VEL + 3] = vel_b
+            meas[K.M_COV_V : K.M_COV_V + 9] = cov_vel.reshape(9)
+            meas[K.M_VEL_ON] = 1.0
         if omega_b is not None and cov_omega is not None:
-            meas[M_OMEGA : M_OMEGA + 3] = omega_b
-            meas[M_COV_W : M_COV_W + 9] = np.ravel(cov_omega)
-            meas[M_T0], meas[M_T1], meas[M_RATE_ON] = t0_s, t1_s, 1.0
-        status = frame_step(
+            meas[K.M_OMEGA : K.M_OMEGA + 3] = omega_b
+            meas[K.M_COV_W : K.M_COV_W + 9] = cov_omega.reshape(9)
+            meas[K.M_T0], meas[K.M_T1], meas[K.M_RATE_ON] = t0_s, t1_s, 1.0
+            if cov_wv is not None:
+                meas[K.M_COV_WV : K.M_COV_WV + 9] = cov_wv.reshape(9)
+                meas[K.M_JOINT] = 1.0
+        status = K.frame_step(
             self.t_imu, self.acc, self.gyr, x.p_n, x.v_n, x.R_n_b, x.accel_bias, x.gyro_bias, x.g_n,
             self.kf.P, self._clock, meas, self._const, self.R_b_v, self.p_b_v, self._q, self._off,
             self._tr_t, self._tr_p, self._tr_R, self._b_t, self._b, self._b_s,
             self._nis, self._acc, self._cnt,
         )  # fmt: skip
-        if status == DIVERGED:
+        if status == K.DIVERGED:
+            from imuslam.errors import FilterDivergence
+
             raise FilterDivergence(
                 f"filter diverged at t = {self._clock[0]:.3f} s after the start (frame mid-time "
                 f"{t_s:.3f} s): covariance not positive definite or state not finite; check the noise "
@@ -463,7 +483,7 @@ class CompiledVioFilter(VioFilter):
             )
         self.t = float(self._clock[0])
         self.next_nhc = float(self._clock[1])
-        return bool(self._acc[KIND_VEL, self._cnt[3] - 1]) if vel_on else True
+        return bool(self._acc[K.KIND_VEL, self._cnt[3] - 1]) if vel_on else True
 
     def mark(self) -> None:
         from imuslam.vio.kernels import mark_state
@@ -551,18 +571,35 @@ class VioResult:
         }
 
 
-def vo_cov(m: VoMeasurement, cfg: VioConfig) -> FloatArray:
+def vo_cov(m: VoMeasurement, cfg: VioConfig, M: FloatArray | None = None) -> FloatArray:
     """The (6, 6) covariance of ``[omega_b, vel_b]`` the filter uses for a VO measurement (see
-    ``VioConfig.vo_cov_model``), its rate and velocity blocks scaled by ``vo_rate_cov_scale`` and
+    ``VioConfig.vo_cov_model``), reshaped by the correction ``M`` (6, 6) (``L M L^T``, see
+    :mod:`imuslam.vio.covcal`), its rate and velocity blocks scaled by ``vo_rate_cov_scale`` and
     ``vo_cov_scale``."""
     if cfg.vo_cov_model == "residual" and m.cov_fit is not None:
         cov = m.cov_fit * m.var_factor
     else:
         cov = m.cov
+    if M is not None:
+        cov = apply_vo_cov_correction(cov, M)
     if cfg.vo_rate_cov_scale == 1.0 and cfg.vo_cov_scale == 1.0:
         return cov
     s = np.sqrt(np.r_[[cfg.vo_rate_cov_scale] * 3, [cfg.vo_cov_scale] * 3])
     return np.asarray(cov * np.outer(s, s), dtype=np.float64)
+
+
+def _correction(cfg: VioConfig) -> FloatArray | None:
+    """``cfg.vo_cov_correction`` as a (6, 6) array, checked symmetric positive definite."""
+    if cfg.vo_cov_correction is None:
+        return None
+    M = np.asarray(cfg.vo_cov_correction, dtype=float)
+    if M.shape != (6, 6) or not np.all(np.isfinite(M)) or not np.allclose(M, M.T, atol=1e-9):
+        raise InputError(
+            f"config: vo_cov_correction has shape {M.shape}; expected a finite symmetric 6x6 matrix"
+        )
+    if np.linalg.eigvalsh(M).min() <= 0:
+        raise InputError("config: vo_cov_correction is not positive definite")
+    return M
 
 
 def _check_imu_span(imu: ImuLog, t_first: int, t_last: int, source: str) -> None:
@@ -619,6 +656,7 @@ def run_vio(
     if vo_run is None:
         vo_run = compute_vo(data, cfg.vo, progress)
     rng = np.random.default_rng(cfg.outlier_seed)
+    M_cov = _correction(cfg)
 
     filt: VioFilter | None = None
     t_ref = 0
@@ -698,12 +736,13 @@ def run_vio(
                 m.vel_b + dv / np.linalg.norm(dv) * rng.uniform(*cfg.outlier_vel), m.cov, m.T_b0_b1,
                 m.n_inliers, m.cov_fit, m.var_factor,
             )  # fmt: skip
-        cov = vo_cov(m, cfg)
+        cov = vo_cov(m, cfg, M_cov)
         ok_v = filt.frame(
             (m.t_mid_ns - t_ref) * 1e-9,
             m.vel_b if cfg.vo_velocity else None, cov[3:, 3:],
             m.omega_b if cfg.vo_rate else None, cov[:3, :3],
             (m.t0_ns - t_ref) * 1e-9, (m.t1_ns - t_ref) * 1e-9,
+            cov[:3, 3:] if cfg.vo_joint else None,
         )  # fmt: skip
         meas_all.append(m)
         corrupted.append(bad)
