@@ -28,6 +28,8 @@ from imuslam.slam2d import pose2
 from imuslam.slam2d.slam import Slam2dConfig, Slam2dResult, render_map, run_slam2d, scan_points
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+RELOC = "scans re-localised by the wide search (the prior was off)"
+POOR = "scans far below the run's match score, not inserted"
 RADISH = {"intel": "intel", "fr079": "freiburg-079", "aces": "aces", "mit-csail": "csail"}
 
 
@@ -140,8 +142,8 @@ def main() -> None:
         maps.mkdir(parents=True, exist_ok=True)
     cfg = Slam2dConfig()
     rows = []
-    print("| log | scans | log duration [s] | wall [s] | CPU [s] | of which the loop worker thread [s] | x real time (wall / CPU) | loops | SLAM relation error: trans [m], rot [deg] | odometry relation error | relations |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| log | scans | log duration [s] | wall [s] | CPU [s] | of which the loop worker thread [s] | x real time (wall / CPU) | loops | SLAM relation error: trans [m], rot [deg] | odometry relation error | relations | SLAM ATE after SE(2) alignment: RMSE, largest [m] | odometry ATE [m] | scans re-localised / not inserted |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.logs:
         if name in RADISH:
             c = read_carmen(DATA / "radish_freiburg_benchmark" / f"{name}.clf.bz2")
@@ -157,7 +159,8 @@ def main() -> None:
                   f"{log_.duration_s / wall:.0f} / {log_.duration_s / cpu:.0f} | {len(res.loops)} | "
                   f"{s['trans_mean']:.3f} ± {s['trans_std']:.3f}, {s['rot_mean_deg']:.2f} ± {s['rot_std_deg']:.2f} | "
                   f"{o['trans_mean']:.3f} ± {o['trans_std']:.3f}, {o['rot_mean_deg']:.2f} ± {o['rot_std_deg']:.2f} | "
-                  f"{s['n']} |", flush=True)  # fmt: skip
+                  f"{s['n']} | {s['ate_rmse_m']:.2f}, {s['ate_max_m']:.2f} | {o['ate_rmse_m']:.2f}, {o['ate_max_m']:.2f} | "
+                  f"{res.warnings.get(RELOC, 0)} / {res.warnings.get(POOR, 0)} |", flush=True)  # fmt: skip
         else:
             log_ = read_breezyslam(DATA / "breezyslam_mines" / f"{name}.dat")
             # the 4 m Hokuyo in the mine scores 0.57 on average even against its own submap: accept loop
