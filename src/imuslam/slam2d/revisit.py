@@ -74,14 +74,19 @@ def check_revisits(
     cand = np.flatnonzero((np.arange(n) >= max(n0, int(n * min_gap_fraction))) & (d < radius))
     if len(cand) > max_checks:
         cand = cand[np.linspace(0, len(cand) - 1, max_checks).round().astype(int)]
-    pts_all = scan_points(log_, cfg)
+    pts_all = scan_points(log_, cfg, with_time=True)
     r = cfg.resolution
     lin = int(round(window / r))
     checks = []
     for k in cand:
-        pts = pts_all[k]
+        pts = pts_all[k][:, :2]
         if len(pts) < 10:
             continue
+        if log_.time_increment > 0 and k > 0:
+            # unwarped with the local SLAM's motion over the scan, as the SLAM and render_map do
+            dt = max(float(log_.t_ns[k] - log_.t_ns[k - 1]) * 1e-9, 1e-3)
+            step_k = pose2.between(res.local_xy_yaw[k - 1], res.local_xy_yaw[k])
+            pts = pose2.act_each(step_k[None] * (pts_all[k][:, 2] / dt)[:, None], pts)
         step = angular_step(
             r, min(float(np.max(np.hypot(pts[:, 0], pts[:, 1]))), cfg.loop.step_range)
         )
