@@ -6,7 +6,9 @@ local SLAM   each scan is matched against the current submap: a motion prior fro
              reports a tilt above ``max_tilt_deg`` are not inserted), a real-time correlative search
              (Olson 2009), then Gauss-Newton refinement on the interpolated probability grid. Scans that
              moved enough (the motion filter) become nodes and are inserted into the two active submaps;
-             a submap is finished after ``scans_per_submap`` nodes.
+             a submap is finished after ``scans_per_submap`` nodes. A scan scoring far below the run's
+             median is searched again over a wide window by branch and bound (an odometry jump), or not
+             inserted.
 global SLAM  nodes are matched against finished submaps by branch and bound (Hess 2016, section V);
              accepted matches are loop constraints with a Huber loss in a pose graph of the nodes
              (consecutive nodes tied by their local-SLAM relative pose), optimised with gtsam
