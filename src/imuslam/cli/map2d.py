@@ -111,6 +111,8 @@ def register(app: typer.Typer) -> None:
                 if metrics["kind"] == "kuemmerle2009_relations":
                     rows.append([f"{name}: relation error (Kümmerle 2009)",
                                  f"{m['trans_mean']:.3f} ± {m['trans_std']:.3f} m, {m['rot_mean_deg']:.2f} ± {m['rot_std_deg']:.2f}", "m, deg"])  # fmt: skip
+                    rows.append([f"{name}: ATE after SE(2) alignment (RMSE, largest)",
+                                 f"{m['ate_rmse_m']:.3f}, {m['ate_max_m']:.3f}", "m"])  # fmt: skip
                 else:
                     rows.append([f"{name}: ATE RMSE", f"{m['ate_rmse_m']:.3f}", "m"])
                     rows.append(

@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import InputError
+from imuslam.eval.mapquality import align_se2, transform
 from imuslam.eval.metrics import evaluate
 from imuslam.eval.relations import associate_by_ranges, consecutive_relations, relation_error
 from imuslam.io.laserlog import LaserLog
@@ -38,7 +39,9 @@ def is_carmen(path: Path) -> bool:
 def relations_against_corrected(
     gt: str | Path, log_: LaserLog, estimates: dict[str, FloatArray]
 ) -> dict[str, Any]:
-    """Kümmerle 2009 relation errors of each estimate (N, 3) against a corrected CARMEN log."""
+    """Kümmerle 2009 relation errors of each estimate (N, 3) against a corrected CARMEN log, and its
+    global consistency: the ATE (RMSE and largest, m) of the associated poses after the SE(2) alignment
+    that fits them best (a loop left open shows here, not in the local relations)."""
     from imuslam.io.carmen import read_carmen
 
     ref = read_carmen(gt)
@@ -56,6 +59,10 @@ def relations_against_corrected(
     }
     for name, est in estimates.items():
         out[name] = asdict(relation_error(est[ei], refp, i, j))
+        T = align_se2(est[ei, :2], refp[:, :2])
+        d = np.hypot(*(transform(T, est[ei])[:, :2] - refp[:, :2]).T)
+        out[name]["ate_rmse_m"] = float(np.sqrt(np.mean(d**2)))
+        out[name]["ate_max_m"] = float(d.max())
     return out
 
 

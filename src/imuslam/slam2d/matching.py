@@ -396,3 +396,45 @@ def bnb_match(
     if a < 0:
         return pose0.copy(), -1.0
     return np.array([pose0[0] + dx * res, pose0[1] + dy * res, th[a]]), float(score)
+
+
+@numba.njit(cache=True, nogil=True)
+def score_volume(
+    prob: F32,
+    x0: float,
+    y0: float,
+    res: float,
+    pts_b: FloatArray,
+    pose0: FloatArray,
+    lin_cells: int,
+    n_ang: int,
+    ang_step: float,
+    p_unknown: float,
+) -> F32:  # pragma: no cover - compiled
+    """The score (mean probability at the points, no prior weighting) of every pose of the window
+    ``pose0`` +- lin_cells cells, +- n_ang angle steps: (2 n_ang + 1, 2 lin_cells + 1, 2 lin_cells + 1)
+    indexed [angle, dy, dx]. Shows how distinct a match's peak is (the correlative search's lattice)."""
+    H, W = prob.shape
+    P = pts_b.shape[0]
+    n = 2 * lin_cells + 1
+    out = np.zeros((2 * n_ang + 1, n, n), np.float32)
+    cx = np.empty(P, np.int64)
+    cy = np.empty(P, np.int64)
+    for a in range(-n_ang, n_ang + 1):
+        th = pose0[2] + a * ang_step
+        c, s = np.cos(th), np.sin(th)
+        for k in range(P):
+            cx[k] = int(np.floor((c * pts_b[k, 0] - s * pts_b[k, 1] + pose0[0] - x0) / res))
+            cy[k] = int(np.floor((s * pts_b[k, 0] + c * pts_b[k, 1] + pose0[1] - y0) / res))
+        for dy in range(-lin_cells, lin_cells + 1):
+            for dx in range(-lin_cells, lin_cells + 1):
+                acc = 0.0
+                for k in range(P):
+                    ix = cx[k] + dx
+                    iy = cy[k] + dy
+                    if 0 <= ix < W and 0 <= iy < H:
+                        acc += prob[iy, ix]
+                    else:
+                        acc += p_unknown
+                out[a + n_ang, dy + lin_cells, dx + lin_cells] = acc / P
+    return out

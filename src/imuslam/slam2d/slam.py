@@ -6,7 +6,9 @@ local SLAM   each scan is matched against the current submap: a motion prior fro
              reports a tilt above ``max_tilt_deg`` are not inserted), a real-time correlative search
              (Olson 2009), then Gauss-Newton refinement on the interpolated probability grid. Scans that
              moved enough (the motion filter) become nodes and are inserted into the two active submaps;
-             a submap is finished after ``scans_per_submap`` nodes.
+             a submap is finished after ``scans_per_submap`` nodes. A scan scoring far below the run's
+             median is searched again over a wide window by branch and bound (an odometry jump), or not
+             inserted.
 global SLAM  nodes are matched against finished submaps by branch and bound (Hess 2016, section V);
              accepted matches are loop constraints with a Huber loss in a pose graph of the nodes
              (consecutive nodes tied by their local-SLAM relative pose), optimised with gtsam
@@ -63,6 +65,23 @@ class MatcherConfig(BaseModel):
     translation_weight: float = Field(3.0, ge=0, description="pull towards the prior, per m")
     rotation_weight: float = Field(40.0, ge=0, description="pull towards the prior, per rad")
     max_iterations: int = Field(20, ge=1)
+    # a scan whose match scores this far below the running median is searched again over a wide window
+    # by branch and bound against the same submap (an odometry jump, a slip while turning: on ACES a
+    # 61 deg turn in 0.16 s is read as a jump and replaced by no motion; the +-10 deg window cannot
+    # bridge it and the local SLAM kept a 68 deg error for the rest of the log)
+    recovery_score_ratio: float = Field(
+        0.6, ge=0, lt=1, description="wide search when the score < ratio x the running median"
+    )
+    recovery_linear_window: float = Field(1.0, gt=0, description="wide search half-window, m")
+    # +-90 deg: a corridor scores almost as well turned by 180 deg (MIT-CSAIL with +-180: a scan flipped
+    # at 0.44 against a run median of 0.68, and the map broke)
+    recovery_angular_window_deg: float = Field(90.0, gt=0, le=180.0)
+    recovery_min_gain: float = Field(
+        0.15,
+        gt=0,
+        description="the wide search's pose must score this much more than the local one "
+        "and no longer be poor (at least recovery_score_ratio x the running median)",
+    )
 
 
 class LoopConfig(BaseModel):
@@ -159,6 +178,8 @@ class Slam2dResult:
     source: str = ""
     rejected_tilt: int = 0
     extra: dict[str, float] = field(default_factory=dict)
+    # (N,) the local match's score (mean probability at the scan's points), NaN where not matched
+    match_score: FloatArray = field(default_factory=lambda: np.zeros(0))
 
 
 def scan_points(log_: LaserLog, cfg: Slam2dConfig, with_time: bool = False) -> list[FloatArray]:
@@ -274,6 +295,32 @@ class Slam2d:
             m.translation_weight, m.rotation_weight, p.p_unknown, m.max_iterations,
         )  # fmt: skip
         return pose, float(score)
+
+    def relocalise(
+        self, pts: FloatArray, prior: FloatArray, score: float, median: float
+    ) -> tuple[FloatArray, float] | None:
+        """Branch and bound of a scan against the oldest active submap over the recovery window around
+        ``prior``, refined; the pose and score when it beats ``score`` by the recovery gain and is no longer
+        poor against the run's ``median`` score, else None."""
+        m = self.cfg.matcher
+        need = max(score + m.recovery_min_gain, m.recovery_score_ratio * median)
+        g = self.submaps[self.active[0]].grid
+        prob, x0, y0 = g.cropped()
+        idx = make_index(prob, x0, y0, self.params.resolution, self.cfg.loop.depth)
+        pose, sc = bnb_match(
+            idx, pts, prior, m.recovery_linear_window, np.deg2rad(m.recovery_angular_window_deg),
+            need, self.cfg.loop.step_range,
+        )  # fmt: skip
+        if sc < 0:
+            return None
+        p = self.params
+        refined, sc2 = refine_pose(
+            prob, x0, y0, p.resolution, pts, pose, pose, m.occupied_space_weight, m.translation_weight,
+            m.rotation_weight, p.p_unknown, m.max_iterations,
+        )  # fmt: skip
+        if sc2 < need:
+            return None
+        return refined, float(sc2)
 
     def wants_node(self, local: FloatArray, t_s: float) -> bool:
         if not self.node_local:
@@ -515,6 +562,10 @@ def _run_slam2d(
     slam.sensor_b = log_.T_b_l[None, :2].copy()
     local = np.zeros((n, 3))
     node_of_scan = np.zeros(n, np.int64)
+    match_score = np.full(n, np.nan)
+    recovered = 0
+    poor_scans = 0
+    recent: list[float] = []  # the last scores, for the running median
     rejected_tilt = 0
     empty = 0
     pose = np.zeros(3)
@@ -537,6 +588,7 @@ def _run_slam2d(
             step_k = pose2.between(local[k - 1], prior)
             pts = pose2.act_each(step_k[None] * f[:, None], pts)
         tilted = imu is not None and imu[1][k] > cfg.max_tilt_deg
+        poor = False
         if len(pts) < 3:
             empty += 1
             est = prior
@@ -545,8 +597,23 @@ def _run_slam2d(
             est = prior
         else:
             est, score = slam.match(pts, prior)
+            if k > 0 and slam.active and len(recent) >= 20:
+                med = float(np.median(recent))
+                if score < cfg.matcher.recovery_score_ratio * med:
+                    found = slam.relocalise(pts, prior, score, med)
+                    if found is not None:
+                        est, score = found
+                        recovered += 1
+                    else:
+                        # still far below the run: not inserted, so it cannot spoil the submap
+                        poor = True
+                        poor_scans += 1
             if k > 0 and slam.active:
+                recent.append(score)
+                if len(recent) > 100:
+                    recent.pop(0)
                 slam.scores.append(score)
+                match_score[k] = score
         if not np.isfinite(est).all():
             raise EstimatorError(
                 f"{log_.source}: scan {k}: the scan matcher returned a non-finite pose"
@@ -554,7 +621,7 @@ def _run_slam2d(
         local[k] = est
         if k > 0:
             vel = pose2.between(local[k - 1], est)
-        if not tilted and len(pts) >= 3 and slam.wants_node(est, t_s[k]):
+        if not tilted and not poor and len(pts) >= 3 and slam.wants_node(est, t_s[k]):
             slam.add_node(k, est, pts, t_s[k])
         node_of_scan[k] = max(len(slam.node_local) - 1, 0)
         if progress is not None:
@@ -581,12 +648,17 @@ def _run_slam2d(
     warnings = dict(log_.warnings)
     if empty:
         warnings["scans with fewer than 3 valid readings (pose from the prior)"] = empty
+    if recovered:
+        warnings["scans re-localised by the wide search (the prior was off)"] = recovered
+    if poor_scans:
+        warnings["scans far below the run's match score, not inserted"] = poor_scans
     if rejected_tilt:
         warnings["scans rejected by the IMU tilt (pose from the prior)"] = rejected_tilt
     return Slam2dResult(
         log_.t_ns.copy(), glob, local, None if log_.odom_xy_yaw is None else log_.odom_xy_yaw.copy(),
         np.array(slam.node_scan), len(slam.submaps), slam.loops, slam.loops_searched, dict(slam.timing),
         warnings, float(np.mean(slam.scores)) if slam.scores else 0.0, cfg, log_.source, rejected_tilt,
+        match_score=match_score,
     )  # fmt: skip
 
 
