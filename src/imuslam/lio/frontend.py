@@ -6,7 +6,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.lio.config import FrontEndConfig
-from imuslam.lio.features import FeatureParams, loam_features, voxel_downsample
+from imuslam.lio.features import (
+    FeatureParams,
+    direct_pass,
+    features_pass,
+    loam_features,
+    voxel_downsample,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -17,10 +23,35 @@ def select_points(
     ring: NDArray[np.integer] | None,
     cfg: FrontEndConfig,
 ) -> tuple[FloatArray, FloatArray]:
-    """Plane-like points (N, 3) and edge points (E, 3) of a deskewed scan (LiDAR frame).
+    """Plane-like points (N, 3) and edge points (E, 3) of a deskewed scan (LiDAR frame), in one compiled
+    pass (``features.features_pass`` / ``direct_pass``; the same points as
+    :func:`select_points_reference`).
 
     ``features`` mode needs the ring of each point; without it the direct mode is used.
     """
+    pts = np.ascontiguousarray(points_l, dtype=np.float64)
+    if cfg.mode == "direct" or ring is None:
+        return direct_pass(pts, cfg.min_range, cfg.max_range, cfg.scan_voxel), np.zeros((0, 3))
+    rg = np.asarray(ring)
+    if len(rg) and (int(rg.min()) < 0 or int(rg.max()) > 1 << 16):
+        return select_points_reference(points_l, t_s, ring, cfg)  # not a beam index: sort instead
+    p = FeatureParams(edge_threshold=cfg.edge_threshold, plane_threshold=cfg.plane_threshold)
+    planes, edges = features_pass(
+        pts, np.ascontiguousarray(t_s, dtype=np.float64), rg.astype(np.int64, copy=False),
+        cfg.min_range, cfg.max_range, p.edge_threshold, p.plane_threshold, p.max_edges, p.sectors,
+        p.parallel_ratio, p.occlusion_ratio, cfg.scan_voxel,
+    )  # fmt: skip
+    return planes, edges
+
+
+def select_points_reference(
+    points_l: FloatArray,
+    t_s: FloatArray,
+    ring: NDArray[np.integer] | None,
+    cfg: FrontEndConfig,
+) -> tuple[FloatArray, FloatArray]:
+    """Slow reference of :func:`select_points`: numpy range gate, ``np.lexsort`` ring order, the
+    per-kernel LOAM features and ``np.unique`` voxel downsampling."""
     r = np.linalg.norm(points_l, axis=1)
     keep = (r >= cfg.min_range) & (r <= cfg.max_range)
     pts, t = points_l[keep], t_s[keep]
