@@ -200,7 +200,15 @@ class IncrementalVoxelMap:
         return self._pts.reshape(-1, 3)
 
     def _rebuild(self, points: FloatArray, capacity: int) -> None:
-        self._alloc(capacity)
+        if capacity == self._keys.size:
+            # the same table emptied in place: a new cell's counts are zeroed when it is created, so
+            # only the keys need clearing (allocating and touching a fresh table costs more than the
+            # points it holds)
+            self._keys.fill(_EMPTY)
+            self.n_points = 0
+            self.n_cells = 0
+        else:
+            self._alloc(capacity)
         self._add(points)
 
     def _add(self, p: FloatArray) -> int:
