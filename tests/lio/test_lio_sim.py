@@ -186,8 +186,12 @@ def test_covariance_is_not_overconfident(street: LidarDrive) -> None:
     n = len(with_map)
     bound = chi2.ppf(0.999, 6 * n) / n
     print("NEES per scan:", np.round(with_map, 2))
+    print(
+        f"mean NEES {np.mean(with_map):.2f}, chi2 band [{chi2.ppf(0.001, 6 * n) / n:.2f}, {bound:.2f}]"
+    )
     assert n > 30
     assert np.mean(with_map) < bound
     exact_map = _nees(street, False)
     print("NEES per scan, map taken as exact:", np.round(exact_map, 1))
+    print(f"mean NEES, map taken as exact: {np.mean(exact_map):.1f}")
     assert np.mean(exact_map) > 10 * bound
