@@ -172,11 +172,14 @@ class IncrementalVoxelMap:
     as :class:`~imuslam.lio.voxelmap.VoxelMap` (``add``, ``prune``, ``transform``, ``knn``)."""
 
     def __init__(self, voxel_size: float = 0.5, max_per_voxel: int = 1, max_range: float = 100.0,
-                 nsub: int = 2, capacity: int = 1 << 10) -> None:  # fmt: skip
+                 nsub: int = 2, capacity: int = 1 << 10, slots: int | None = None) -> None:  # fmt: skip
         self.voxel_size = float(voxel_size)
         self.max_per_voxel = int(max_per_voxel)
         self.max_range = float(max_range)
         self.nsub = int(nsub)
+        # points a cell can hold: every voxel full by default; fewer for sparse points (edges on lines),
+        # whose cells would otherwise be mostly empty slots
+        self.slots = int(slots) if slots is not None else self.nsub**3 * self.max_per_voxel
         self.n_points = 0
         self.n_cells = 0
         self._alloc(capacity)
@@ -187,8 +190,8 @@ class IncrementalVoxelMap:
         self._keys = np.full(cap, _EMPTY, np.int64)
         self._cnt = np.zeros(cap, np.int32)
         self._sub = np.zeros((cap, n3), np.int32)
-        self._pts = np.zeros((cap, n3 * self.max_per_voxel, 3))
-        self._ids = np.zeros((cap, n3 * self.max_per_voxel), np.int32)
+        self._pts = np.zeros((cap, self.slots, 3))
+        self._ids = np.zeros((cap, self.slots), np.int32)
         self.n_points = 0
         self.n_cells = 0
 

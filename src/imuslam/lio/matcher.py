@@ -71,7 +71,10 @@ class LocalMap:
         if backend == "ivox":
             # edges are sparse: cells of 4 voxels a side so the 27 cells reach 1 m around a query
             self.surf = IncrementalVoxelMap(voxel_size, max_per_voxel, max_range, nsub=2)
-            self.edge = IncrementalVoxelMap(voxel_size * 0.5, max_per_voxel, max_range, nsub=4)
+            # at most 16 of a cell's 64 voxels: edge points lie on lines (a line crosses at most 10
+            # voxels of a cell), and 64 slots a cell made the table 4x larger, mostly empty
+            self.edge = IncrementalVoxelMap(voxel_size * 0.5, max_per_voxel, max_range, nsub=4,
+                                            slots=16 * max_per_voxel)  # fmt: skip
         else:
             self.surf = VoxelMap(voxel_size, max_per_voxel, max_range, backend)
             self.edge = VoxelMap(voxel_size * 0.5, max_per_voxel, max_range, backend)
