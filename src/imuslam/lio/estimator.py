@@ -31,7 +31,7 @@ from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise
 from imuslam.io.imulog import ImuLog
 from imuslam.lio.config import LioConfig
 from imuslam.lio.deskew import deskew
-from imuslam.lio.frontend import select_points
+from imuslam.lio.frontend import select_indices, select_points
 from imuslam.lio.lidar_only import LidarOdometry
 from imuslam.lio.matcher import Correspondences, LocalMap, huber_weights
 
@@ -335,8 +335,17 @@ class LioEstimator:
         x = eskf.x
         omega = gyr - x.gyro_bias
         a_w = np.einsum("kij,kj->ki", Rs, acc - x.accel_bias) + x.g_n
-        pts_l = deskew(points_l, t_s, tk, Rs, Ps, Vs, a_w, omega, self.T_i_l, t_end)
-        surf_l, edge_l = select_points(pts_l, t_s, ring, self.config.frontend)
+        sel = select_indices(points_l, t_s, ring, self.config.frontend)
+        if sel is None:  # deskew everything, then the reference front end
+            pts_l = deskew(points_l, t_s, tk, Rs, Ps, Vs, a_w, omega, self.T_i_l, t_end)
+            surf_l, edge_l = select_points(pts_l, t_s, ring, self.config.frontend)
+        else:
+            # select on the scan as fired, deskew only what is registered (LOAM's smoothness spans 11
+            # neighbours fired within 0.2 ms, which the motion does not change; FAST-LIO2 also
+            # extracts before it undistorts): a tenth of the points go through the deskew
+            i_all = np.concatenate(sel)
+            pts = deskew(points_l[i_all], t_s[i_all], tk, Rs, Ps, Vs, a_w, omega, self.T_i_l, t_end)
+            surf_l, edge_l = pts[: len(sel[0])], pts[len(sel[0]) :]
         R_i_l, p_i_l = self.T_i_l[:3, :3], self.T_i_l[:3, 3]
         surf_i, edge_i = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
         meas = LidarMeasurement(self.map, surf_i, edge_i, self.config.filter.lidar_std, 0.2,

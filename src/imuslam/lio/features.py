@@ -240,9 +240,10 @@ def _ring_sorted(pts_in: FloatArray, t_in: FloatArray, ring_in: IntArray, min_r:
 
 
 @numba.njit(cache=True)
-def features_pass(pts_in: FloatArray, t_in: FloatArray, ring_in: IntArray, min_r: float, max_r: float, edge_thr: float, plane_thr: float, max_edges: int, sectors: int, par: float, occ: float, voxel: float) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled  # fmt: skip
-    """Plane points (voxel-downsampled, one per ``voxel``) and edge points of one deskewed scan (LOAM,
-    Sec. V-A): the same selection as :func:`loam_features` over the points within [min_r, max_r]."""
+def features_pass(pts_in: FloatArray, t_in: FloatArray, ring_in: IntArray, min_r: float, max_r: float, edge_thr: float, plane_thr: float, max_edges: int, sectors: int, par: float, occ: float, voxel: float) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled  # fmt: skip
+    """Indices into ``pts_in`` of the plane points (voxel-downsampled, one per ``voxel``, ring order)
+    and of the edge points of one scan (LOAM, Sec. V-A): the same selection as :func:`loam_features`
+    over the points within [min_r, max_r]."""
     order, starts = _ring_sorted(pts_in, t_in, ring_in, min_r, max_r)
     n = order.size
     px = np.empty(n)
@@ -325,31 +326,23 @@ def features_pass(pts_in: FloatArray, t_in: FloatArray, ring_in: IntArray, min_r
             n_e += 1
         elif label[a] == 2:
             n_p += 1
-    edges = np.empty((n_e, 3))
+    esel = np.empty(n_e, np.int64)
     psel = np.empty(n_p, np.int64)
     n_e = 0
     n_p = 0
     for a in range(n):
         if label[a] == 1:
-            edges[n_e, 0], edges[n_e, 1], edges[n_e, 2] = px[a], py[a], pz[a]
+            esel[n_e] = order[a]
             n_e += 1
         elif label[a] == 2:
             psel[n_p] = order[a]
             n_p += 1
-    keep = _first_per_voxel(pts_in, psel, voxel)
-    planes = np.empty((keep.size, 3))
-    for a in range(keep.size):
-        planes[a, 0], planes[a, 1], planes[a, 2] = (
-            pts_in[keep[a], 0],
-            pts_in[keep[a], 1],
-            pts_in[keep[a], 2],
-        )
-    return planes, edges
+    return _first_per_voxel(pts_in, psel, voxel), esel
 
 
 @numba.njit(cache=True)
-def direct_pass(pts_in: FloatArray, min_r: float, max_r: float, voxel: float) -> FloatArray:  # pragma: no cover - compiled  # fmt: skip
-    """The points within [min_r, max_r], one per voxel (the first in input order)."""
+def direct_pass(pts_in: FloatArray, min_r: float, max_r: float, voxel: float) -> IntArray:  # pragma: no cover - compiled  # fmt: skip
+    """Indices of the points within [min_r, max_r], one per voxel (the first in input order)."""
     n = pts_in.shape[0]
     sel = np.empty(n, np.int64)
     m = 0
@@ -358,11 +351,7 @@ def direct_pass(pts_in: FloatArray, min_r: float, max_r: float, voxel: float) ->
         if r >= min_r and r <= max_r:
             sel[m] = i
             m += 1
-    keep = _first_per_voxel(pts_in, sel[:m], voxel)
-    out = np.empty((keep.size, 3))
-    for a in range(keep.size):
-        out[a, 0], out[a, 1], out[a, 2] = pts_in[keep[a], 0], pts_in[keep[a], 1], pts_in[keep[a], 2]
-    return out
+    return _first_per_voxel(pts_in, sel[:m], voxel)
 
 
 def voxel_downsample_fast(points: FloatArray, voxel: float) -> IntArray:
