@@ -5,6 +5,7 @@
     PYTHONPATH=src python bench/lio.py rotating  # IMU and LiDAR on a 10 Hz rotating platform vs fixed mount
     PYTHONPATH=src python bench/lio.py corridor  # LiDAR-only vs LIO in the corridor (degenerate for LiDAR)
     PYTHONPATH=src python bench/lio.py memory    # map size and peak RSS over a 30-minute drive (streamed)
+    PYTHONPATH=src python bench/lio.py frontend  # the compiled front end against its numpy reference
 
 Options: --duration S (drive length), --cache DIR (simulated drives are cached there, keyed by their
 parameters). The street drive is seed 001's car loop around an urban block: VLP-16 at 10 Hz (about 28k
@@ -78,7 +79,8 @@ def metrics(gt: Trajectory, est: Trajectory) -> dict[str, float]:
 
 
 def run_imuslam(d: LidarDrive, mode: str = "direct", state: str = "full", align: str = "none",
-                imu: str = "cal", use_imu: bool = True, indoor: bool = False) -> tuple[LioResult, Trajectory]:  # fmt: skip
+                imu: str = "cal", use_imu: bool = True, indoor: bool = False,
+                map_covariance: bool = False) -> tuple[LioResult, Trajectory]:  # fmt: skip
     # indoors (the 2 m corridor) the walls are closer than the outdoor 1 m minimum range and 1 m voxels
     fe = (
         FrontEndConfig(mode=mode, scan_voxel=0.25, min_range=0.2)
@@ -89,7 +91,7 @@ def run_imuslam(d: LidarDrive, mode: str = "direct", state: str = "full", align:
         frontend=fe,
         map=MapConfig(voxel=0.2 if indoor else 0.5),
         extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])),  # type: ignore[arg-type]
-        filter=FilterConfig(state=state),  # type: ignore[arg-type]
+        filter=FilterConfig(state=state, map_covariance=map_covariance),  # type: ignore[arg-type]
         align=align,  # type: ignore[arg-type]
         use_imu=use_imu,
     )
@@ -165,7 +167,8 @@ def main_bench(args: Any) -> None:
             for mode in ("features", "direct") for state in ("reduced", "full")]  # fmt: skip
     runs.append(("imuslam LiDAR-only direct", "direct", "full", False))
     for name, mode, state, use_imu in runs:
-        res, est = run_imuslam(d, mode, state, "none", "cal", use_imu=use_imu)
+        res, est = run_imuslam(d, mode, state, "none", "cal", use_imu=use_imu,
+                               map_covariance=args.map_covariance)  # fmt: skip
         line(name, metrics(gt, est), res.scans_per_cpu_s, res.scans_per_s)
 
 
@@ -281,17 +284,48 @@ def memory_bench(args: Any) -> None:
                   f"{rss:.0f} | {err:.2f} | {time.process_time() - c0:.0f} |", flush=True)  # fmt: skip
 
 
+def frontend_bench(args: Any) -> None:
+    """CPU time per scan of the front end (deskewed scan -> registered points), the compiled one-pass
+    kernel against the numpy path it replaced, on the street drive's scans (the same points out)."""
+    from imuslam.lio.frontend import select_points, select_points_reference
+
+    d = drive("street", args.duration or 12.0, args.cache)
+    scans = d.scans
+    print(f"street loop, {len(scans)} scans, CPU ms per scan (best of 3 passes)")
+    print("| mode | compiled ms | numpy reference ms | speed-up | plane points | edge points |")
+    print("|---|---|---|---|---|---|")
+    for mode in ("features", "direct"):
+        cfg = FrontEndConfig(mode=mode)  # type: ignore[arg-type]
+        data = [(s.points_l.astype(np.float64), s.t_offset_s.astype(np.float64), np.asarray(s.ring))
+                for s in scans]  # fmt: skip
+        select_points(*data[0], cfg)  # compile
+        best = {}
+        for name, fn in (("fast", select_points), ("ref", select_points_reference)):
+            times = []
+            for _ in range(3):
+                c0 = time.process_time()
+                out = [fn(p, t, r, cfg) for p, t, r in data]
+                times.append(time.process_time() - c0)
+            best[name] = min(times) / len(data) * 1e3
+        n_p = np.mean([len(o[0]) for o in out])
+        n_e = np.mean([len(o[1]) for o in out])
+        print(f"| {mode} | {best['fast']:.2f} | {best['ref']:.2f} | {best['ref'] / best['fast']:.1f}x | "
+              f"{n_p:.0f} | {n_e:.0f} |")  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("what", choices=["main", "imu", "rotating", "corridor", "memory"])
+    ap.add_argument("what", choices=["main", "imu", "rotating", "corridor", "memory", "frontend"])
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/imuslam-bench-lio"))
     ap.add_argument("--columns", type=int, default=450, help="memory: LiDAR columns per turn")
     ap.add_argument("--every", type=int, default=1000, help="memory: scans between table rows")
+    ap.add_argument("--map-covariance", action="store_true",
+                    help="main: the filters with filter.map_covariance on")  # fmt: skip
     args = ap.parse_args()
     t0 = time.perf_counter()
     {"main": main_bench, "imu": imu_bench, "rotating": rotating_bench, "corridor": corridor_bench,
-     "memory": memory_bench}[args.what](args)  # fmt: skip
+     "memory": memory_bench, "frontend": frontend_bench}[args.what](args)  # fmt: skip
     print(f"({time.perf_counter() - t0:.0f} s)")
 
 

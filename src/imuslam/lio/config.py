@@ -67,10 +67,17 @@ class FilterConfig(BaseModel):
     of the IMU (continuous, per sqrt(Hz)) and bias random walks; lidar_std: point-to-plane 1-sigma, m;
     lidar_dof: independent residuals a scan is worth (map and plane-fit errors are shared by many points,
     so thousands of residuals do not carry thousands of independent errors; R is scaled by M / lidar_dof
-    when a scan has M > lidar_dof residuals, which keeps the covariance consistent, see NEES in the tests);
+    when a scan has M > lidar_dof residuals; it does not make the absolute covariance consistent,
+    see map_covariance);
     max_iterations and the convergence threshold of the iterated update (on |dx|); reassociate: an
     iterate searches the map's neighbours again only when it moved a point 20 m away by more than this
-    since the last search, m (0: at every iterate, as FAST-LIO2); max_speed /
+    since the last search, m (0: at every iterate, as FAST-LIO2); map_covariance: the map's own
+    uncertainty enters the pose covariance (every map point remembers the pose covariance of the
+    scan that inserted it; after a scan's update that covariance, passed through the gain, is added:
+    a noise common to all the scan's residuals, so the pose covariance covers the map's drift, see ``estimator.MapCovariance``; off, the
+    default: the map is taken as exact, as FAST-LIO2 does, and the covariance is that of the pose
+    relative to the map, overconfident for the absolute pose; on, the larger covariance also changes
+    the later gains, which cost accuracy on short drives, README); max_speed /
     max_rate bound a physically possible state (divergence check)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -84,6 +91,7 @@ class FilterConfig(BaseModel):
     max_iterations: int = Field(5, ge=1)
     reassociate: float = Field(0.02, ge=0)
     converge: float = Field(1e-3, gt=0)
+    map_covariance: bool = False
     max_speed: float = Field(60.0, gt=0)
     g: float = Field(9.80665, gt=0)
 

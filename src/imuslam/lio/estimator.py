@@ -31,7 +31,7 @@ from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise
 from imuslam.io.imulog import ImuLog
 from imuslam.lio.config import LioConfig
 from imuslam.lio.deskew import deskew
-from imuslam.lio.frontend import select_points
+from imuslam.lio.frontend import select_indices, select_points
 from imuslam.lio.lidar_only import LidarOdometry
 from imuslam.lio.matcher import Correspondences, LocalMap, huber_weights
 
@@ -74,6 +74,7 @@ class LidarMeasurement:
         self.huber = huber
         self.dof = dof
         self.n_corr = 0
+        self.last_H, self.last_R = np.zeros((0, 0)), np.zeros(0)
         self.n_calls = 0
         self.n_assoc = 0
 
@@ -101,7 +102,61 @@ class LidarMeasurement:
         scale = max(
             1.0, len(r) / self.dof
         )  # correlated residuals: M rows worth ``dof`` independent ones
-        return -r, H, scale * self.var / huber_weights(r, self.huber)
+        Rd = scale * self.var / huber_weights(r, self.huber)
+        self.last_H, self.last_R = H, Rd
+        return -r, H, Rd
+
+    @property
+    def tags(self) -> NDArray[np.int32]:
+        """The map tag of each row of the last linearisation."""
+        assert self._corr is not None
+        return self._corr.tag
+
+
+class MapCovariance:
+    """The map's own uncertainty in the pose covariance. Every map point carries the tag of the scan
+    that inserted it; that scan's pose and covariance are recorded here (position; attitude and
+    position variance, the mean of each 3 x 3 diagonal). The update itself treats the map as exact
+    (FAST-LIO2, Xu et al. 2022, eq. 12: the noise is the point's only), which keeps its estimate; its
+    error then also carries the map's: the residuals of a scan see the map's pose error ``e_map`` as a
+    common ``r = J e_map + e``, which the gain passes into the state as ``K H e_map``. So after the
+    update ``P += (K H) S (K H)^T`` with ``S`` the matched points' insertion covariance on [position,
+    attitude] (mean over the rows), its position part grown by the attitude variance times the squared
+    distance from the inserting pose (a rotation error of the map about where it was built). What it
+    leaves out: the map's error is correlated with the prior's (both come from the same poses), taken
+    here as independent."""
+
+    def __init__(self, p0: FloatArray, att_var0: float, pos_var0: float) -> None:
+        self._p = np.zeros((1024, 3))
+        self._v = np.zeros((1024, 2))  # attitude, position variance
+        self._p[0], self._v[0] = (
+            p0,
+            (att_var0, pos_var0),
+        )  # tag -1: the points from before the filter
+        self.n = 1
+
+    def record(self, p_w: FloatArray, P: FloatArray, layout: ErrorLayout) -> int:
+        """Record a pose and its covariance; returns the tag for the points it inserts."""
+        if self.n == len(self._p):
+            self._p = np.concatenate([self._p, np.zeros_like(self._p)])
+            self._v = np.concatenate([self._v, np.zeros_like(self._v)])
+        self._p[self.n] = p_w
+        self._v[self.n] = (
+            np.trace(P[layout.TH, layout.TH]) / 3,
+            np.trace(P[layout.P, layout.P]) / 3,
+        )
+        self.n += 1
+        return self.n - 2
+
+    def pose_covariance(self, tag: NDArray[np.int32], p_w: FloatArray, layout: ErrorLayout) -> FloatArray:  # fmt: skip
+        """S (dim, dim): the mean insertion covariance of the rows tagged ``tag`` (M,) seen from ``p_w``."""
+        i = np.asarray(tag, np.int64) + 1
+        av, pv = self._v[i, 0], self._v[i, 1]
+        lever2 = np.sum((self._p[i] - p_w) ** 2, axis=1)
+        S = np.zeros((layout.dim, layout.dim))
+        S[layout.P, layout.P] = np.eye(3) * float(np.mean(pv + lever2 * av))
+        S[layout.TH, layout.TH] = np.eye(3) * float(np.mean(av))
+        return S
 
 
 class LioEstimator:
@@ -127,6 +182,7 @@ class LioEstimator:
         self.map = LocalMap(m.voxel, m.radius, m.max_per_voxel, m.knn)
         self.lidar_only = LidarOdometry(config.model_copy(update={"use_imu": False}))
         self._init_scans: list[tuple[float, FloatArray]] = []
+        self._t_mean0 = 0.0  # the mean point time of the first scan, s
         self.eskf: Eskf | None = None
         self.t_state = 0.0
         self.n_scans = 0
@@ -140,6 +196,7 @@ class LioEstimator:
             4
         )  # the levelled world in the first IMU frame's terms, set at initialisation
         self.n_before_filter = 0  # poses returned in the first IMU frame, before the filter started
+        self.map_cov: MapCovariance | None = None
 
     # ------------------------------------------------------------------------------------------
     def _samples(self, t0: float, t1: float) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -175,6 +232,11 @@ class LioEstimator:
         R_w_i0 = level_rotation(acc.mean(axis=0))  # w: levelled first IMU frame, zero yaw
         R_k = R_w_i0 @ T_i0_ik[:, :3, :3]
         p_k = T_i0_ik[:, :3, 3] @ R_w_i0.T
+        # the first scan was deskewed for rotation only (no velocity was known): a point fired at t_j
+        # sits v (t_end0 - t_j) ahead of where the scan-end frame would see it, so the map, and every
+        # pose registered against it, is shifted by v (t_end0 - mean t_j); take it out of the world
+        shift = (p_k[1] - p_k[0]) / (ts[1] - ts[0]) * (ts[0] - self._t_mean0)
+        p_k = p_k - shift
         v_end = (p_k[-1] - p_k[-2]) / (ts[-1] - ts[-2])
         ba, bg = np.zeros(3), np.zeros(3)
         R_end, p_end = R_k[-1], p_k[-1]
@@ -211,14 +273,19 @@ class LioEstimator:
         P0 = np.diag(lay.diag(theta=np.deg2rad(1.0) ** 2, p=0.05**2, v=0.2**2, ba=sb**2 * 100,
                               bg=sb**2, g=0.05**2))  # fmt: skip
         self.eskf = Eskf(x, P=P0, noise=self.noise, layout=lay, g=cfg.filter.g)
+        if (
+            cfg.filter.map_covariance
+        ):  # the points from before the filter carry the initial covariance
+            self.map_cov = MapCovariance(p_end, float(np.trace(P0[lay.TH, lay.TH]) / 3),
+                                         float(np.trace(P0[lay.P, lay.P]) / 3))  # fmt: skip
         # the LiDAR-only map moves into w: x_w = T_w_i0 T_i_l x_l0
         T_w_l0 = np.eye(4)
-        T_w_l0[:3, :3] = R_w_i0
+        T_w_l0[:3, :3], T_w_l0[:3, 3] = R_w_i0, -shift
         T_w_l0 = T_w_l0 @ self.T_i_l
         self.map = self.lidar_only.map
         self.map.transform(T_w_l0[:3, :3], T_w_l0[:3, 3])
         self.t_state = t_end
-        self.T_w_i0[:3, :3] = R_w_i0
+        self.T_w_i0[:3, :3], self.T_w_i0[:3, 3] = R_w_i0, -shift
         self.n_before_filter = len(self._init_scans) - 1
 
     # ------------------------------------------------------------------------------------------
@@ -242,6 +309,8 @@ class LioEstimator:
                                          np.zeros(3), np.zeros(3), np.zeros(3))  # fmt: skip
             pts_rot = deskew(points_l, t_s, tk, Rk, z, z, z, gyr, self.T_i_l, t_end)
             T_l = self.lidar_only.register_scan(pts_rot, t_s, ring, rotation_compensated=True)
+            if not self._init_scans:
+                self._t_mean0 = float(np.mean(t_s))
             self._init_scans.append((t_end, T_l))
             self.last_iterations, self.last_n_corr = (
                 self.lidar_only.last_iterations,
@@ -266,8 +335,17 @@ class LioEstimator:
         x = eskf.x
         omega = gyr - x.gyro_bias
         a_w = np.einsum("kij,kj->ki", Rs, acc - x.accel_bias) + x.g_n
-        pts_l = deskew(points_l, t_s, tk, Rs, Ps, Vs, a_w, omega, self.T_i_l, t_end)
-        surf_l, edge_l = select_points(pts_l, t_s, ring, self.config.frontend)
+        sel = select_indices(points_l, t_s, ring, self.config.frontend)
+        if sel is None:  # deskew everything, then the reference front end
+            pts_l = deskew(points_l, t_s, tk, Rs, Ps, Vs, a_w, omega, self.T_i_l, t_end)
+            surf_l, edge_l = select_points(pts_l, t_s, ring, self.config.frontend)
+        else:
+            # select on the scan as fired, deskew only what is registered (LOAM's smoothness spans 11
+            # neighbours fired within 0.2 ms, which the motion does not change; FAST-LIO2 also
+            # extracts before it undistorts): a tenth of the points go through the deskew
+            i_all = np.concatenate(sel)
+            pts = deskew(points_l[i_all], t_s[i_all], tk, Rs, Ps, Vs, a_w, omega, self.T_i_l, t_end)
+            surf_l, edge_l = pts[: len(sel[0])], pts[len(sel[0]) :]
         R_i_l, p_i_l = self.T_i_l[:3, :3], self.T_i_l[:3, 3]
         surf_i, edge_i = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
         meas = LidarMeasurement(self.map, surf_i, edge_i, self.config.filter.lidar_std, 0.2,
@@ -276,10 +354,17 @@ class LioEstimator:
         # at least as many rows as states, else the IMU carries the filter through (corridors, fog)
         meas.linearize(eskf.x, self.layout)
         if meas.n_corr >= 3 * self.layout.dim:
+            P_prior = eskf.P
             res = eskf.iterated_update(
                 lambda s: meas.linearize(s, self.layout), fc.max_iterations, fc.converge
             )
             self.last_iterations = res.iterations
+            if self.map_cov is not None:  # the map's error through the gain (MapCovariance)
+                H, Rd = meas.last_H, meas.last_R  # the last iterate's rows
+                A = H.T @ (H / Rd[:, None])
+                KH = np.linalg.solve(A + np.linalg.inv(P_prior), A)
+                S = self.map_cov.pose_covariance(meas.tags, eskf.x.p_n, self.layout)
+                eskf.P = eskf.P + KH @ S @ KH.T
         else:
             self.n_no_update += 1
             self.last_iterations = 0
@@ -289,7 +374,8 @@ class LioEstimator:
             raise FilterDivergence(
                 f"scan {k} (t = {t_end:.3f} s): the filter diverged (speed {speed:.1f} m/s, limit {fc.max_speed:g})"
             )
-        self.map.insert(surf_i, edge_i, x.R_n_b, x.p_n)
+        tag = -1 if self.map_cov is None else self.map_cov.record(x.p_n, eskf.P, self.layout)
+        self.map.insert(surf_i, edge_i, x.R_n_b, x.p_n, tag)
         if k % 10 == 0:
             self.map.prune(x.p_n)
         self.peak_map_points = max(self.peak_map_points, len(self.map))

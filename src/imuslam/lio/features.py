@@ -154,3 +154,207 @@ def voxel_keys(points: FloatArray, voxel: float) -> IntArray:
     within +-2^20 voxels of the origin)."""
     k = np.floor(np.asarray(points) / voxel).astype(np.int64) + (1 << 20)
     return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+
+
+# ------------------------------------------------------------------------------------------------
+# The front end in one compiled pass: range gate, ring order, smoothness (LOAM eq. 1) and reliability
+# (Fig. 4), edge / plane selection per sector and the plane points' voxel downsampling, with no array
+# built per point and no sort beyond the few edge candidates of a sector. Checked against the numpy path
+# (``imuslam.lio.frontend.select_points_reference``) in the tests.
+
+_HASH_MUL = np.uint64(0x9E3779B97F4A7C15)  # Fibonacci hashing (Knuth, TAOCP vol. 3, 6.4)
+
+
+@numba.njit(cache=True)
+def _first_per_voxel(pts: FloatArray, sel: IntArray, voxel: float) -> IntArray:  # pragma: no cover - compiled  # fmt: skip
+    """Of the rows ``sel`` of ``pts`` (in that order), the ones that are first in their voxel: an
+    open-addressing hash set of the voxel keys, load factor at most 1/2."""
+    n = sel.size
+    bits = 4
+    while (1 << bits) < 2 * n:
+        bits += 1
+    size = 1 << bits
+    mask = size - 1
+    shift = np.uint64(64 - bits)
+    table = np.full(size, -1, np.int64)
+    out = np.empty(n, np.int64)
+    m = 0
+    for a in range(n):
+        i = sel[a]
+        # the voxel key uses x / voxel as voxel_keys does (the same floor at voxel boundaries)
+        kx = np.int64(np.floor(pts[i, 0] / voxel)) + (1 << 20)
+        ky = np.int64(np.floor(pts[i, 1] / voxel)) + (1 << 20)
+        kz = np.int64(np.floor(pts[i, 2] / voxel)) + (1 << 20)
+        key = (kx << 42) | (ky << 21) | kz
+        s = np.int64((np.uint64(key) * _HASH_MUL) >> shift)
+        while True:
+            kk = table[s]
+            if kk == key:
+                break
+            if kk == -1:
+                table[s] = key
+                out[m] = i
+                m += 1
+                break
+            s = (s + 1) & mask
+    return out[:m]
+
+
+@numba.njit(cache=True)
+def _ring_sorted(pts_in: FloatArray, t_in: FloatArray, ring_in: IntArray, min_r: float, max_r: float) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled  # fmt: skip
+    """Indices of the points within [min_r, max_r] sorted by ring, then time (stable: as
+    ``np.lexsort((t, ring))``), and the ring boundaries (R + 2,) (empty rings included)."""
+    n = pts_in.shape[0]
+    max_ring = -1
+    keep = np.zeros(n, np.bool_)
+    for i in range(n):
+        r = np.sqrt(pts_in[i, 0] ** 2 + pts_in[i, 1] ** 2 + pts_in[i, 2] ** 2)
+        if r >= min_r and r <= max_r:
+            keep[i] = True
+            if ring_in[i] > max_ring:
+                max_ring = ring_in[i]
+    starts = np.zeros(max_ring + 2, np.int64)
+    for i in range(n):
+        if keep[i]:
+            starts[ring_in[i] + 1] += 1
+    for r in range(max_ring + 1):
+        starts[r + 1] += starts[r]
+    pos = starts[:-1].copy()
+    order = np.empty(starts[-1], np.int64)
+    for i in range(n):  # a stable counting sort by ring
+        if keep[i]:
+            order[pos[ring_in[i]]] = i
+            pos[ring_in[i]] += 1
+    for r in range(
+        max_ring + 1
+    ):  # then by time within a ring, where the input was not in time order
+        s, e = starts[r], starts[r + 1]
+        for j in range(s + 1, e):
+            if t_in[order[j]] < t_in[order[j - 1]]:
+                seg = order[s:e].copy()
+                o = np.argsort(t_in[seg], kind="mergesort")
+                for a in range(e - s):
+                    order[s + a] = seg[o[a]]
+                break
+    return order, starts
+
+
+@numba.njit(cache=True)
+def features_pass(pts_in: FloatArray, t_in: FloatArray, ring_in: IntArray, min_r: float, max_r: float, edge_thr: float, plane_thr: float, max_edges: int, sectors: int, par: float, occ: float, voxel: float) -> tuple[IntArray, IntArray]:  # pragma: no cover - compiled  # fmt: skip
+    """Indices into ``pts_in`` of the plane points (voxel-downsampled, one per ``voxel``, ring order)
+    and of the edge points of one scan (LOAM, Sec. V-A): the same selection as :func:`loam_features`
+    over the points within [min_r, max_r]."""
+    order, starts = _ring_sorted(pts_in, t_in, ring_in, min_r, max_r)
+    n = order.size
+    px = np.empty(n)
+    py = np.empty(n)
+    pz = np.empty(n)
+    rg = np.empty(n)
+    for a in range(n):
+        i = order[a]
+        px[a], py[a], pz[a] = pts_in[i, 0], pts_in[i, 1], pts_in[i, 2]
+        rg[a] = np.sqrt(px[a] ** 2 + py[a] ** 2 + pz[a] ** 2)
+    curv = np.full(n, np.inf)
+    ok = np.zeros(n, np.bool_)
+    label = np.zeros(n, np.int8)  # 1 edge, 2 plane
+    taken = np.zeros(n, np.bool_)
+    cand = np.empty(n, np.int64)
+    cand_c = np.empty(n)
+    for r in range(starts.size - 1):
+        s, e = starts[r], starts[r + 1]
+        if e - s <= 2 * HALF:
+            continue
+        for i in range(s + HALF, e - HALF):  # smoothness, eq. 1
+            cx = cy = cz = 0.0
+            for j in range(i - HALF, i + HALF + 1):
+                cx += px[j] - px[i]
+                cy += py[j] - py[i]
+                cz += pz[j] - pz[i]
+            curv[i] = np.sqrt(cx * cx + cy * cy + cz * cz) / (2 * HALF * rg[i])
+            ok[i] = True
+        # reliability (Fig. 4): beams parallel to the surface, occlusions
+        for i in range(s + HALF, e - HALF):
+            dn = np.sqrt(
+                (px[i + 1] - px[i]) ** 2 + (py[i + 1] - py[i]) ** 2 + (pz[i + 1] - pz[i]) ** 2
+            )
+            dp = np.sqrt(
+                (px[i] - px[i - 1]) ** 2 + (py[i] - py[i - 1]) ** 2 + (pz[i] - pz[i - 1]) ** 2
+            )
+            if dn > par * rg[i] and dp > par * rg[i]:
+                ok[i] = False
+            if dn > occ * rg[i]:
+                if rg[i] > rg[i + 1]:
+                    for j in range(i - HALF, i + 1):
+                        ok[j] = False
+                else:
+                    for j in range(i + 1, i + HALF + 1):
+                        ok[j] = False
+        # selection per sector: the sharpest reliable points above edge_thr (at most max_edges, none
+        # within HALF of another), then every reliable smooth point below plane_thr
+        s2, e2 = s + HALF, e - HALF
+        if e2 - s2 < sectors:
+            continue
+        for q in range(sectors):
+            a = s2 + (e2 - s2) * q // sectors
+            b = s2 + (e2 - s2) * (q + 1) // sectors
+            nc = 0
+            for i in range(a, b):
+                if curv[i] >= edge_thr:
+                    cand[nc] = i
+                    cand_c[nc] = -curv[i]
+                    nc += 1
+            picked = 0
+            if nc:
+                o = np.argsort(cand_c[:nc])
+                for m in range(nc):
+                    if picked >= max_edges:
+                        break
+                    i = cand[o[m]]
+                    if not ok[i] or taken[i]:
+                        continue
+                    label[i] = 1
+                    picked += 1
+                    for j in range(max(a, i - HALF), min(b, i + HALF + 1)):
+                        taken[j] = True
+            for i in range(a, b):
+                if curv[i] <= plane_thr and ok[i] and not taken[i]:
+                    label[i] = 2
+    n_e = 0
+    n_p = 0
+    for a in range(n):
+        if label[a] == 1:
+            n_e += 1
+        elif label[a] == 2:
+            n_p += 1
+    esel = np.empty(n_e, np.int64)
+    psel = np.empty(n_p, np.int64)
+    n_e = 0
+    n_p = 0
+    for a in range(n):
+        if label[a] == 1:
+            esel[n_e] = order[a]
+            n_e += 1
+        elif label[a] == 2:
+            psel[n_p] = order[a]
+            n_p += 1
+    return _first_per_voxel(pts_in, psel, voxel), esel
+
+
+@numba.njit(cache=True)
+def direct_pass(pts_in: FloatArray, min_r: float, max_r: float, voxel: float) -> IntArray:  # pragma: no cover - compiled  # fmt: skip
+    """Indices of the points within [min_r, max_r], one per voxel (the first in input order)."""
+    n = pts_in.shape[0]
+    sel = np.empty(n, np.int64)
+    m = 0
+    for i in range(n):
+        r = np.sqrt(pts_in[i, 0] ** 2 + pts_in[i, 1] ** 2 + pts_in[i, 2] ** 2)
+        if r >= min_r and r <= max_r:
+            sel[m] = i
+            m += 1
+    return _first_per_voxel(pts_in, sel[:m], voxel)
+
+
+def voxel_downsample_fast(points: FloatArray, voxel: float) -> IntArray:
+    """As :func:`voxel_downsample` (indices of the first point of each voxel, ascending), compiled."""
+    p = np.ascontiguousarray(points, dtype=np.float64)
+    return _first_per_voxel(p, np.arange(len(p), dtype=np.int64), float(voxel))  # type: ignore[no-any-return]

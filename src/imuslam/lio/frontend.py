@@ -6,9 +6,41 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.lio.config import FrontEndConfig
-from imuslam.lio.features import FeatureParams, loam_features, voxel_downsample
+from imuslam.lio.features import (
+    FeatureParams,
+    direct_pass,
+    features_pass,
+    loam_features,
+    voxel_downsample,
+)
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+def select_indices(
+    points_l: FloatArray,
+    t_s: FloatArray,
+    ring: NDArray[np.integer] | None,
+    cfg: FrontEndConfig,
+) -> tuple[IntArray, IntArray] | None:
+    """Indices into ``points_l`` of the plane-like points and of the edge points, in one compiled pass
+    (``features.features_pass`` / ``direct_pass``), or None where only the reference path applies (ring
+    values that are not beam indices). ``features`` mode needs the ring of each point; without it the
+    direct mode is used."""
+    pts = np.ascontiguousarray(points_l, dtype=np.float64)
+    if cfg.mode == "direct" or ring is None:
+        idx = direct_pass(pts, cfg.min_range, cfg.max_range, cfg.scan_voxel)
+        return idx, np.zeros(0, np.int64)
+    rg = np.asarray(ring)
+    if len(rg) and (int(rg.min()) < 0 or int(rg.max()) > 1 << 16):
+        return None
+    p = FeatureParams(edge_threshold=cfg.edge_threshold, plane_threshold=cfg.plane_threshold)
+    return features_pass(  # type: ignore[no-any-return]
+        pts, np.ascontiguousarray(t_s, dtype=np.float64), rg.astype(np.int64, copy=False),
+        cfg.min_range, cfg.max_range, p.edge_threshold, p.plane_threshold, p.max_edges, p.sectors,
+        p.parallel_ratio, p.occlusion_ratio, cfg.scan_voxel,
+    )  # fmt: skip
 
 
 def select_points(
@@ -17,10 +49,22 @@ def select_points(
     ring: NDArray[np.integer] | None,
     cfg: FrontEndConfig,
 ) -> tuple[FloatArray, FloatArray]:
-    """Plane-like points (N, 3) and edge points (E, 3) of a deskewed scan (LiDAR frame).
+    """Plane-like points (N, 3) and edge points (E, 3) of a deskewed scan (LiDAR frame): those of
+    :func:`select_indices` (the same points as :func:`select_points_reference`)."""
+    sel = select_indices(points_l, t_s, ring, cfg)
+    if sel is None:
+        return select_points_reference(points_l, t_s, ring, cfg)  # not a beam index: sort instead
+    return points_l[sel[0]], points_l[sel[1]].reshape(-1, 3)
 
-    ``features`` mode needs the ring of each point; without it the direct mode is used.
-    """
+
+def select_points_reference(
+    points_l: FloatArray,
+    t_s: FloatArray,
+    ring: NDArray[np.integer] | None,
+    cfg: FrontEndConfig,
+) -> tuple[FloatArray, FloatArray]:
+    """Slow reference of :func:`select_points`: numpy range gate, ``np.lexsort`` ring order, the
+    per-kernel LOAM features and ``np.unique`` voxel downsampling."""
     r = np.linalg.norm(points_l, axis=1)
     keep = (r >= cfg.min_range) & (r <= cfg.max_range)
     pts, t = points_l[keep], t_s[keep]

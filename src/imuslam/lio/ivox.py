@@ -60,8 +60,10 @@ def _probe(keys: IntArray, key: int, h: int) -> int:  # pragma: no cover - compi
 
 @numba.njit(cache=True)
 def _insert(keys: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32], pts: FloatArray,
-            new: FloatArray, voxel: float, nsub: int, mpv: int) -> tuple[int, int]:  # pragma: no cover - compiled  # fmt: skip
-    """Insert ``new`` (N, 3) where their voxel has room; returns (points admitted, cells created)."""
+            ids: NDArray[np.int32], new: FloatArray, new_ids: NDArray[np.int32], voxel: float, nsub: int,
+            mpv: int) -> tuple[int, int]:  # pragma: no cover - compiled  # fmt: skip
+    """Insert ``new`` (N, 3) with their tags ``new_ids`` (N,) where their voxel has room; returns
+    (points admitted, cells created)."""
     n_ok = 0
     n_new_cells = 0
     cap_pts = pts.shape[1]
@@ -84,6 +86,7 @@ def _insert(keys: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32], pts:
         sub[s, si] += 1
         j = cnt[s]
         pts[s, j, 0], pts[s, j, 1], pts[s, j, 2] = new[i, 0], new[i, 1], new[i, 2]
+        ids[s, j] = new_ids[i]
         cnt[s] = j + 1
         n_ok += 1
     return n_ok, n_new_cells
@@ -146,19 +149,21 @@ def _knn(keys: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray,
 
 
 @numba.njit(cache=True)
-def _gather(keys: IntArray, cnt: NDArray[np.int32], pts: FloatArray) -> FloatArray:  # pragma: no cover - compiled  # fmt: skip
+def _gather(keys: IntArray, cnt: NDArray[np.int32], pts: FloatArray, ids: NDArray[np.int32]) -> tuple[FloatArray, NDArray[np.int32]]:  # pragma: no cover - compiled  # fmt: skip
     n = 0
     for s in range(keys.size):
         if keys[s] != _EMPTY:
             n += cnt[s]
     out = np.empty((n, 3))
+    out_ids = np.empty(n, np.int32)
     i = 0
     for s in range(keys.size):
         if keys[s] != _EMPTY:
             for j in range(cnt[s]):
                 out[i, :] = pts[s, j, :]
+                out_ids[i] = ids[s, j]
                 i += 1
-    return out
+    return out, out_ids
 
 
 class IncrementalVoxelMap:
@@ -167,11 +172,14 @@ class IncrementalVoxelMap:
     as :class:`~imuslam.lio.voxelmap.VoxelMap` (``add``, ``prune``, ``transform``, ``knn``)."""
 
     def __init__(self, voxel_size: float = 0.5, max_per_voxel: int = 1, max_range: float = 100.0,
-                 nsub: int = 2, capacity: int = 1 << 10) -> None:  # fmt: skip
+                 nsub: int = 2, capacity: int = 1 << 10, slots: int | None = None) -> None:  # fmt: skip
         self.voxel_size = float(voxel_size)
         self.max_per_voxel = int(max_per_voxel)
         self.max_range = float(max_range)
         self.nsub = int(nsub)
+        # points a cell can hold: every voxel full by default; fewer for sparse points (edges on lines),
+        # whose cells would otherwise be mostly empty slots
+        self.slots = int(slots) if slots is not None else self.nsub**3 * self.max_per_voxel
         self.n_points = 0
         self.n_cells = 0
         self._alloc(capacity)
@@ -182,7 +190,8 @@ class IncrementalVoxelMap:
         self._keys = np.full(cap, _EMPTY, np.int64)
         self._cnt = np.zeros(cap, np.int32)
         self._sub = np.zeros((cap, n3), np.int32)
-        self._pts = np.zeros((cap, n3 * self.max_per_voxel, 3))
+        self._pts = np.zeros((cap, self.slots, 3))
+        self._ids = np.zeros((cap, self.slots), np.int32)
         self.n_points = 0
         self.n_cells = 0
 
@@ -192,47 +201,64 @@ class IncrementalVoxelMap:
     @property
     def points(self) -> FloatArray:
         """The stored points (N, 3), a copy."""
-        return _gather(self._keys, self._cnt, self._pts)
+        return _gather(self._keys, self._cnt, self._pts, self._ids)[0]  # type: ignore[no-any-return]
+
+    @property
+    def ids(self) -> NDArray[np.int32]:
+        """The tag of each slot of ``storage`` (what ``add`` was given with the point)."""
+        return self._ids.reshape(-1)
 
     @property
     def storage(self) -> FloatArray:
         """The flat point storage that ``knn``'s indices index (a view)."""
         return self._pts.reshape(-1, 3)
 
-    def _rebuild(self, points: FloatArray, capacity: int) -> None:
-        self._alloc(capacity)
-        self._add(points)
+    def _rebuild(self, points: FloatArray, ids: NDArray[np.int32], capacity: int) -> None:
+        if capacity == self._keys.size:
+            # the same table emptied in place: a new cell's counts are zeroed when it is created, so
+            # only the keys need clearing (allocating and touching a fresh table costs more than the
+            # points it holds)
+            self._keys.fill(_EMPTY)
+            self.n_points = 0
+            self.n_cells = 0
+        else:
+            self._alloc(capacity)
+        self._add(points, ids)
 
-    def _add(self, p: FloatArray) -> int:
+    def _add(self, p: FloatArray, ids: NDArray[np.int32]) -> int:
         if 2 * (self.n_cells + len(p)) > self._keys.size:  # keep the load factor below 1/2
-            old = self.points
+            old, old_ids = _gather(self._keys, self._cnt, self._pts, self._ids)
             self._alloc(2 * (self.n_cells + len(p)) + 1)
-            self._add(old)
-        n_ok, n_cells = _insert(self._keys, self._cnt, self._sub, self._pts, p, self.voxel_size,
-                                self.nsub, self.max_per_voxel)  # fmt: skip
+            self._add(old, old_ids)
+        n_ok, n_cells = _insert(self._keys, self._cnt, self._sub, self._pts, self._ids, p, ids,
+                                self.voxel_size, self.nsub, self.max_per_voxel)  # fmt: skip
         self.n_points += n_ok
         self.n_cells += n_cells
         return int(n_ok)
 
-    def add(self, points_w: FloatArray) -> int:
-        """Insert points (N, 3) where their voxel has room; returns how many were kept."""
+    def add(self, points_w: FloatArray, tag: int = -1) -> int:
+        """Insert points (N, 3) where their voxel has room, each tagged ``tag`` (e.g. the scan that
+        inserted it, see ``ids``); returns how many were kept."""
         if len(points_w) == 0:
             return 0
-        return self._add(np.ascontiguousarray(points_w, dtype=np.float64))
+        return self._add(np.ascontiguousarray(points_w, dtype=np.float64),
+                         np.full(len(points_w), tag, np.int32))  # fmt: skip
 
     def prune(self, centre_w: FloatArray) -> int:
         """Drop points farther than ``max_range`` from ``centre_w`` (3,); returns how many were dropped."""
-        p = self.points
+        p, ids = _gather(self._keys, self._cnt, self._pts, self._ids)
         keep = np.sum((p - np.asarray(centre_w)[None]) ** 2, axis=1) <= self.max_range**2
         n_drop = int(len(keep) - keep.sum())
         if n_drop:
-            self._rebuild(np.ascontiguousarray(p[keep]), self._keys.size)
+            self._rebuild(np.ascontiguousarray(p[keep]), ids[keep], self._keys.size)
         return n_drop
 
     def transform(self, R: FloatArray, t: FloatArray) -> None:
         """Move every point by ``x -> R x + t`` (a change of world frame) and re-hash the cells."""
-        p = self.points @ np.asarray(R).T + np.asarray(t)
-        self._rebuild(np.ascontiguousarray(p), self._keys.size)
+        p, ids = _gather(self._keys, self._cnt, self._pts, self._ids)
+        self._rebuild(
+            np.ascontiguousarray(p @ np.asarray(R).T + np.asarray(t)), ids, self._keys.size
+        )
 
     def knn(self, q_w: FloatArray, k: int) -> tuple[IntArray, FloatArray]:
         """k nearest map points (within the 27 cells) of each query (M, 3): indices into ``storage``
@@ -242,4 +268,5 @@ class IncrementalVoxelMap:
 
     @property
     def nbytes(self) -> int:
-        return int(self._keys.nbytes + self._cnt.nbytes + self._sub.nbytes + self._pts.nbytes)
+        return int(self._keys.nbytes + self._cnt.nbytes + self._sub.nbytes + self._pts.nbytes
+                   + self._ids.nbytes)  # fmt: skip

@@ -35,12 +35,14 @@ class MatchParams:
 @dataclass
 class Correspondences:
     """p_i (M, 3) scan points in the IMU frame; n (M, 3) unit directions; c (M, 3) anchors (world);
-    kind (M,) 0 plane, 1 line."""
+    kind (M,) 0 plane, 1 line; tag (M,) the tag of the nearest map point (the scan that inserted it,
+    -1 when unknown)."""
 
     p_i: FloatArray
     n: FloatArray
     c: FloatArray
     kind: NDArray[np.int8]
+    tag: NDArray[np.int32]
 
     def __len__(self) -> int:
         return int(self.p_i.shape[0])
@@ -69,7 +71,10 @@ class LocalMap:
         if backend == "ivox":
             # edges are sparse: cells of 4 voxels a side so the 27 cells reach 1 m around a query
             self.surf = IncrementalVoxelMap(voxel_size, max_per_voxel, max_range, nsub=2)
-            self.edge = IncrementalVoxelMap(voxel_size * 0.5, max_per_voxel, max_range, nsub=4)
+            # at most 16 of a cell's 64 voxels: edge points lie on lines (a line crosses at most 10
+            # voxels of a cell), and 64 slots a cell made the table 4x larger, mostly empty
+            self.edge = IncrementalVoxelMap(voxel_size * 0.5, max_per_voxel, max_range, nsub=4,
+                                            slots=16 * max_per_voxel)  # fmt: skip
         else:
             self.surf = VoxelMap(voxel_size, max_per_voxel, max_range, backend)
             self.edge = VoxelMap(voxel_size * 0.5, max_per_voxel, max_range, backend)
@@ -83,7 +88,7 @@ class LocalMap:
     ) -> Correspondences:
         """Planes for ``surf_i`` (N, 3) and lines for ``edge_i`` (E, 3), IMU-frame points, at the pose."""
         pr = self.params
-        out_p, out_n, out_c, out_k = [], [], [], []
+        out_p, out_n, out_c, out_k, out_t = [], [], [], [], []
         for pts, vmap, kind in ((surf_i, self.surf, 0), (edge_i, self.edge, 1)):
             if len(pts) == 0 or len(vmap) < pr.k:
                 continue
@@ -101,23 +106,26 @@ class LocalMap:
             out_n.append(n[ok])
             out_c.append(c[ok])
             out_k.append(np.full(int(ok.sum()), kind, np.int8))
+            out_t.append(vmap.ids[nbr[ok, 0]])
         if not out_p:
             z = np.zeros((0, 3))
-            return Correspondences(z, z, z, np.zeros(0, np.int8))
+            return Correspondences(z, z, z, np.zeros(0, np.int8), np.zeros(0, np.int32))
         return Correspondences(
             np.concatenate(out_p),
             np.concatenate(out_n),
             np.concatenate(out_c),
             np.concatenate(out_k),
+            np.concatenate(out_t),
         )
 
     def insert(
-        self, surf_i: FloatArray, edge_i: FloatArray, R_w_i: FloatArray, p_w: FloatArray
-    ) -> None:
-        """Add the registered scan's points and prune around the sensor."""
-        self.surf.add(surf_i @ R_w_i.T + p_w)
+        self, surf_i: FloatArray, edge_i: FloatArray, R_w_i: FloatArray, p_w: FloatArray,
+        tag: int = -1,
+    ) -> None:  # fmt: skip
+        """Add the registered scan's points, tagged ``tag`` (see ``Correspondences.tag``)."""
+        self.surf.add(surf_i @ R_w_i.T + p_w, tag)
         if len(edge_i):
-            self.edge.add(edge_i @ R_w_i.T + p_w)
+            self.edge.add(edge_i @ R_w_i.T + p_w, tag)
 
     def transform(self, R: FloatArray, t: FloatArray) -> None:
         """Express the map in another world frame: ``x -> R x + t``."""

@@ -104,19 +104,21 @@ class VoxelMap:
         self.max_range = max_range
         self.backend: KnnBackend = backend
         self.points = np.zeros((0, 3))
+        self.ids = np.zeros(0, np.int32)  # the tag of each point (``add``)
         self._counts = _new_counts()
         self._index: KnnIndex | None = None
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
 
-    def add(self, points_w: FloatArray) -> int:
-        """Insert points (N, 3) where their voxel has room; returns how many were kept."""
+    def add(self, points_w: FloatArray, tag: int = -1) -> int:
+        """Insert points (N, 3) where their voxel has room, tagged ``tag``; returns how many were kept."""
         if len(points_w) == 0:
             return 0
         ok = _admit(voxel_keys(points_w, self.voxel_size), self._counts, self.max_per_voxel)
         if ok.any():
             self.points = np.concatenate([self.points, np.asarray(points_w, dtype=float)[ok]])
+            self.ids = np.concatenate([self.ids, np.full(int(ok.sum()), tag, np.int32)])
             self._index = None
         return int(ok.sum())
 
@@ -127,6 +129,7 @@ class VoxelMap:
         n_drop = int(len(keep) - keep.sum())
         if n_drop:
             self.points = self.points[keep]
+            self.ids = self.ids[keep]
             self._counts = _new_counts()
             _admit(voxel_keys(self.points, self.voxel_size), self._counts, 1 << 30)
             self._index = None
@@ -152,4 +155,4 @@ class VoxelMap:
 
     @property
     def nbytes(self) -> int:
-        return int(self.points.nbytes) + 16 * len(self._counts)
+        return int(self.points.nbytes + self.ids.nbytes) + 16 * len(self._counts)
