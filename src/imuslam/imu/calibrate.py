@@ -903,15 +903,20 @@ def calibrate(
         r_a = cfg.g - np.linalg.norm(accel_model.apply(acc[idx]), axis=1)
     gyro_b = -bias_total if cfg.bias_sign == "plus" else bias_total
     gyro_model = TriadModel(misalignment_matrix(*theta_g[:6]), theta_g[6:9], gyro_b, cfg.bias_sign)
-    R_after = integ(
-        w,
-        t_s,
-        segs,
-        _gyro_M(theta_g[:9])[None],
-        db[None],
-        None if G is None else G[None],
-        None if G is None else f_c,
-    )[0]
+    same_as_fit = G is None and not np.any(db) and cfg.method == "tedaldi"
+    R_after = (
+        R_fit
+        if same_as_fit
+        else integ(
+            w,
+            t_s,
+            segs,
+            _gyro_M(theta_g[:9])[None],
+            db[None],
+            None if G is None else G[None],
+            None if G is None else f_c,
+        )[0]
+    )
     t_gyro = time.perf_counter()
 
     _check_units(accel_model.K, "accelerometer", log_.accel_unit, "--accel-unit", log_.source)
