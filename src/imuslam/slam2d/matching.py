@@ -24,12 +24,31 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 F32 = NDArray[np.float32]
 U8 = NDArray[np.uint8]
+I64 = NDArray[np.int64]
 
 
 def angular_step(resolution: float, max_range: float) -> float:
     """Rotation that moves a point at ``max_range`` by about one cell (Hess 2016, eq. 7)."""
     d = max(max_range, 2 * resolution)
     return float(np.arccos(1.0 - resolution**2 / (2.0 * d**2)))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cell_sum(
+    prob: F32, cx: I64, cy: I64, dx: int, dy: int, p_unknown: float
+) -> float:  # pragma: no cover - compiled
+    """Sum of the grid's probabilities at the points' cells shifted by (dx, dy); off the grid counts as
+    ``p_unknown``."""
+    H, W = prob.shape
+    acc = 0.0
+    for k in range(cx.size):
+        ix = cx[k] + dx
+        iy = cy[k] + dy
+        if 0 <= ix < W and 0 <= iy < H:
+            acc += prob[iy, ix]
+        else:
+            acc += p_unknown
+    return acc
 
 
 @numba.njit(cache=True)
@@ -49,7 +68,6 @@ def correlative_search(
 ) -> tuple[FloatArray, float]:  # pragma: no cover - compiled
     """Exhaustive search of ``pose0`` +- lin_cells cells and +- n_ang angle steps; returns the best pose
     and its score (mean probability times exp(-w_trans |dt|^2 - w_rot dtheta^2))."""
-    H, W = prob.shape
     P = pts_b.shape[0]
     best = -1.0
     bx, by, bt = pose0[0], pose0[1], pose0[2]
@@ -66,14 +84,7 @@ def correlative_search(
         rot_pen = w_rot * (a * ang_step) ** 2
         for dy in range(-lin_cells, lin_cells + 1):
             for dx in range(-lin_cells, lin_cells + 1):
-                acc = 0.0
-                for k in range(P):
-                    ix = cx[k] + dx
-                    iy = cy[k] + dy
-                    if 0 <= ix < W and 0 <= iy < H:
-                        acc += prob[iy, ix]
-                    else:
-                        acc += p_unknown
+                acc = _cell_sum(prob, cx, cy, dx, dy, p_unknown)
                 sc = acc / P * np.exp(-(w_trans * ((dx * res) ** 2 + (dy * res) ** 2) + rot_pen))
                 if sc > best:
                     best = sc
@@ -414,7 +425,6 @@ def score_volume(
     """The score (mean probability at the points, no prior weighting) of every pose of the window
     ``pose0`` +- lin_cells cells, +- n_ang angle steps: (2 n_ang + 1, 2 lin_cells + 1, 2 lin_cells + 1)
     indexed [angle, dy, dx]. Shows how distinct a match's peak is (the correlative search's lattice)."""
-    H, W = prob.shape
     P = pts_b.shape[0]
     n = 2 * lin_cells + 1
     out = np.zeros((2 * n_ang + 1, n, n), np.float32)
@@ -428,13 +438,6 @@ def score_volume(
             cy[k] = int(np.floor((s * pts_b[k, 0] + c * pts_b[k, 1] + pose0[1] - y0) / res))
         for dy in range(-lin_cells, lin_cells + 1):
             for dx in range(-lin_cells, lin_cells + 1):
-                acc = 0.0
-                for k in range(P):
-                    ix = cx[k] + dx
-                    iy = cy[k] + dy
-                    if 0 <= ix < W and 0 <= iy < H:
-                        acc += prob[iy, ix]
-                    else:
-                        acc += p_unknown
+                acc = _cell_sum(prob, cx, cy, dx, dy, p_unknown)
                 out[a + n_ang, dy + lin_cells, dx + lin_cells] = acc / P
     return out
