@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.geometry import quat_to_matrix
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
@@ -83,23 +85,6 @@ def _step_quats(x0: FloatArray, x1: FloatArray, h: FloatArray) -> Quat:
         c * (k1y + 2.0 * (k2[2] + k3[2]) + k4[2]),
         c * (k1z + 2.0 * (k2[3] + k3[3]) + k4[3]),
     )
-
-
-def _rotation_matrices(q: FloatArray) -> FloatArray:
-    """(..., 4) quaternions wxyz, any norm -> (..., 3, 3) rotation matrices."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    R = np.empty(q.shape[:-1] + (3, 3))
-    R[..., 0, 0] = 1 - 2 * (qy * qy + qz * qz)
-    R[..., 0, 1] = 2 * (qx * qy - qw * qz)
-    R[..., 0, 2] = 2 * (qx * qz + qw * qy)
-    R[..., 1, 0] = 2 * (qx * qy + qw * qz)
-    R[..., 1, 1] = 1 - 2 * (qx * qx + qz * qz)
-    R[..., 1, 2] = 2 * (qy * qz - qw * qx)
-    R[..., 2, 0] = 2 * (qx * qz - qw * qy)
-    R[..., 2, 1] = 2 * (qy * qz + qw * qx)
-    R[..., 2, 2] = 1 - 2 * (qx * qx + qy * qy)
-    return R
 
 
 @dataclass(frozen=True)
@@ -187,7 +172,7 @@ def integrate_segments_numpy(
         while gq[0].shape[-1] > 1:
             gq = _halve(gq)
         out[p] = np.stack([c[:, 0] for c in gq], axis=-1)
-    return _rotation_matrices(out)
+    return quat_to_matrix(out)
 
 
 def _scan(q: Quat, axis_len: int) -> Quat:
@@ -203,17 +188,6 @@ def _scan(q: Quat, axis_len: int) -> Quat:
             y[j][..., d:] = prod[j]
         d *= 2
     return (y[0], y[1], y[2], y[3])
-
-
-def _rotation_columns(q: Quat) -> tuple[FloatArray, ...]:
-    """Quaternions (four arrays, any norm) -> the nine entries r00, r01, ..., r22 of their rotations."""
-    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    qw, qx, qy, qz = q[0] / n, q[1] / n, q[2] / n, q[3] / n
-    return (
-        1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy),
-        2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx),
-        2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy),
-    )  # fmt: skip
 
 
 def integrate_segments_sensitivity(
@@ -275,7 +249,7 @@ def integrate_segments_sensitivity(
         m = b1 - b0
         fq = tuple(np.repeat(front[j, b0:b1], _BLOCK) for j in range(4))
         pref = _qmul(fq, tuple(inblock[j, c0:c1] for j in range(4)))  # type: ignore[arg-type]
-        r = _rotation_columns(pref)
+        r = quat_to_matrix(np.stack(pref, axis=-1)).reshape(-1, 9).T  # rows r00, r01, ..., r22
         h = lay.h[c0:c1]
         vm0, vm1 = 0.5 * (v0[:, c0:c1] + v1[:, c0:c1]), None
         phi = (M @ vm0) * h  # (3, n)
@@ -296,7 +270,7 @@ def integrate_segments_sensitivity(
             tuple(front[jj, lay.last // _BLOCK] for jj in range(4)),  # type: ignore[arg-type]
             tuple(inblock[jj, lay.last] for jj in range(4)),  # type: ignore[arg-type]
         )[j]
-    R = _rotation_matrices(ends.T)
+    R = quat_to_matrix(ends.T)
     block_first = np.flatnonzero(lay.block_pos == 0)
     Zs = np.add.reduceat(sums_z, block_first, axis=0).reshape(S, 3, 3, 3)  # [i, a, b]
     Ys = np.add.reduceat(sums_y, block_first, axis=0).reshape(S, 3, 3)

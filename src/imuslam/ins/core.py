@@ -265,7 +265,7 @@ def strapdown_step(
 
 
 @numba.njit(cache=True)
-def _integrate(
+def integrate_corrected(
     f_b: FloatArray,
     w_b: FloatArray,
     dt: FloatArray,
@@ -306,7 +306,7 @@ def integrate_nominal(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
     """IMU samples (N, 3) with intervals dt (N - 1,) s -> per-sample states p (N, 3), v (N, 3),
     R_n_b (N, 3, 3), starting at (p0, v0, R0) on sample 0, biases removed from every sample."""
-    P, V, Rs, _ = _integrate(accel - ba, gyro - bg, dt, p0, v0, R0, g_n, w_ie_n)
+    P, V, Rs, _ = integrate_corrected(accel - ba, gyro - bg, dt, p0, v0, R0, g_n, w_ie_n)
     return P, V, Rs
 
 
@@ -383,7 +383,7 @@ def propagate(
 ]:  # pragma: no cover - compiled
     """The filter's prediction over samples 0..N-1: per-sample p (N, 3), v (N, 3), R_n_b (N, 3, 3) from
     :func:`integrate_nominal`, and the covariance P and the process noise Qsum at the last sample."""
-    Ps, Vs, Rs, fn_sum = _integrate(accel - ba, gyro - bg, dt, p, v, R, g_n, np.zeros(3))
+    Ps, Vs, Rs, fn_sum = integrate_corrected(accel - ba, gyro - bg, dt, p, v, R, g_n, np.zeros(3))
     fn_mean = fn_sum / max(dt.shape[0], 1)
     P, Qsum = propagate_covariance(P, Rs, gyro, bg, dt, fn_mean, q, off)
     return Ps, Vs, Rs, P, Qsum

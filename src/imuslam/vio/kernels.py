@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.geometry.so3_nb import exp_nb, hat_nb
-from imuslam.ins.core import boxplus_attitude, is_pd, kalman_update, strapdown_step
+from imuslam.ins.core import boxplus_attitude, integrate_corrected, is_pd, kalman_update
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -99,21 +99,7 @@ def propagate_sparse(
     become a few (3, m) row and column operations, and the strong-tracking noise sum the core also
     keeps is not formed. Returns p (N, 3), v (N, 3), R_n_b (N, 3, 3) per sample and P; equal to the
     core's kernel to rounding (``tests/vio/test_vio_filter.py``)."""
-    n = accel.shape[0]
-    f_b = accel - ba
-    w_b = gyro - bg
-    Ps = np.empty((n, 3))
-    Vs = np.empty((n, 3))
-    Rs = np.empty((n, 3, 3))
-    Ps[0], Vs[0], Rs[0] = p, v, R
-    fn_sum = np.zeros(3)
-    w_ie = np.zeros(3)
-    for k in range(n - 1):
-        pn, vn, Rn, f0_n = strapdown_step(
-            Ps[k], Vs[k], Rs[k], f_b[k], f_b[k + 1], w_b[k], w_b[k + 1], dt[k], g_n, w_ie
-        )
-        Ps[k + 1], Vs[k + 1], Rs[k + 1] = pn, vn, Rn
-        fn_sum += f0_n
+    Ps, Vs, Rs, fn_sum = integrate_corrected(accel - ba, gyro - bg, dt, p, v, R, g_n, np.zeros(3))
     fn = fn_sum / max(dt.shape[0], 1)
     ith, ip, iv, iba, ibg, ig = off[0], off[1], off[2], off[3], off[4], off[5]
     Fx = hat_nb(fn)
