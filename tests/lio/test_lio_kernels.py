@@ -271,3 +271,39 @@ def test_pcd_and_ply_round_trip(tmp_path: object) -> None:
         "POINTS 2\nDATA ascii\n1 2 3\n4 5 6\n"
     )
     np.testing.assert_array_equal(pcd_points(d / "b.pcd"), [[1, 2, 3], [4, 5, 6]])
+
+
+def test_map_covariance_transfers_a_map_pieces_error_to_the_pose() -> None:
+    """``MapCovariance.transfer``'s J_kj against the geometry it stands for: a map piece placed with
+    pose j's error is the truth moved by M = T_hat_j T_j^-1; a pose k registered exactly on it is
+    T_hat_k = M T_k, whose error [log(R_hat_k^T R_k), p_k - p_hat_k] must be J_kj times pose j's
+    (to first order: the rest is O(|e|^2 |p_k - p_j|), below 1e-6 m here against 1e-4 rad and m
+    errors moved up to 3e-3 m by a 30 m lever).
+    ``covariance`` is the rows' mean of J P J^T (three rows of one scan, one of another)."""
+    from imuslam.geometry import log
+    from imuslam.lio.estimator import MapCovariance
+
+    rng = np.random.default_rng(5)
+    R_j, p_j = exp(rng.normal(size=3)), rng.normal(size=3) * 20
+    R_k, p_k = exp(rng.normal(size=3)), p_j + rng.normal(size=3) * 15
+    e_j = np.r_[rng.normal(size=3) * 1e-4, rng.normal(size=3) * 1e-4]
+    R_hat_j, p_hat_j = R_j @ exp(-e_j[:3]), p_j - e_j[3:]  # so that log(R_hat^T R) = e_j[:3]
+    M_R = R_hat_j @ R_j.T
+    M_p = p_hat_j - M_R @ p_j
+    R_hat_k, p_hat_k = M_R @ R_k, M_R @ p_k + M_p
+    e_k = np.r_[log(R_hat_k.T @ R_k), p_k - p_hat_k]
+    C0 = np.eye(6)
+    mc = MapCovariance(np.eye(3), np.zeros(3), C0)
+    tag_j = mc.record(R_hat_j, p_hat_j, np.diag(np.arange(1.0, 7.0)))
+    tag_i = mc.record(np.eye(3), np.zeros(3), 2 * np.eye(6))
+    u, w, J = mc.transfer(np.array([tag_j], np.int32), R_hat_k, p_hat_k)
+    assert len(u) == 1 and w[0] == 1.0
+    np.testing.assert_allclose(J[0] @ e_j, e_k, rtol=0, atol=1e-6)
+    assert np.linalg.norm(e_k[3:] - e_j[3:]) > 1e-4  # the lever term is tested, not negligible
+    tags = np.array([tag_j, tag_i, tag_j, tag_j, -1], np.int32)
+    C = mc.covariance(tags, R_hat_k, p_hat_k)
+    _, _, Ji = mc.transfer(np.array([tag_i], np.int32), R_hat_k, p_hat_k)
+    _, _, J0 = mc.transfer(np.array([-1], np.int32), R_hat_k, p_hat_k)
+    ref = (3 * J[0] @ np.diag(np.arange(1.0, 7.0)) @ J[0].T + Ji[0] @ (2 * np.eye(6)) @ Ji[0].T
+           + J0[0] @ C0 @ J0[0].T) / 5  # fmt: skip
+    np.testing.assert_allclose(C, ref, rtol=1e-12)

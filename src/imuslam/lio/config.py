@@ -71,13 +71,12 @@ class FilterConfig(BaseModel):
     see map_covariance);
     max_iterations and the convergence threshold of the iterated update (on |dx|); reassociate: an
     iterate searches the map's neighbours again only when it moved a point 20 m away by more than this
-    since the last search, m (0: at every iterate, as FAST-LIO2); map_covariance: the map's own
-    uncertainty enters the pose covariance (every map point remembers the pose covariance of the
-    scan that inserted it; after a scan's update that covariance, passed through the gain, is added:
-    a noise common to all the scan's residuals, so the pose covariance covers the map's drift, see ``estimator.MapCovariance``; off, the
-    default: the map is taken as exact, as FAST-LIO2 does, and the covariance is that of the pose
-    relative to the map, overconfident for the absolute pose; on, the larger covariance also changes
-    the later gains, which cost accuracy on short drives, README); max_speed /
+    since the last search, m (0: at every iterate, as FAST-LIO2); map_covariance (default on): the
+    reported covariance is the absolute one, the filter's map-relative covariance plus the matched
+    map's (every map point remembers the scan that inserted it, whose absolute pose covariance is
+    recorded; a consider term that never enters the gain, so the estimate is the same either way,
+    ``estimator.MapCovariance``); off: the filter's own covariance, of the pose relative to the map
+    taken as exact (FAST-LIO2's), overconfident for the absolute pose; max_speed /
     max_rate bound a physically possible state (divergence check)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -91,7 +90,7 @@ class FilterConfig(BaseModel):
     max_iterations: int = Field(5, ge=1)
     reassociate: float = Field(0.02, ge=0)
     converge: float = Field(1e-3, gt=0)
-    map_covariance: bool = False
+    map_covariance: bool = True
     max_speed: float = Field(60.0, gt=0)
     g: float = Field(9.80665, gt=0)
 

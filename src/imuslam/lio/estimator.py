@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import FilterDivergence, InputError
-from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise
+from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise, propagate_covariance
 from imuslam.io.imulog import ImuLog
 from imuslam.lio.config import LioConfig
 from imuslam.lio.deskew import deskew
@@ -114,49 +114,73 @@ class LidarMeasurement:
 
 
 class MapCovariance:
-    """The map's own uncertainty in the pose covariance. Every map point carries the tag of the scan
-    that inserted it; that scan's pose and covariance are recorded here (position; attitude and
-    position variance, the mean of each 3 x 3 diagonal). The update itself treats the map as exact
-    (FAST-LIO2, Xu et al. 2022, eq. 12: the noise is the point's only), which keeps its estimate; its
-    error then also carries the map's: the residuals of a scan see the map's pose error ``e_map`` as a
-    common ``r = J e_map + e``, which the gain passes into the state as ``K H e_map``. So after the
-    update ``P += (K H) S (K H)^T`` with ``S`` the matched points' insertion covariance on [position,
-    attitude] (mean over the rows), its position part grown by the attitude variance times the squared
-    distance from the inserting pose (a rotation error of the map about where it was built). What it
-    leaves out: the map's error is correlated with the prior's (both come from the same poses), taken
-    here as independent."""
+    """The map's own error in the absolute pose covariance: a consider term (Schmidt 1966; Simon,
+    Optimal State Estimation, 2006, sec. 7.5) that the gain never sees.
 
-    def __init__(self, p0: FloatArray, att_var0: float, pos_var0: float) -> None:
-        self._p = np.zeros((1024, 3))
-        self._v = np.zeros((1024, 2))  # attitude, position variance
-        self._p[0], self._v[0] = (
-            p0,
-            (att_var0, pos_var0),
-        )  # tag -1: the points from before the filter
-        self.n = 1
+    The update registers the scan against a map built from the filter's own poses and takes that map
+    as exact (FAST-LIO2, Xu et al. 2022, eq. 12: the noise is the point's only), so the filter's
+    covariance ``P_rel`` is that of the pose relative to the map, and its estimate is FAST-LIO2's.
+    The absolute error adds the map's: write the prior's error as e_prior = e_map + d, the map's
+    error (the error the pose inherits from the matched map, below) plus the error relative to the
+    map d, with cov(d) = P_rel (the filter's prior). The innovation only sees d,
+    r = H d + n, so the update leaves e_post = e_map + (I - K H) d - K n: the map's error passes
+    through unchanged (the LiDAR cannot reduce it) and P_abs = P_rel,post + C with C = cov(e_map).
+    Treating e_map as independent of the prior's error instead (P += K H C (K H)^T, or map noise
+    independent per point) drops what they share: the map and the pose drift together, and every
+    scan would shrink the absolute attitude variance the map keeps. Between updates (a scan with too
+    few matches) P_abs - P_rel propagates as Phi D Phi^T (the process noise is in P_rel already).
 
-    def record(self, p_w: FloatArray, P: FloatArray, layout: ErrorLayout) -> int:
-        """Record a pose and its covariance; returns the tag for the points it inserts."""
-        if self.n == len(self._p):
-            self._p = np.concatenate([self._p, np.zeros_like(self._p)])
-            self._v = np.concatenate([self._v, np.zeros_like(self._v)])
-        self._p[self.n] = p_w
-        self._v[self.n] = (
-            np.trace(P[layout.TH, layout.TH]) / 3,
-            np.trace(P[layout.P, layout.P]) / 3,
-        )
+    C: every map point carries the tag of the scan that inserted it and that scan's pose and
+    absolute [theta, p] covariance are recorded here. A map piece inserted at pose j with error
+    (dtheta_j, dp_j) (attitude on the right, position in w) is the piece moved rigidly about p_j; a
+    pose k registered on it inherits e_map = J_kj [dtheta_j; dp_j] with
+    J_kj = [[R_k^T R_j, 0], [-[p_k - p_j]x R_j, I]] (a rotation error about p_j moves the piece by
+    dtheta x (p_k - p_j) at the current pose). The pieces' errors come from one drifting trajectory,
+    so they are taken as fully correlated: C is the mean of J_kj P_j J_kj^T over the matched rows (a
+    mean, not the covariance of a mean of independent errors, which would shrink with the count).
+    The points from before the filter (LiDAR-only, tag -1) carry the filter's initial covariance."""
+
+    def __init__(self, R0: FloatArray, p0: FloatArray, C0: FloatArray, slots: int = 4096) -> None:
+        # a ring of ``slots`` records (memory flat over any drive): slot 0 holds the points from before
+        # the filter (tag -1), tag t >= 0 the slot 1 + t mod (slots - 1); a point older than that many
+        # scans still in the map (a revisit) reads a later scan's covariance, which is larger
+        self._R = np.zeros((slots, 3, 3))
+        self._p = np.zeros((slots, 3))
+        self._C = np.zeros((slots, 6, 6))  # [theta, p] absolute covariance at insertion
+        self._R[0], self._p[0], self._C[0] = R0, p0, C0
+        self.n = 0
+
+    def _slot(self, tag: NDArray[np.int64]) -> NDArray[np.int64]:
+        return np.where(tag < 0, 0, 1 + tag % (len(self._p) - 1))
+
+    def record(self, R_w_i: FloatArray, p_w: FloatArray, C: FloatArray) -> int:
+        """Record an inserting pose and its absolute [theta, p] covariance (6, 6); returns its tag."""
+        tag = self.n
+        i = int(self._slot(np.array([tag]))[0])
+        self._R[i], self._p[i], self._C[i] = R_w_i, p_w, C
         self.n += 1
-        return self.n - 2
+        return tag
 
-    def pose_covariance(self, tag: NDArray[np.int32], p_w: FloatArray, layout: ErrorLayout) -> FloatArray:  # fmt: skip
-        """S (dim, dim): the mean insertion covariance of the rows tagged ``tag`` (M,) seen from ``p_w``."""
-        i = np.asarray(tag, np.int64) + 1
-        av, pv = self._v[i, 0], self._v[i, 1]
-        lever2 = np.sum((self._p[i] - p_w) ** 2, axis=1)
-        S = np.zeros((layout.dim, layout.dim))
-        S[layout.P, layout.P] = np.eye(3) * float(np.mean(pv + lever2 * av))
-        S[layout.TH, layout.TH] = np.eye(3) * float(np.mean(av))
-        return S
+    def transfer(
+        self, tag: NDArray[np.int32], R_w_i: FloatArray, p_w: FloatArray
+    ) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
+        """The records of the rows tagged ``tag`` (M,) seen from the pose (R_w_i, p_w): their slots
+        (U,), the rows' share of each (U,) and J_kj (U, 6, 6)."""
+        u, count = np.unique(self._slot(np.asarray(tag, np.int64)), return_counts=True)
+        Rj, lever = self._R[u], p_w - self._p[u]
+        J = np.zeros((len(u), 6, 6))
+        J[:, :3, :3] = np.einsum("ji,ujk->uik", R_w_i, Rj)
+        Lx = np.zeros((len(u), 3, 3))  # [lever]x
+        Lx[:, 0, 1], Lx[:, 0, 2], Lx[:, 1, 2] = -lever[:, 2], lever[:, 1], -lever[:, 0]
+        Lx[:, 1, 0], Lx[:, 2, 0], Lx[:, 2, 1] = lever[:, 2], -lever[:, 1], lever[:, 0]
+        J[:, 3:, :3] = -Lx @ Rj
+        J[:, 3:, 3:] = np.eye(3)
+        return u, count / max(len(tag), 1), J
+
+    def covariance(self, tag: NDArray[np.int32], R_w_i: FloatArray, p_w: FloatArray) -> FloatArray:
+        """C (6, 6) on [theta, p]: the matched map's error covariance seen from (R_w_i, p_w)."""
+        u, w, J = self.transfer(tag, R_w_i, p_w)
+        return np.asarray(np.einsum("u,uij,ujk,ulk->il", w, J, self._C[u], J))
 
 
 class LioEstimator:
@@ -197,6 +221,7 @@ class LioEstimator:
         )  # the levelled world in the first IMU frame's terms, set at initialisation
         self.n_before_filter = 0  # poses returned in the first IMU frame, before the filter started
         self.map_cov: MapCovariance | None = None
+        self._D = np.zeros((self.layout.dim, self.layout.dim))  # P_abs - P_rel (MapCovariance)
 
     # ------------------------------------------------------------------------------------------
     def _samples(self, t0: float, t1: float) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -273,11 +298,11 @@ class LioEstimator:
         P0 = np.diag(lay.diag(theta=np.deg2rad(1.0) ** 2, p=0.05**2, v=0.2**2, ba=sb**2 * 100,
                               bg=sb**2, g=0.05**2))  # fmt: skip
         self.eskf = Eskf(x, P=P0, noise=self.noise, layout=lay, g=cfg.filter.g)
-        if (
-            cfg.filter.map_covariance
-        ):  # the points from before the filter carry the initial covariance
-            self.map_cov = MapCovariance(p_end, float(np.trace(P0[lay.TH, lay.TH]) / 3),
-                                         float(np.trace(P0[lay.P, lay.P]) / 3))  # fmt: skip
+        if cfg.filter.map_covariance:  # the points from before the filter: the initial covariance
+            idx = self._pose_index
+            C0 = P0[np.ix_(idx, idx)]
+            self.map_cov = MapCovariance(R_end, p_end, C0)
+            self._D[np.ix_(idx, idx)] = C0
         # the LiDAR-only map moves into w: x_w = T_w_i0 T_i_l x_l0
         T_w_l0 = np.eye(4)
         T_w_l0[:3, :3], T_w_l0[:3, 3] = R_w_i0, -shift
@@ -334,7 +359,12 @@ class LioEstimator:
         Ps, Vs, Rs = eskf.predict(acc, gyr, tk)
         x = eskf.x
         omega = gyr - x.gyro_bias
-        a_w = np.einsum("kij,kj->ki", Rs, acc - x.accel_bias) + x.g_n
+        f_w = np.einsum("kij,kj->ki", Rs, acc - x.accel_bias)
+        a_w = f_w + x.g_n
+        if self.map_cov is not None:  # D_prior = Phi D Phi^T (MapCovariance)
+            self._D, _ = propagate_covariance(self._D, Rs, gyr, x.gyro_bias, np.diff(tk),
+                                              f_w[:-1].mean(axis=0), np.zeros(4),
+                                              self.layout.offsets)  # fmt: skip
         sel = select_indices(points_l, t_s, ring, self.config.frontend)
         if sel is None:  # deskew everything, then the reference front end
             pts_l = deskew(points_l, t_s, tk, Rs, Ps, Vs, a_w, omega, self.T_i_l, t_end)
@@ -354,17 +384,15 @@ class LioEstimator:
         # at least as many rows as states, else the IMU carries the filter through (corridors, fog)
         meas.linearize(eskf.x, self.layout)
         if meas.n_corr >= 3 * self.layout.dim:
-            P_prior = eskf.P
             res = eskf.iterated_update(
                 lambda s: meas.linearize(s, self.layout), fc.max_iterations, fc.converge
             )
             self.last_iterations = res.iterations
-            if self.map_cov is not None:  # the map's error through the gain (MapCovariance)
-                H, Rd = meas.last_H, meas.last_R  # the last iterate's rows
-                A = H.T @ (H / Rd[:, None])
-                KH = np.linalg.solve(A + np.linalg.inv(P_prior), A)
-                S = self.map_cov.pose_covariance(meas.tags, eskf.x.p_n, self.layout)
-                eskf.P = eskf.P + KH @ S @ KH.T
+            if self.map_cov is not None:  # the consider term (MapCovariance), not fed to the gain
+                idx = self._pose_index
+                self._D = np.zeros_like(self._D)
+                self._D[np.ix_(idx, idx)] = self.map_cov.covariance(meas.tags, eskf.x.R_n_b,
+                                                                    eskf.x.p_n)  # fmt: skip
         else:
             self.n_no_update += 1
             self.last_iterations = 0
@@ -374,7 +402,10 @@ class LioEstimator:
             raise FilterDivergence(
                 f"scan {k} (t = {t_end:.3f} s): the filter diverged (speed {speed:.1f} m/s, limit {fc.max_speed:g})"
             )
-        tag = -1 if self.map_cov is None else self.map_cov.record(x.p_n, eskf.P, self.layout)
+        tag = -1
+        if self.map_cov is not None:
+            idx = self._pose_index
+            tag = self.map_cov.record(x.R_n_b, x.p_n, (eskf.P + self._D)[np.ix_(idx, idx)])
         self.map.insert(surf_i, edge_i, x.R_n_b, x.p_n, tag)
         if k % 10 == 0:
             self.map.prune(x.p_n)
@@ -396,5 +427,13 @@ class LioEstimator:
         return None if self.eskf is None else self.eskf.x
 
     @property
+    def _pose_index(self) -> NDArray[np.intp]:
+        return np.r_[self.layout.TH, self.layout.P]
+
+    @property
     def covariance(self) -> FloatArray | None:
-        return None if self.eskf is None else self.eskf.P
+        """The absolute error covariance (dim, dim): the filter's map-relative one plus the map's
+        (``MapCovariance``; with ``filter.map_covariance`` off, the map-relative one)."""
+        if self.eskf is None:
+            return None
+        return self.eskf.P + self._D if self.map_cov is not None else self.eskf.P
