@@ -166,7 +166,8 @@ class MapCovariance:
     ) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
         """The records of the rows tagged ``tag`` (M,) seen from the pose (R_w_i, p_w): their slots
         (U,), the rows' share of each (U,) and J_kj (U, 6, 6)."""
-        u, count = np.unique(self._slot(np.asarray(tag, np.int64)), return_counts=True)
+        count = np.bincount(self._slot(np.asarray(tag, np.int64)), minlength=len(self._p))
+        u = np.flatnonzero(count)
         Rj, lever = self._R[u], p_w - self._p[u]
         J = np.zeros((len(u), 6, 6))
         J[:, :3, :3] = np.einsum("ji,ujk->uik", R_w_i, Rj)
@@ -175,12 +176,15 @@ class MapCovariance:
         Lx[:, 1, 0], Lx[:, 2, 0], Lx[:, 2, 1] = lever[:, 2], -lever[:, 1], lever[:, 0]
         J[:, 3:, :3] = -Lx @ Rj
         J[:, 3:, 3:] = np.eye(3)
-        return u, count / max(len(tag), 1), J
+        return u, count[u] / max(len(tag), 1), J
 
     def covariance(self, tag: NDArray[np.int32], R_w_i: FloatArray, p_w: FloatArray) -> FloatArray:
         """C (6, 6) on [theta, p]: the matched map's error covariance seen from (R_w_i, p_w)."""
         u, w, J = self.transfer(tag, R_w_i, p_w)
-        return np.asarray(np.einsum("u,uij,ujk,ulk->il", w, J, self._C[u], J))
+        A = (J @ self._C[u]) * w[:, None, None]  # sum_u w_u J_u C_u J_u^T as one (6, 6U) product
+        return np.asarray(
+            A.transpose(1, 0, 2).reshape(6, -1) @ J.transpose(1, 0, 2).reshape(6, -1).T
+        )
 
 
 class LioEstimator:
@@ -222,6 +226,7 @@ class LioEstimator:
         self.n_before_filter = 0  # poses returned in the first IMU frame, before the filter started
         self.map_cov: MapCovariance | None = None
         self._D = np.zeros((self.layout.dim, self.layout.dim))  # P_abs - P_rel (MapCovariance)
+        self._pose_index = np.r_[self.layout.TH, self.layout.P]  # [theta, p] in the error state
 
     # ------------------------------------------------------------------------------------------
     def _samples(self, t0: float, t1: float) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -361,10 +366,6 @@ class LioEstimator:
         omega = gyr - x.gyro_bias
         f_w = np.einsum("kij,kj->ki", Rs, acc - x.accel_bias)
         a_w = f_w + x.g_n
-        if self.map_cov is not None:  # D_prior = Phi D Phi^T (MapCovariance)
-            self._D, _ = propagate_covariance(self._D, Rs, gyr, x.gyro_bias, np.diff(tk),
-                                              f_w[:-1].mean(axis=0), np.zeros(4),
-                                              self.layout.offsets)  # fmt: skip
         sel = select_indices(points_l, t_s, ring, self.config.frontend)
         if sel is None:  # deskew everything, then the reference front end
             pts_l = deskew(points_l, t_s, tk, Rs, Ps, Vs, a_w, omega, self.T_i_l, t_end)
@@ -396,6 +397,10 @@ class LioEstimator:
         else:
             self.n_no_update += 1
             self.last_iterations = 0
+            if self.map_cov is not None:  # P_abs - P_rel carries on as Phi D Phi^T (MapCovariance)
+                self._D, _ = propagate_covariance(self._D, Rs, gyr, x.gyro_bias, np.diff(tk),
+                                                  f_w[:-1].mean(axis=0), np.zeros(4),
+                                                  self.layout.offsets)  # fmt: skip
         x = eskf.x
         speed = float(np.linalg.norm(x.v_n))
         if not (np.all(np.isfinite(x.p_n)) and speed <= fc.max_speed):
@@ -425,10 +430,6 @@ class LioEstimator:
     @property
     def state(self) -> InsState | None:
         return None if self.eskf is None else self.eskf.x
-
-    @property
-    def _pose_index(self) -> NDArray[np.intp]:
-        return np.r_[self.layout.TH, self.layout.P]
 
     @property
     def covariance(self) -> FloatArray | None:
