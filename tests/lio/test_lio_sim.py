@@ -176,6 +176,12 @@ def _nees(street: LidarDrive) -> tuple[list[float], list[float], list[tuple[floa
         C = covs[k]
         parts.append((float(e_th @ np.linalg.solve(C[:3, :3], e_th)),
                       float(e_p @ np.linalg.solve(C[3:, 3:], e_p))))  # fmt: skip
+        if k % 10 == 0 or k == len(covs) - 1:
+            print(f"scan {k}: attitude error {np.rad2deg(np.linalg.norm(e_th)):.2f} deg, sigma "
+                  f"{np.rad2deg(np.sqrt(np.trace(C[:3, :3]) / 3)):.2f} deg a axis; position error "
+                  f"{np.linalg.norm(e_p):.3f} m, sigma {np.sqrt(np.trace(C[3:, 3:]) / 3):.3f} m an axis; "
+                  f"map-relative sigma {np.rad2deg(np.sqrt(np.trace(rels[k][:3, :3]) / 3)):.3f} deg, "
+                  f"{np.sqrt(np.trace(rels[k][3:, 3:]) / 3):.3f} m")  # fmt: skip
     return nees, nees_rel, parts
 
 
