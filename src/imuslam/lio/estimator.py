@@ -433,8 +433,9 @@ class LioEstimator:
 
     @property
     def covariance(self) -> FloatArray | None:
-        """The absolute error covariance (dim, dim): the filter's map-relative one plus the map's
-        (``MapCovariance``; with ``filter.map_covariance`` off, the map-relative one)."""
+        """The error covariance (dim, dim): the filter's map-relative one plus the matched map's on
+        the [attitude, position] block (``MapCovariance``: the absolute pose covariance; the other
+        blocks are the filter's own); with ``filter.map_covariance`` off, the map-relative one."""
         if self.eskf is None:
             return None
         return self.eskf.P + self._D if self.map_cov is not None else self.eskf.P
