@@ -20,8 +20,9 @@ if TYPE_CHECKING:  # the readers (rosbags, scipy) load only when a command reads
     from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
     from imuslam.io.load import ImuFormat
 
-console = Console()
-err_console = Console(stderr=True)
+# emoji off: no output here uses ":name:" codes, and their table costs 13 ms of start-up to load
+console = Console(emoji=False)
+err_console = Console(stderr=True, emoji=False)
 F = TypeVar("F", bound=Callable[..., Any])
 
 
