@@ -18,6 +18,7 @@ from imuslam.cli.common import (
     console,
     friendly_errors,
     load_log,
+    prefetch_log,
     table,
     value,
 )
@@ -177,6 +178,7 @@ def register(app: typer.Typer) -> None:
         ),
     ) -> None:
         """Calibrate accelerometer and gyroscope from a log of static poses (Tedaldi 2014, imu_tk's method)."""
+        prefetch_log(acc, gyro, fmt.value)  # parsed beside the imports below
         from imuslam.config import load_config
         from imuslam.imu.calibrate import CalibrationConfig
         from imuslam.imu.pipeline import CalibrateOutput, CalibratePipeline

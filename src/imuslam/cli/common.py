@@ -20,8 +20,9 @@ if TYPE_CHECKING:  # the readers (rosbags, scipy) load only when a command reads
     from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
     from imuslam.io.load import ImuFormat
 
-console = Console()
-err_console = Console(stderr=True)
+# emoji off: no output here uses ":name:" codes, and their table costs 13 ms of start-up to load
+console = Console(emoji=False)
+err_console = Console(stderr=True, emoji=False)
 F = TypeVar("F", bound=Callable[..., Any])
 
 
@@ -47,6 +48,10 @@ def friendly_errors(fn: F) -> F:
             logging.getLogger(__name__).debug("where the estimator failed", exc_info=exc)
             _print_error(f"an estimator failed: {exc} (imuslam --verbose shows where)")
             raise typer.Exit(3) from None
+        finally:  # a child still parsing a file that was never read (see prefetch_log)
+            text = sys.modules.get("imuslam.io.text")
+            if text is not None:
+                text.cancel_prefetch()
 
     return wrapper  # type: ignore[return-value]
 
@@ -111,6 +116,23 @@ def parse_columns(spec: str | None) -> dict[str, str | int] | None:
             )
         out[k] = int(v) if v.isdigit() else v
     return out
+
+
+def prefetch_log(acc: Path, gyro: Path | None, fmt: str) -> None:
+    """For imu_tk text in two files, start parsing both beside this process's imports (see
+    :func:`imuslam.io.text.prefetch_tables`); :func:`load_log` then takes the parsed tables."""
+    if gyro is None or fmt not in ("auto", "imutk"):
+        return
+    from imuslam.io.load import detect_format
+
+    try:
+        if detect_format(acc) != "imutk" or detect_format(gyro) != "imutk":
+            return
+    except InputError:  # load_log reports it
+        return
+    from imuslam.io.text import prefetch_tables
+
+    prefetch_tables([acc, gyro], 4)
 
 
 def load_log(

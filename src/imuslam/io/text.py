@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import codecs
+import os
+import pickle
+from collections.abc import Sequence
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -11,6 +15,106 @@ from numpy.typing import NDArray
 from imuslam.errors import InputError
 
 INT64_MAX = np.iinfo(np.int64).max
+PREFETCH_MIN_BYTES = 1 << 20  # below about 1 MB a fork costs more than the parse it overlaps
+
+_TableKey = tuple[str, tuple[int, ...], str, bool | None]
+_Parsed = tuple[NDArray[np.float64], NDArray[np.int64]]
+
+
+class _Prefetch:
+    """Tables parsed by a forked child: its pid, the read end of its pipe, the keys it parses."""
+
+    def __init__(self, pid: int, fd: int, keys: list[_TableKey]) -> None:
+        self.pid, self.fd, self.keys = pid, fd, keys
+        self.results: dict[_TableKey, tuple[str, object]] | None = None
+
+    def collect(self) -> dict[_TableKey, tuple[str, object]]:
+        if self.results is None:
+            with os.fdopen(self.fd, "rb") as fh:
+                raw = fh.read()
+            os.waitpid(self.pid, 0)
+            try:
+                got = pickle.loads(raw)
+            except Exception:  # the child died before writing: parse here
+                got = {}
+            self.results = {k: got.get(k, ("again", None)) for k in self.keys}
+        return self.results
+
+
+_PENDING: dict[_TableKey, _Prefetch] = {}
+
+
+def cancel_prefetch() -> None:
+    """Stop and reap every child whose tables were not read (a command that failed before reading)."""
+    jobs = {id(j): j for j in _PENDING.values()}
+    _PENDING.clear()
+    for job in jobs.values():
+        if job.results is None:
+            try:
+                os.kill(job.pid, 9)
+            except OSError:
+                pass
+            os.close(job.fd)
+            os.waitpid(job.pid, 0)
+            job.results = {}
+
+
+def _key(
+    path: str | Path, allowed: tuple[int, ...], comment: str, skip_header: bool | None
+) -> _TableKey:
+    return (os.path.abspath(path), allowed, comment, skip_header)
+
+
+def prefetch_tables(
+    paths: Sequence[str | Path],
+    n_cols: int | tuple[int, ...],
+    comment: str = "#%",
+    skip_header: bool | None = None,
+) -> bool:
+    """Start parsing ``paths`` in a forked child while this process goes on (its imports, say), so
+    that two cores share the work; a later :func:`read_table` of the same path and arguments takes
+    the child's result (or its InputError, with the same message). Done only where it can pay: a
+    POSIX fork, two or more usable cores and at least ``PREFETCH_MIN_BYTES`` of files; otherwise (and
+    whenever the child fails) the files are parsed in place, as without this call. Returns whether a
+    child was started."""
+    allowed = (n_cols,) if isinstance(n_cols, int) else tuple(n_cols)
+    cancel_prefetch()
+    if not hasattr(os, "fork") or len(os.sched_getaffinity(0)) < 2:
+        return False
+    try:
+        size = sum(os.stat(p).st_size for p in paths)
+    except OSError:  # the reader names what is missing
+        return False
+    if size < PREFETCH_MIN_BYTES:
+        return False
+    keys = [_key(p, allowed, comment, skip_header) for p in paths]
+    r, w = os.pipe()
+    try:
+        pid = os.fork()
+    except OSError:
+        os.close(r)
+        os.close(w)
+        return False
+    if pid == 0:  # the child: parse, send, leave without running the parent's exit handlers
+        code = 1
+        try:
+            os.close(r)
+            out: dict[_TableKey, tuple[str, object]] = {}
+            for k, p in zip(keys, paths, strict=True):
+                try:
+                    out[k] = ("ok", _read_table_now(Path(p), allowed, comment, skip_header))
+                except InputError as exc:
+                    out[k] = ("error", str(exc))
+            with os.fdopen(w, "wb") as fh:
+                pickle.dump(out, fh, protocol=pickle.HIGHEST_PROTOCOL)
+            code = 0
+        finally:
+            os._exit(code)
+    os.close(w)
+    job = _Prefetch(pid, r, keys)
+    for k in keys:
+        _PENDING[k] = job
+    return True
 
 
 def read_text(path: str | Path) -> str:
@@ -60,12 +164,25 @@ def read_table(
     is None.
     """
     p = Path(path)
-    allowed = (n_cols,) if isinstance(n_cols, int) else n_cols
+    allowed = (n_cols,) if isinstance(n_cols, int) else tuple(n_cols)
+    job = _PENDING.pop(_key(p, allowed, comment, skip_header), None) if _PENDING else None
+    if job is not None:
+        kind, value = job.collect()[_key(p, allowed, comment, skip_header)]
+        if kind == "ok":
+            return cast("_Parsed", value)
+        if kind == "error":
+            raise InputError(str(value))
+    return _read_table_now(p, allowed, comment, skip_header)
+
+
+def _read_table_now(
+    p: Path, allowed: tuple[int, ...], comment: str, skip_header: bool | None
+) -> _Parsed:
     text = read_text(p)
     fast = _parse_plain(text, allowed, comment, skip_header)
     if fast is not None:
         return fast
-    data, lines, _ = _parse(p, n_cols, comment, skip_header, text)
+    data, lines, _ = _parse(p, allowed, comment, skip_header, text)
     return data, lines
 
 
