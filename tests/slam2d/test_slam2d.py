@@ -551,3 +551,110 @@ def test_revisit_check_measures_a_known_loop_error() -> None:
         assert abs(c.before_deg - np.rad2deg(abs(d[2]))) < 0.5
         assert c.after_m < RES and c.after_deg < 0.5
         assert c.score > c.second_peak + 0.05
+
+
+def test_distinct_peak_search_equals_masked_exhaustive_search(room_grid: ProbabilityGrid) -> None:
+    """The second branch and bound (poses near the best left out) finds the best lattice score of the
+    poses farther than the peak radius or angle, as an exhaustive search over the same lattice does."""
+    from imuslam.slam2d.matching import bnb_match_distinct
+
+    rng = np.random.default_rng(14)
+    true = np.array([0.5, -0.6, 1.0])
+    pts = _scan_at(true, rng)[::3]
+    prob, x0, y0 = room_grid.cropped()
+    idx = make_index(prob, x0, y0, RES, 4)
+    start = true + np.array([0.2, -0.15, np.deg2rad(4.0)])
+    radius, ang = 0.2, np.deg2rad(3.0)
+    # margin 1: the second search's threshold is 0, so it returns the best score away from the peak
+    pose, score, second = bnb_match_distinct(
+        idx, pts, start, 0.5, np.deg2rad(10.0), 0.3, np.inf, radius, ang, 1.0
+    )
+    step = angular_step(RES, float(np.max(np.hypot(pts[:, 0], pts[:, 1]))))
+    n_ang = int(np.ceil(np.deg2rad(10.0) / step))
+    lv = idx.levels[0]
+    vol = np.zeros((2 * n_ang + 1, 21, 21))
+    for a in range(-n_ang, n_ang + 1):
+        w = pose2.act(np.array([start[0], start[1], start[2] + a * step]), pts)
+        cx = np.floor((w[:, 0] - x0) / RES).astype(int) + idx.pad
+        cy = np.floor((w[:, 1] - y0) / RES).astype(int) + idx.pad
+        for dx in range(-10, 11):
+            for dy in range(-10, 11):
+                xx, yy = cx + dx, cy + dy
+                ok = (xx >= 0) & (xx < lv.shape[1]) & (yy >= 0) & (yy < lv.shape[0])
+                vol[a + n_ang, dy + 10, dx + 10] = lv[yy[ok], xx[ok]].astype(float).sum() / (
+                    255.0 * len(pts)
+                )
+    a0, iy, ix = np.unravel_index(int(np.argmax(vol)), vol.shape)
+    assert score == pytest.approx(vol.max(), abs=1e-12)
+    A, Y, X = np.meshgrid(np.arange(vol.shape[0]) - a0, np.arange(21) - iy, np.arange(21) - ix,
+                          indexing="ij")  # fmt: skip
+    far = (np.hypot(X, Y) > radius / RES) | (np.abs(A) > np.floor(ang / step))
+    assert second == pytest.approx(vol[far].max(), abs=1e-12)
+    assert second < score
+    assert np.hypot(*(pose[:2] - true[:2])) < 1.5 * RES
+
+
+def test_loop_match_in_a_corridor_is_ambiguous_and_in_a_room_distinct(
+    room_grid: ProbabilityGrid,
+) -> None:
+    """A scan of a straight corridor fits a corridor submap equally well anywhere along it: no distinct
+    peak. A scan of the room has one: its best pose beats every pose 0.5 m / 10 deg away by far."""
+    from imuslam.slam2d.matching import bnb_match_distinct
+
+    rng = np.random.default_rng(15)
+    g = ProbabilityGrid(GridParams(resolution=RES), np.zeros(2), 12.0)
+    wall_x = np.arange(-10.0, 10.0, 0.02)
+    for _ in range(3):
+        for y in (-1.0, 1.0):
+            for x0_ in np.arange(-8.0, 8.1, 2.0):
+                near = np.abs(wall_x - x0_) < 4.0
+                ends = np.column_stack([wall_x[near], np.full(near.sum(), y)])
+                g.insert(np.array([x0_, 0.0]), ends + rng.normal(0, 0.01, ends.shape))
+    prob, x0, y0 = g.cropped()
+    idx = make_index(prob, x0, y0, RES, 5)
+    near = np.abs(wall_x) < 4.0
+    scan = np.concatenate(
+        [np.column_stack([wall_x[near], np.full(near.sum(), y)]) for y in (-1, 1)]
+    )
+    scan = scan[::2] + rng.normal(0, 0.01, scan[::2].shape)
+    guess = np.array([0.4, 0.05, 0.02])  # the scan was taken at the origin
+    _, score, second = bnb_match_distinct(
+        idx, scan, guess, 3.0, np.deg2rad(20.0), 0.5, 15.0, 0.5, np.deg2rad(10.0), 0.05
+    )
+    assert score > 0.5
+    assert second >= score - 0.05  # ambiguous along the corridor
+
+    prob, x0, y0 = room_grid.cropped()
+    ridx = make_index(prob, x0, y0, RES, 5)
+    true = np.array([0.3, 0.2, 0.25])
+    pts = _scan_at(true, rng)
+    _, score, second = bnb_match_distinct(
+        ridx, pts, true + np.array([0.4, -0.3, 0.1]), 1.0, np.deg2rad(20.0), 0.5, 15.0, 0.5,
+        np.deg2rad(10.0), 0.05,
+    )  # fmt: skip
+    assert score > 0.6
+    assert second == -1.0  # nothing within 0.05 of the peak away from it
+
+
+def test_loop_candidates_accepted_only_when_consistent() -> None:
+    """Five true loop matches of consecutive nodes (the truth seen through a drifted local SLAM) and one
+    false one (1 m off) among them: the true ones confirm each other and become constraints, the false
+    one finds no partner and is rejected."""
+    from imuslam.slam2d.slam import LoopConstraint, Slam2d, Slam2dConfig
+
+    n = 60
+    th = np.linspace(0, 1.0, n)
+    truth = np.column_stack([5 * np.sin(th), 5 * (1 - np.cos(th)), th])
+    drift = np.array([0.3, -0.2, np.deg2rad(4.0)])  # the local SLAM's error when it comes back
+    cfg = Slam2dConfig()
+    cfg.loop.background = False
+    slam = Slam2d(cfg)
+    slam.node_local = [pose2.compose(drift, p) for p in truth]
+    slam.node_global = [p.copy() for p in slam.node_local]
+    good = [LoopConstraint(k, 0, truth[k], 0.7, 0, truth[k]) for k in range(40, 50, 2)]
+    wrong = pose2.compose(truth[45], np.array([1.0, 0.0, 0.0]))
+    bad = LoopConstraint(45, 0, wrong, 0.7, 0, wrong)
+    slam.add_candidates([*good[:3], bad, *good[3:]])
+    slam.vet_candidates(final=True)
+    assert sorted(c.node for c in slam.loops) == [40, 42, 44, 46, 48]
+    assert slam.loop_stats["inconsistent"] == 1

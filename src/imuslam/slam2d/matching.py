@@ -283,13 +283,37 @@ def _score(
     return acc / (255.0 * P)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _excluded(
+    h: int, a: int, x: int, y: int, ex_a: int, ex_x: int, ex_y: int, ex_r: float, ex_ang: int
+) -> bool:  # pragma: no cover - compiled
+    """Whether every pose of the node (angle a, cells [x, x + 2^h) x [y, y + 2^h)) lies within ``ex_r``
+    cells and ``ex_ang`` angle steps of the excluded peak (ex_a, ex_x, ex_y); never when ex_r < 0."""
+    if ex_r < 0 or abs(a - ex_a) > ex_ang:
+        return False
+    e = (1 << h) - 1
+    fx = max(abs(x - ex_x), abs(x + e - ex_x))
+    fy = max(abs(y - ex_y), abs(y + e - ex_y))
+    return fx * fx + fy * fy <= ex_r * ex_r
+
+
 @numba.njit(cache=True, nogil=True)
 def branch_and_bound(
-    levels: U8, cells: NDArray[np.int64], lin_cells: int, min_score: float
+    levels: U8,
+    cells: NDArray[np.int64],
+    lin_cells: int,
+    min_score: float,
+    ex_a: int = 0,
+    ex_x: int = 0,
+    ex_y: int = 0,
+    ex_r: float = -1.0,
+    ex_ang: int = 0,
 ) -> tuple[int, int, int, float]:  # pragma: no cover - compiled
     """Best (angle index, dx, dy) cells over the window [-lin_cells, lin_cells]^2 of every discretised
     rotation ``cells`` (A, P, 2) (padded level-0 cell indices at zero offset); returns score -1 if none
-    reaches ``min_score``."""
+    reaches ``min_score``. With ``ex_r >= 0`` the poses within ``ex_r`` cells and ``ex_ang`` angle steps
+    of (ex_a, ex_x, ex_y) are left out: the best pose clearly away from a peak found before (nodes
+    wholly inside that neighbourhood are pruned; their bounds stay valid for the others)."""
     depth = levels.shape[0] - 1
     A = cells.shape[0]
     step = 1 << depth
@@ -318,6 +342,8 @@ def branch_and_bound(
     order = np.argsort(rs[:nroot])
     top = 0
     for q in order:
+        if _excluded(depth, ra[q], rx[q], ry[q], ex_a, ex_x, ex_y, ex_r, ex_ang):
+            continue
         if rs[q] > min_score and top < cap:
             st_h[top] = depth
             st_a[top] = ra[q]
@@ -346,6 +372,8 @@ def branch_and_bound(
             for ddy in (0, s):
                 nx, ny = x + ddx, y + ddy
                 if nx > lin_cells or ny > lin_cells:
+                    continue
+                if _excluded(hh, a, nx, ny, ex_a, ex_x, ex_y, ex_r, ex_ang):
                     continue
                 cs[n] = _score(levels, hh, cells, a, nx, ny)
                 cx[n] = nx
@@ -378,18 +406,10 @@ def make_index(prob: F32, x0: float, y0: float, res: float, depth: int) -> Subma
     return SubmapIndex(precompute_max_grids(prob, depth), x0, y0, res, (1 << depth) - 1)
 
 
-def bnb_match(
-    index: SubmapIndex,
-    pts_b: FloatArray,
-    pose0: FloatArray,
-    lin_window: float,
-    ang_window: float,
-    min_score: float,
-    step_range: float = np.inf,
-) -> tuple[FloatArray, float]:
-    """Branch-and-bound search around ``pose0`` (in the submap's frame): the best pose on the search
-    lattice and its score (mean probability), or score -1 when nothing reaches ``min_score``. The angular
-    step moves a point at ``min(step_range, farthest point)`` by one cell."""
+def _rotated_cells(
+    index: SubmapIndex, pts_b: FloatArray, pose0: FloatArray, ang_window: float, step_range: float
+) -> tuple[FloatArray, NDArray[np.int64]]:
+    """The search's rotations around ``pose0`` and every point's padded level-0 cell under each."""
     res = index.res
     d_max = float(np.max(np.hypot(pts_b[:, 0], pts_b[:, 1]))) if len(pts_b) else 1.0
     d_max = min(d_max, step_range)
@@ -402,11 +422,64 @@ def bnb_match(
     cells = np.empty((len(th), len(pts_b), 2), np.int64)
     cells[..., 0] = np.floor((px - index.x0) / res).astype(np.int64) + index.pad
     cells[..., 1] = np.floor((py - index.y0) / res).astype(np.int64) + index.pad
-    lin_cells = int(np.ceil(lin_window / res))
+    return th, cells
+
+
+def bnb_match(
+    index: SubmapIndex,
+    pts_b: FloatArray,
+    pose0: FloatArray,
+    lin_window: float,
+    ang_window: float,
+    min_score: float,
+    step_range: float = np.inf,
+) -> tuple[FloatArray, float]:
+    """Branch-and-bound search around ``pose0`` (in the submap's frame): the best pose on the search
+    lattice and its score (mean probability), or score -1 when nothing reaches ``min_score``. The angular
+    step moves a point at ``min(step_range, farthest point)`` by one cell."""
+    th, cells = _rotated_cells(index, pts_b, pose0, ang_window, step_range)
+    lin_cells = int(np.ceil(lin_window / index.res))
     a, dx, dy, score = branch_and_bound(index.levels, cells, lin_cells, min_score)
     if a < 0:
         return pose0.copy(), -1.0
-    return np.array([pose0[0] + dx * res, pose0[1] + dy * res, th[a]]), float(score)
+    return np.array([pose0[0] + dx * index.res, pose0[1] + dy * index.res, th[a]]), float(score)
+
+
+def bnb_match_distinct(
+    index: SubmapIndex,
+    pts_b: FloatArray,
+    pose0: FloatArray,
+    lin_window: float,
+    ang_window: float,
+    min_score: float,
+    step_range: float,
+    peak_radius: float,
+    peak_angle: float,
+    margin: float,
+) -> tuple[FloatArray, float, float]:
+    """``bnb_match``, then a second branch and bound over the same window without the poses within
+    ``peak_radius`` m and ``peak_angle`` rad of the best: the match is distinct when no pose clearly
+    away from it scores within ``margin`` of it (a corridor or a repeated room gives several peaks of
+    about the same score; Olson's "local uniqueness" test, E. Olson, "Recognizing places using spectrally
+    clustered local matches", Robotics and Autonomous Systems 57(12), 2009). Returns the pose, its
+    lattice score (-1 when nothing reaches ``min_score``) and the best score away from it (-1 when none
+    reaches ``score - margin``: distinct; the score itself when the best pose is on the window's edge)."""
+    th, cells = _rotated_cells(index, pts_b, pose0, ang_window, step_range)
+    lin_cells = int(np.ceil(lin_window / index.res))
+    a, dx, dy, score = branch_and_bound(index.levels, cells, lin_cells, min_score)
+    if a < 0:
+        return pose0.copy(), -1.0, -1.0
+    pose = np.array([pose0[0] + dx * index.res, pose0[1] + dy * index.res, th[a]])
+    if max(abs(dx), abs(dy)) >= lin_cells or (len(th) > 1 and a in (0, len(th) - 1)):
+        # the best pose on the window's edge is no peak: the scan may fit better outside the window
+        return pose, float(score), float(score)
+    step = float(th[1] - th[0]) if len(th) > 1 else np.inf
+    ex_ang = int(np.floor(peak_angle / step)) if np.isfinite(step) else 0
+    a2, _, _, second = branch_and_bound(
+        index.levels, cells, lin_cells, max(score - margin, 0.0), a, dx, dy,
+        peak_radius / index.res, ex_ang,
+    )  # fmt: skip
+    return pose, float(score), float(second) if a2 >= 0 else -1.0
 
 
 @numba.njit(cache=True, nogil=True)

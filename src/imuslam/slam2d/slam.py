@@ -37,6 +37,7 @@ from imuslam.slam2d.matching import (
     SubmapIndex,
     angular_step,
     bnb_match,
+    bnb_match_distinct,
     correlative_search,
     make_index,
     refine_pose,
@@ -117,6 +118,25 @@ class LoopConfig(BaseModel):
     skip_recent_submaps: int = Field(
         2, ge=0, description="the newest finished submaps are local SLAM's"
     )
+    # acceptance beyond the absolute score (a corridor, a row of equal rooms: a match can score well at
+    # several places). 1) the peak must be distinct: a second branch and bound over the same window,
+    # without the poses near the best, finds nothing within ``distinct_margin`` of its score (Olson's
+    # local uniqueness test, Robotics and Autonomous Systems 57(12), 2009; 0 switches it off).
+    # 2) candidates must agree with each other: a candidate is accepted once ``consistent_min`` - 1
+    # candidates of other nodes within ``consistency_window_nodes`` imply the same relative pose between
+    # their nodes as the local SLAM (pairwise consistency, as Olson's single-cluster graph partitioning
+    # and Latif et al.'s RRR group loop hypotheses; Cartographer relies on the Huber loss alone). 1: off.
+    distinct_margin: float = Field(
+        0.05, ge=0, description="best score minus the best clearly different pose's, at least"
+    )
+    peak_radius: float = Field(0.5, gt=0, description="'clearly different': this far, m ...")
+    peak_angle_deg: float = Field(10.0, gt=0, description="... or turned this much, deg")
+    consistent_min: int = Field(
+        3, ge=1, description="mutually consistent candidates (of distinct nodes) to accept one"
+    )
+    consistency_window_nodes: int = Field(30, ge=1)
+    consistency_tol_m: float = Field(0.2, gt=0, description="plus 2 % of the nodes' distance")
+    consistency_tol_deg: float = Field(2.0, gt=0)
 
 
 class Slam2dConfig(BaseModel):
@@ -268,6 +288,11 @@ class Slam2d:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="slam2d-loops")
         self._pending: list[Future[tuple[list[LoopConstraint], float, float]]] = []
         self.main_loop_time = 0.0  # loop-closure time spent on the main thread
+        # loop candidates (matches above min_score) waiting for the consistency check, and the counts:
+        # matched, rejected as ambiguous (on the worker), rejected as inconsistent
+        self._candidates: list[LoopConstraint] = []
+        self._accepted: set[int] = set()  # id() of accepted candidates still in _candidates
+        self.loop_stats = {"candidates": 0, "ambiguous": 0, "inconsistent": 0}
 
     # ---------------------------------------------------------------- local SLAM
     def match(self, pts: FloatArray, prior: FloatArray) -> tuple[FloatArray, float]:
@@ -402,10 +427,69 @@ class Slam2d:
             self._add_loops(*fn(*args))
 
     def _add_loops(self, loops: list[LoopConstraint], dt: float, dt_cpu: float) -> None:
-        self.loops.extend(loops)
-        self._loops_since_opt += len(loops)
         self.timing["loop_search"] += dt
         self.timing["loop_search_cpu"] += dt_cpu
+        self.add_candidates(loops)
+
+    def add_candidates(self, loops: list[LoopConstraint]) -> None:
+        """Loop matches that passed the search's tests: constraints at once when the consistency check is
+        off, else waiting for it (``vet_candidates``)."""
+        if not loops:
+            return
+        self.loop_stats["candidates"] += len(loops)
+        if self.cfg.loop.consistent_min <= 1:
+            self.loops.extend(loops)
+            self._loops_since_opt += len(loops)
+            return
+        self._candidates.extend(loops)
+        self.vet_candidates(final=False)
+
+    def _consistent(self, c1: LoopConstraint, c2: LoopConstraint) -> bool:
+        """Whether two loop candidates of different nodes imply the relative pose of their nodes that the
+        local SLAM gives (each candidate puts its node at anchor's global pose x its constraint)."""
+        cfg = self.cfg.loop
+        g1 = pose2.compose(self.node_global[c1.anchor], c1.T_anchor_node)
+        g2 = pose2.compose(self.node_global[c2.anchor], c2.T_anchor_node)
+        implied = pose2.between(g1, g2)
+        local = pose2.between(self.node_local[c1.node], self.node_local[c2.node])
+        d = pose2.between(implied, local)
+        tol = cfg.consistency_tol_m + 0.02 * float(np.hypot(local[0], local[1]))
+        return bool(
+            np.hypot(d[0], d[1]) <= tol
+            and abs(pose2.wrap(d[2])) <= np.deg2rad(cfg.consistency_tol_deg)
+        )
+
+    def vet_candidates(self, final: bool) -> None:
+        """Accept each waiting candidate that ``consistent_min`` - 1 candidates of other nodes nearby
+        (within the window, in node order) agree with; reject those no later candidate can help any more
+        (all when ``final``)."""
+        cfg = self.cfg.loop
+        t0 = time.perf_counter()
+        W = cfg.consistency_window_nodes
+        latest = len(self.node_local) - 1
+        cands = self._candidates
+        for c in cands:
+            if id(c) in self._accepted:
+                continue
+            partners = {
+                o.node for o in cands
+                if o.node != c.node and abs(o.node - c.node) <= W and self._consistent(c, o)
+            }  # fmt: skip
+            if len(partners) + 1 >= cfg.consistent_min:
+                self._accepted.add(id(c))
+                self.loops.append(c)
+                self._loops_since_opt += 1
+        keep = []
+        for c in cands:
+            settled = final or c.node < latest - 2 * W
+            if not settled:
+                keep.append(c)
+            elif id(c) in self._accepted:
+                self._accepted.discard(id(c))
+            else:
+                self.loop_stats["inconsistent"] += 1
+        self._candidates = keep
+        self.main_loop_time += time.perf_counter() - t0
 
     def collect_loops(self, wait: bool = False) -> None:
         """Constraints of the finished background jobs (all of them with ``wait``), in submission order."""
@@ -465,15 +549,21 @@ class Slam2d:
         for s, T_s_n in jobs:
             idx = self.submaps[s].index
             assert idx is not None  # built by an earlier job of the same worker
-            pose, score = bnb_match(
-                idx,
-                pts,
-                T_s_n,
-                cfg.linear_window,
-                np.deg2rad(cfg.angular_window_deg),
-                cfg.min_score,
-                cfg.step_range,
-            )
+            if cfg.distinct_margin > 0:
+                pose, score, second = bnb_match_distinct(
+                    idx, pts, T_s_n, cfg.linear_window, np.deg2rad(cfg.angular_window_deg),
+                    cfg.min_score, cfg.step_range, cfg.peak_radius, np.deg2rad(cfg.peak_angle_deg),
+                    cfg.distinct_margin,
+                )  # fmt: skip
+                if score >= 0 and second >= 0:
+                    # one writer (the single worker); read after it has finished
+                    self.loop_stats["ambiguous"] += 1
+                    continue
+            else:
+                pose, score = bnb_match(
+                    idx, pts, T_s_n, cfg.linear_window, np.deg2rad(cfg.angular_window_deg),
+                    cfg.min_score, cfg.step_range,
+                )  # fmt: skip
             if score < 0:
                 continue
             grid = self.submaps[s].grid
@@ -632,6 +722,8 @@ def _run_slam2d(
     t_wait = time.perf_counter()
     slam.collect_loops(wait=True)
     slam.timing["loop_wait"] = time.perf_counter() - t_wait
+    if cfg.loop.enabled:
+        slam.vet_candidates(final=True)
     if cfg.loop.enabled and slam.loops:
         slam.optimise()
     # loop_search: the matching's own time (on the worker thread when in the background)
@@ -659,6 +751,7 @@ def _run_slam2d(
         np.array(slam.node_scan), len(slam.submaps), slam.loops, slam.loops_searched, dict(slam.timing),
         warnings, float(np.mean(slam.scores)) if slam.scores else 0.0, cfg, log_.source, rejected_tilt,
         match_score=match_score,
+        extra={f"loop_{k}": float(v) for k, v in slam.loop_stats.items()},
     )  # fmt: skip
 
 
