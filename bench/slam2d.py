@@ -47,6 +47,18 @@ def _rejected(res: Slam2dResult) -> str:
     return f"{e.get('loop_ambiguous', 0):.0f} / {e.get('loop_inconsistent', 0):.0f}"
 
 
+def _override(cfg: Slam2dConfig, kv: str) -> Slam2dConfig:
+    """``section.field=value`` (or ``field=value``) applied to a copy of ``cfg``, validated."""
+    key, _, value = kv.partition("=")
+    d = cfg.model_dump()
+    *path, last = key.split(".")
+    node = d
+    for k in path:
+        node = node[k]
+    node[last] = value
+    return Slam2dConfig.model_validate(d)
+
+
 def save_map(log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig, path: Path, title: str) -> None:
     from imuslam.io.figures import save_figure
     from imuslam.slam2d.output import map_figure
@@ -134,6 +146,10 @@ def main() -> None:
     ap.add_argument("--logs", nargs="*", default=[*RADISH, "exp1", "exp2"])
     ap.add_argument("--maps", default="")
     ap.add_argument("--floor", action="store_true", help="only the reference's own agreement table")
+    ap.add_argument(
+        "--set", nargs="*", default=[], metavar="KEY=VALUE",
+        help="override the config of every log, e.g. matcher.interpolation=bicubic loop.consistent_min=1",
+    )  # fmt: skip
     args = ap.parse_args()
     if args.floor:
         print("| log | relations re-estimated | ICP moves the reference relation by: mean [m] | median [m] | 90 % [m] |")  # fmt: skip
@@ -146,6 +162,8 @@ def main() -> None:
     if maps:
         maps.mkdir(parents=True, exist_ok=True)
     cfg = Slam2dConfig()
+    for kv in args.set:
+        cfg = _override(cfg, kv)
     # BreezySLAM's logs (4 m Hokuyo, 240 deg, wheel ticks, no IMU) score 0.62 on average even against
     # their own submap: loop matches are accepted from 0.5 (Cartographer's default global minimum score
     # is 0.6, local 0.55), searched for every node, and the loop edges weigh as 3 cm / 0.3 deg: their local
@@ -158,6 +176,8 @@ def main() -> None:
     # their submaps are weak (matches score 0.5-0.6): exp2's true closing matches beat the best pose
     # 0.5 m / 10 deg away by 0.03-0.06 only (the default distinct margin 0.05 loses the loop)
     cfg_b.loop.distinct_margin = 0.03
+    for kv in args.set:
+        cfg_b = _override(cfg_b, kv)
     rows = []
     print("| log | scans | log duration [s] | wall [s] | CPU [s] | of which the loop worker thread [s] | x real time (wall / CPU) | loops | SLAM relation error: trans [m], rot [deg] | odometry relation error | relations | SLAM ATE after SE(2) alignment: RMSE, largest [m] | odometry ATE [m] | scans re-localised / not inserted | loop matches: ambiguous / inconsistent |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")

@@ -121,6 +121,58 @@ def _bilinear(
 
 
 @numba.njit(cache=True, nogil=True)
+def _bicubic(
+    prob: F32, u: float, v: float, p_unknown: float
+) -> tuple[float, float, float]:  # pragma: no cover
+    """Catmull-Rom bicubic value and gradient (d/du, d/dv) at continuous cell coordinates (cell centres
+    at i + 0.5): the interpolation Cartographer's Ceres scan matcher uses (ceres::BiCubicInterpolator),
+    continuous in its gradient where the bilinear one jumps at every cell border."""
+    H, W = prob.shape
+    u -= 0.5
+    v -= 0.5
+    i0 = int(np.floor(u))
+    j0 = int(np.floor(v))
+    if i0 < 1 or j0 < 1 or i0 + 2 >= W or j0 + 2 >= H:
+        return p_unknown, 0.0, 0.0
+    tu = u - i0
+    tv = v - j0
+    wu = np.empty(4)
+    wv = np.empty(4)
+    du = np.empty(4)
+    dv = np.empty(4)
+    for t, w, d in ((tu, wu, du), (tv, wv, dv)):
+        t2 = t * t
+        t3 = t2 * t
+        w[0] = 0.5 * (-t3 + 2 * t2 - t)
+        w[1] = 0.5 * (3 * t3 - 5 * t2 + 2)
+        w[2] = 0.5 * (-3 * t3 + 4 * t2 + t)
+        w[3] = 0.5 * (t3 - t2)
+        d[0] = 0.5 * (-3 * t2 + 4 * t - 1)
+        d[1] = 0.5 * (9 * t2 - 10 * t)
+        d[2] = 0.5 * (-9 * t2 + 8 * t + 1)
+        d[3] = 0.5 * (3 * t2 - 2 * t)
+    val = 0.0
+    gu = 0.0
+    gv = 0.0
+    for j in range(4):
+        for i in range(4):
+            p = prob[j0 - 1 + j, i0 - 1 + i]
+            val += wv[j] * wu[i] * p
+            gu += wv[j] * du[i] * p
+            gv += dv[j] * wu[i] * p
+    return val, gu, gv
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _interp(
+    prob: F32, u: float, v: float, p_unknown: float, cubic: bool
+) -> tuple[float, float, float]:  # pragma: no cover
+    if cubic:
+        return _bicubic(prob, u, v, p_unknown)
+    return _bilinear(prob, u, v, p_unknown)
+
+
+@numba.njit(cache=True, nogil=True)
 def refine_pose(
     prob: F32,
     x0: float,
@@ -134,10 +186,12 @@ def refine_pose(
     w_rot: float,
     p_unknown: float,
     iters: int,
+    cubic: bool = False,
 ) -> tuple[FloatArray, float]:  # pragma: no cover - compiled
     """Gauss-Newton (Levenberg-damped) on Hess 2016 eq. 4 plus the prior terms
     ``w_trans^2 |t - t_prior|^2 + w_rot^2 (theta - theta_prior)^2``; occupied residuals weighted
-    ``w_occ / sqrt(P)`` as Cartographer's. Returns the pose and the mean probability at the points."""
+    ``w_occ / sqrt(P)`` as Cartographer's; the grid interpolated bilinearly, or bicubically with
+    ``cubic``. Returns the pose and the mean probability at the points."""
     P = pts_b.shape[0]
     x = pose_init.copy()
     wo = w_occ / np.sqrt(P)
@@ -149,7 +203,7 @@ def refine_pose(
         for k in range(P):
             px = c * pts_b[k, 0] - s * pts_b[k, 1] + xx[0]
             py = s * pts_b[k, 0] + c * pts_b[k, 1] + xx[1]
-            val, _, _ = _bilinear(prob, (px - x0) / res, (py - y0) / res, p_unknown)
+            val, _, _ = _interp(prob, (px - x0) / res, (py - y0) / res, p_unknown, cubic)
             tot += (wo * (1.0 - val)) ** 2
         tot += (w_trans * (xx[0] - prior[0])) ** 2 + (w_trans * (xx[1] - prior[1])) ** 2
         tot += (w_rot * (xx[2] - prior[2])) ** 2
@@ -164,7 +218,7 @@ def refine_pose(
             bx, by = pts_b[k, 0], pts_b[k, 1]
             px = c * bx - s * by + x[0]
             py = s * bx + c * by + x[1]
-            val, du, dv = _bilinear(prob, (px - x0) / res, (py - y0) / res, p_unknown)
+            val, du, dv = _interp(prob, (px - x0) / res, (py - y0) / res, p_unknown, cubic)
             r = wo * (1.0 - val)
             jx = -wo * du / res
             jy = -wo * dv / res
@@ -206,7 +260,7 @@ def refine_pose(
     for k in range(P):
         px = c * pts_b[k, 0] - s * pts_b[k, 1] + x[0]
         py = s * pts_b[k, 0] + c * pts_b[k, 1] + x[1]
-        val, _, _ = _bilinear(prob, (px - x0) / res, (py - y0) / res, p_unknown)
+        val, _, _ = _interp(prob, (px - x0) / res, (py - y0) / res, p_unknown, cubic)
         acc += val
     return x, acc / P
 
@@ -214,8 +268,10 @@ def refine_pose(
 def refine_pose_reference(
     prob: F32, x0: float, y0: float, res: float, pts_b: FloatArray, pose_init: FloatArray,
     prior: FloatArray, w_occ: float, w_trans: float, w_rot: float, p_unknown: float,
+    cubic: bool = False,
 ) -> FloatArray:  # fmt: skip
-    """Slow reference of :func:`refine_pose`: scipy's least squares on the same residuals (for tests)."""
+    """Slow reference of :func:`refine_pose`: scipy's least squares on the same residuals (for tests);
+    bilinear by scipy's grid interpolator, bicubic by the Catmull-Rom kernel written out in numpy."""
     from scipy.interpolate import RegularGridInterpolator
     from scipy.optimize import least_squares
 
@@ -226,11 +282,29 @@ def refine_pose_reference(
         (yc, xc), prob.astype(float), bounds_error=False, fill_value=p_unknown
     )
     wo = w_occ / np.sqrt(len(pts_b))
+    P64 = prob.astype(float)
+
+    def catmull_rom(p: FloatArray) -> FloatArray:
+        u, v = (p[:, 0] - x0) / res - 0.5, (p[:, 1] - y0) / res - 0.5
+        i0, j0 = np.floor(u).astype(int), np.floor(v).astype(int)
+        ok = (i0 >= 1) & (j0 >= 1) & (i0 + 2 < W) & (j0 + 2 < H)
+
+        def weights(t: FloatArray) -> FloatArray:  # Keys' cubic convolution kernel, a = -0.5
+            d = np.abs(t[:, None] - np.arange(-1, 3)[None, :])
+            return np.where(d <= 1, 1.5 * d**3 - 2.5 * d**2 + 1,
+                            np.where(d < 2, -0.5 * d**3 + 2.5 * d**2 - 4 * d + 2, 0.0))  # fmt: skip
+
+        wu, wv = weights(u - i0), weights(v - j0)
+        out = np.full(len(p), p_unknown)
+        for n in np.flatnonzero(ok):
+            patch = P64[j0[n] - 1 : j0[n] + 3, i0[n] - 1 : i0[n] + 3]
+            out[n] = wv[n] @ patch @ wu[n]
+        return out
 
     def resid(x: FloatArray) -> FloatArray:
         c, s = np.cos(x[2]), np.sin(x[2])
         p = pts_b @ np.array([[c, s], [-s, c]]) + x[:2]
-        occ = wo * (1.0 - f(p[:, ::-1]))
+        occ = wo * (1.0 - (catmull_rom(p) if cubic else f(p[:, ::-1])))
         return np.concatenate([occ, w_trans * (x[:2] - prior[:2]), [w_rot * (x[2] - prior[2])]])
 
     return np.asarray(least_squares(resid, pose_init, method="lm", xtol=1e-10).x)

@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -66,6 +67,9 @@ class MatcherConfig(BaseModel):
     translation_weight: float = Field(3.0, ge=0, description="pull towards the prior, per m")
     rotation_weight: float = Field(40.0, ge=0, description="pull towards the prior, per rad")
     max_iterations: int = Field(20, ge=1)
+    interpolation: Literal["bilinear", "bicubic"] = Field(
+        "bilinear", description="of the probability grid in the refinement (Cartographer: bicubic)"
+    )
     # a scan whose match scores this far below the running median is searched again over a wide window
     # by branch and bound against the same submap (an odometry jump, a slip while turning: on ACES a
     # 61 deg turn in 0.16 s is read as a jump and replaced by no motion; the +-10 deg window cannot
@@ -135,6 +139,9 @@ class LoopConfig(BaseModel):
         3, ge=1, description="mutually consistent candidates (of distinct nodes) to accept one"
     )
     consistency_window_nodes: int = Field(30, ge=1)
+    consistency_ratio: float = Field(
+        2.0, ge=0, description="agreeing nodes at least this many times the disagreeing ones"
+    )
     consistency_tol_m: float = Field(0.2, gt=0, description="plus 2 % of the nodes' distance")
     consistency_tol_deg: float = Field(2.0, gt=0)
 
@@ -286,12 +293,14 @@ class Slam2d:
         self._pool: ThreadPoolExecutor | None = None
         if cfg.loop.enabled and cfg.loop.background:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="slam2d-loops")
-        self._pending: list[Future[tuple[list[LoopConstraint], float, float]]] = []
+        # the worker's jobs in submission order, each with the node it searched for (-1: a submap index)
+        self._pending: list[tuple[Future[tuple[list[LoopConstraint], float, float]], int]] = []
+        self._searched_upto = -1  # every node up to this one has had its loop search collected
         self.main_loop_time = 0.0  # loop-closure time spent on the main thread
         # loop candidates (matches above min_score) waiting for the consistency check, and the counts:
         # matched, rejected as ambiguous (on the worker), rejected as inconsistent
         self._candidates: list[LoopConstraint] = []
-        self._accepted: set[int] = set()  # id() of accepted candidates still in _candidates
+        self._decided: set[int] = set()  # id() of the candidates in _candidates already decided
         self.loop_stats = {"candidates": 0, "ambiguous": 0, "inconsistent": 0}
 
     # ---------------------------------------------------------------- local SLAM
@@ -318,6 +327,7 @@ class Slam2d:
         pose, score = refine_pose(
             g.prob, g.x0, g.y0, p.resolution, pts, init, target, m.occupied_space_weight,
             m.translation_weight, m.rotation_weight, p.p_unknown, m.max_iterations,
+            m.interpolation == "bicubic",
         )  # fmt: skip
         return pose, float(score)
 
@@ -341,7 +351,7 @@ class Slam2d:
         p = self.params
         refined, sc2 = refine_pose(
             prob, x0, y0, p.resolution, pts, pose, pose, m.occupied_space_weight, m.translation_weight,
-            m.rotation_weight, p.p_unknown, m.max_iterations,
+            m.rotation_weight, p.p_unknown, m.max_iterations, m.interpolation == "bicubic",
         )  # fmt: skip
         if sc2 < need:
             return None
@@ -417,18 +427,24 @@ class Slam2d:
         return self._pool is not None
 
     def _run(
-        self, fn: Callable[..., tuple[list[LoopConstraint], float, float]], *args: object
+        self,
+        fn: Callable[..., tuple[list[LoopConstraint], float, float]],
+        *args: object,
+        node: int = -1,
     ) -> None:
         """``fn(*args)`` on the loop worker (or here without one); its constraints join the graph
-        when collected."""
+        when collected (``node``: the node whose loop search it is)."""
         if self._pool is not None:
-            self._pending.append(self._pool.submit(fn, *args))
+            self._pending.append((self._pool.submit(fn, *args), node))
         else:
-            self._add_loops(*fn(*args))
+            self._add_loops(*fn(*args), node)
 
-    def _add_loops(self, loops: list[LoopConstraint], dt: float, dt_cpu: float) -> None:
+    def _add_loops(
+        self, loops: list[LoopConstraint], dt: float, dt_cpu: float, node: int = -1
+    ) -> None:
         self.timing["loop_search"] += dt
         self.timing["loop_search_cpu"] += dt_cpu
+        self._searched_upto = max(self._searched_upto, node)
         self.add_candidates(loops)
 
     def add_candidates(self, loops: list[LoopConstraint]) -> None:
@@ -460,41 +476,48 @@ class Slam2d:
         )
 
     def vet_candidates(self, final: bool) -> None:
-        """Accept each waiting candidate that ``consistent_min`` - 1 candidates of other nodes nearby
-        (within the window, in node order) agree with; reject those no later candidate can help any more
-        (all when ``final``)."""
+        """Decide every waiting candidate whose window (the nodes within ``consistency_window_nodes``) has
+        been searched (all when ``final``): accepted when candidates of at least ``consistent_min`` - 1
+        other nodes agree with it and those nodes outnumber the ones whose candidates all disagree by
+        ``consistency_ratio`` (two groups of matches that contradict each other: neither is trusted,
+        the "global sufficiency" side of Olson 2009)."""
         cfg = self.cfg.loop
         t0 = time.perf_counter()
         W = cfg.consistency_window_nodes
-        latest = len(self.node_local) - 1
         cands = self._candidates
         for c in cands:
-            if id(c) in self._accepted:
+            # settled once every node within the window after it has been searched (the background
+            # worker can lag far behind the newest node)
+            if id(c) in self._decided or not (final or c.node + W < self._searched_upto):
                 continue
-            partners = {
-                o.node for o in cands
-                if o.node != c.node and abs(o.node - c.node) <= W and self._consistent(c, o)
-            }  # fmt: skip
-            if len(partners) + 1 >= cfg.consistent_min:
-                self._accepted.add(id(c))
+            self._decided.add(id(c))
+            agree: set[int] = set()
+            others: set[int] = set()
+            for o in cands:
+                if o.node != c.node and abs(o.node - c.node) <= W:
+                    others.add(o.node)
+                    if o.node not in agree and self._consistent(c, o):
+                        agree.add(o.node)
+            disagree = len(others) - len(agree)
+            if (
+                len(agree) + 1 >= cfg.consistent_min
+                and len(agree) >= cfg.consistency_ratio * disagree
+            ):
                 self.loops.append(c)
                 self._loops_since_opt += 1
-        keep = []
-        for c in cands:
-            settled = final or c.node < latest - 2 * W
-            if not settled:
-                keep.append(c)
-            elif id(c) in self._accepted:
-                self._accepted.discard(id(c))
             else:
                 self.loop_stats["inconsistent"] += 1
+        # a candidate is kept while an undecided one may still count it
+        keep = [c for c in cands if not final and c.node + 2 * W >= self._searched_upto]
+        self._decided &= {id(c) for c in keep}
         self._candidates = keep
         self.main_loop_time += time.perf_counter() - t0
 
     def collect_loops(self, wait: bool = False) -> None:
         """Constraints of the finished background jobs (all of them with ``wait``), in submission order."""
-        while self._pending and (wait or self._pending[0].done()):
-            self._add_loops(*self._pending.pop(0).result())
+        while self._pending and (wait or self._pending[0][0].done()):
+            fut, node = self._pending.pop(0)
+            self._add_loops(*fut.result(), node)
 
     def close(self) -> None:
         """Wait for the loop worker and stop it."""
@@ -536,7 +559,7 @@ class Slam2d:
         self.loops_searched += len(jobs)
         self.main_loop_time += time.perf_counter() - t0
         if jobs:
-            self._run(self._match_job, j, pts, jobs)
+            self._run(self._match_job, j, pts, jobs, node=j)
 
     def _match_job(
         self, j: int, pts: FloatArray, jobs: list[tuple[int, FloatArray]]
