@@ -338,6 +338,9 @@ def test_map2d_cli_on_simulated_room(tmp_path: Path) -> None:
 
     s = json.loads((out / "summary.json").read_text())
     assert s["scans"] == 200
+    # every match above the minimum score is a constraint or counted as rejected
+    assert s["loop_candidates"] == s["loop_constraints"] + s["loop_inconsistent"]
+    assert s["loop_ambiguous"] >= 0
     rows = np.loadtxt(out / "trajectory.tum")
     stamps = np.load(sim / "sim.npz")["scan_t_ns"]
     assert rows.shape == (200, 8)
