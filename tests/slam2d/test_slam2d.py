@@ -621,14 +621,9 @@ def test_distinct_peak_search_equals_masked_exhaustive_search(room_grid: Probabi
     assert np.hypot(*(pose[:2] - true[:2])) < 1.5 * RES
 
 
-def test_loop_match_in_a_corridor_is_ambiguous_and_in_a_room_distinct(
-    room_grid: ProbabilityGrid,
-) -> None:
-    """A scan of a straight corridor fits a corridor submap equally well anywhere along it: no distinct
-    peak. A scan of the room has one: its best pose beats every pose 0.5 m / 10 deg away by far."""
-    from imuslam.slam2d.matching import bnb_match_distinct
-
-    rng = np.random.default_rng(15)
+def _corridor(rng: np.random.Generator) -> tuple[ProbabilityGrid, np.ndarray]:
+    """A submap of a straight corridor (walls at y = +-1 m along x in [-10, 10] m) and a scan of it
+    (points within 4 m along the walls) taken at the origin."""
     g = ProbabilityGrid(GridParams(resolution=RES), np.zeros(2), 12.0)
     wall_x = np.arange(-10.0, 10.0, 0.02)
     for _ in range(3):
@@ -637,13 +632,56 @@ def test_loop_match_in_a_corridor_is_ambiguous_and_in_a_room_distinct(
                 near = np.abs(wall_x - x0_) < 4.0
                 ends = np.column_stack([wall_x[near], np.full(near.sum(), y)])
                 g.insert(np.array([x0_, 0.0]), ends + rng.normal(0, 0.01, ends.shape))
-    prob, x0, y0 = g.cropped()
-    idx = make_index(prob, x0, y0, RES, 5)
     near = np.abs(wall_x) < 4.0
     scan = np.concatenate(
         [np.column_stack([wall_x[near], np.full(near.sum(), y)]) for y in (-1, 1)]
     )
-    scan = scan[::2] + rng.normal(0, 0.01, scan[::2].shape)
+    return g, scan[::2] + rng.normal(0, 0.01, scan[::2].shape)
+
+
+def test_match_information_equals_numeric_and_is_small_along_a_corridor(
+    room_grid: ProbabilityGrid,
+) -> None:
+    """The match's information J^T J equals the one of a finite-difference Jacobian of the same
+    residuals (scipy's bilinear interpolator), and in a corridor the information along its axis is a
+    small fraction of the information across it (every shift along it fits as well)."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    from imuslam.slam2d.matching import match_information
+
+    rng = np.random.default_rng(16)
+    true = np.array([-0.4, 0.1, -0.3])
+    pts = _scan_at(true, rng)
+    g = room_grid
+    info = match_information(g.prob, g.x0, g.y0, RES, pts, true, 1.0, 0.1)
+    H, W = g.prob.shape
+    f = RegularGridInterpolator(((np.arange(H) + 0.5) * RES + g.y0, (np.arange(W) + 0.5) * RES + g.x0),
+                                g.prob.astype(float), bounds_error=False, fill_value=0.1)  # fmt: skip
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        p = pose2.act(x, pts)
+        return (1.0 - f(p[:, ::-1])) / np.sqrt(len(pts))
+
+    J = np.column_stack([(resid(true + e) - resid(true - e)) / 2e-5 for e in np.eye(3) * 1e-5])
+    assert np.allclose(info, J.T @ J, rtol=0.05, atol=1e-3 * np.abs(info).max())
+
+    gc, scan = _corridor(rng)
+    ci = match_information(gc.prob, gc.x0, gc.y0, RES, scan, np.zeros(3), 1.0, 0.1)
+    # not zero: the cells along a wall differ (2-3 hits each), which J^T J sees as texture
+    assert ci[0, 0] < 0.25 * ci[1, 1]
+
+
+def test_loop_match_in_a_corridor_is_ambiguous_and_in_a_room_distinct(
+    room_grid: ProbabilityGrid,
+) -> None:
+    """A scan of a straight corridor fits a corridor submap equally well anywhere along it: no distinct
+    peak. A scan of the room has one: its best pose beats every pose 0.5 m / 10 deg away by far."""
+    from imuslam.slam2d.matching import bnb_match_distinct
+
+    rng = np.random.default_rng(15)
+    g, scan = _corridor(rng)
+    prob, x0, y0 = g.cropped()
+    idx = make_index(prob, x0, y0, RES, 5)
     guess = np.array([0.4, 0.05, 0.02])  # the scan was taken at the origin
     _, score, second = bnb_match_distinct(
         idx, scan, guess, 3.0, np.deg2rad(20.0), 0.5, 15.0, 0.5, np.deg2rad(10.0), 0.05

@@ -265,6 +265,39 @@ def refine_pose(
     return x, acc / P
 
 
+@numba.njit(cache=True, nogil=True)
+def match_information(
+    prob: F32,
+    x0: float,
+    y0: float,
+    res: float,
+    pts_b: FloatArray,
+    pose: FloatArray,
+    w_occ: float,
+    p_unknown: float,
+) -> FloatArray:  # pragma: no cover - compiled
+    """J^T J (3 x 3, [x, y, theta] in the grid's frame) of the refinement's occupied-space residuals at
+    ``pose``: the scan's information about its pose (small along a corridor's axis, where every shift
+    fits as well; Censi 2007's Hessian approximation of an ICP covariance, here of Hess 2016 eq. 4)."""
+    P = pts_b.shape[0]
+    wo = w_occ / np.sqrt(P)
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    A = np.zeros((3, 3))
+    for k in range(P):
+        bx, by = pts_b[k, 0], pts_b[k, 1]
+        px = c * bx - s * by + pose[0]
+        py = s * bx + c * by + pose[1]
+        _, du, dv = _bilinear(prob, (px - x0) / res, (py - y0) / res, p_unknown)
+        jx = -wo * du / res
+        jy = -wo * dv / res
+        jt = jx * (-s * bx - c * by) + jy * (c * bx - s * by)
+        J = (jx, jy, jt)
+        for i in range(3):
+            for j in range(3):
+                A[i, j] += J[i] * J[j]
+    return A
+
+
 def refine_pose_reference(
     prob: F32, x0: float, y0: float, res: float, pts_b: FloatArray, pose_init: FloatArray,
     prior: FloatArray, w_occ: float, w_trans: float, w_rot: float, p_unknown: float,

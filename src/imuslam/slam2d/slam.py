@@ -24,7 +24,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,6 +41,7 @@ from imuslam.slam2d.matching import (
     bnb_match_distinct,
     correlative_search,
     make_index,
+    match_information,
     refine_pose,
 )
 
@@ -117,6 +118,11 @@ class LoopConfig(BaseModel):
     huber_k: float = Field(1.0, gt=0, description="Huber threshold on whitened loop residuals")
     local_sigma_m: float = Field(0.004, gt=0)
     local_sigma_rad: float = Field(0.0015, gt=0)
+    # "information": each local edge's covariance from its scan match (J^T J of the refinement's
+    # residuals plus the prior's weights, inverted, scaled so its median translation sigma is
+    # local_sigma_m and capped at 25x): loop closures may then stretch a corridor along its axis where
+    # the scan could not fix the pose (MIT-CSAIL's corridor slip) instead of bending every edge alike
+    local_edges: Literal["fixed", "information"] = "fixed"
     loop_sigma_m: float = Field(0.1, gt=0)
     loop_sigma_rad: float = Field(0.05, gt=0)
     skip_recent_submaps: int = Field(
@@ -280,6 +286,9 @@ class Slam2d:
         self.node_global: list[FloatArray] = []
         self.node_points: list[FloatArray] = []
         self.loops: list[LoopConstraint] = []
+        # per node: the information (3 x 3, local frame) of its scan match and prior, None if unmatched
+        self.node_info: list[FloatArray | None] = []
+        self.last_info: FloatArray | None = None
         self.loops_searched = 0
         self.last_node_t = -1e18
         # loop_search: wall time of the matching jobs; loop_search_cpu: their thread's CPU time
@@ -305,7 +314,9 @@ class Slam2d:
 
     # ---------------------------------------------------------------- local SLAM
     def match(self, pts: FloatArray, prior: FloatArray) -> tuple[FloatArray, float]:
-        """Pose of a scan in the local frame, from the prior, against the oldest active submap."""
+        """Pose of a scan in the local frame, from the prior, against the oldest active submap (and, for
+        information-weighted local edges, ``last_info``: the match's information)."""
+        self.last_info = None
         if not self.active:
             return prior, 0.0
         g = self.submaps[self.active[0]].grid
@@ -329,6 +340,13 @@ class Slam2d:
             m.translation_weight, m.rotation_weight, p.p_unknown, m.max_iterations,
             m.interpolation == "bicubic",
         )  # fmt: skip
+        if self.cfg.loop.enabled and self.cfg.loop.local_edges == "information":
+            info = match_information(
+                g.prob, g.x0, g.y0, p.resolution, pts, pose, m.occupied_space_weight, p.p_unknown
+            )
+            self.last_info = info + np.diag(
+                [m.translation_weight**2, m.translation_weight**2, m.rotation_weight**2]
+            )
         return pose, float(score)
 
     def relocalise(
@@ -382,6 +400,7 @@ class Slam2d:
         self.node_local.append(local.copy())
         self.node_global.append(glob)
         self.node_points.append(pts)
+        self.node_info.append(self.last_info)
         self.last_node_t = t_s
         if not self.active or self.submaps[self.active[-1]].n_nodes >= cfg.scans_per_submap // 2:
             if len(self.active) < 2:
@@ -601,6 +620,40 @@ class Slam2d:
             out.append(LoopConstraint(j, s, refined, float(sc2), sm.anchor_node, T_a_n))
         return out, time.perf_counter() - t0, time.thread_time() - c0
 
+    def _local_noises(self, L: FloatArray) -> list[Any]:
+        """Per local edge i -> i + 1: a Gaussian noise model of node i + 1's match covariance (inverse
+        information) in node i's frame, scaled so the median translation sigma is ``local_sigma_m``,
+        each sigma capped at 25x the fixed ones; None where the node has no match."""
+        import gtsam
+
+        cfg = self.cfg.loop
+        covs: list[FloatArray | None] = []
+        for i in range(len(L) - 1):
+            info = self.node_info[i + 1]
+            if info is None or not np.all(np.isfinite(info)):
+                covs.append(None)
+                continue
+            c, s = np.cos(L[i, 2]), np.sin(L[i, 2])
+            R = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # local frame -> node i's
+            cov = R @ np.linalg.inv(info + 1e-9 * np.eye(3)) @ R.T
+            covs.append(0.5 * (cov + cov.T))
+        sig = [np.sqrt(0.5 * (c[0, 0] + c[1, 1])) for c in covs if c is not None]
+        if not sig:
+            return [None] * len(covs)
+        scale = (cfg.local_sigma_m / float(np.median(sig))) ** 2
+        cap = np.array([25 * cfg.local_sigma_m] * 2 + [25 * cfg.local_sigma_rad])
+        out: list[Any] = []
+        for cov in covs:
+            if cov is None:
+                out.append(None)
+                continue
+            cv = cov * scale
+            # cap: shrink the covariance where a sigma exceeds 25x the fixed one
+            d = np.sqrt(np.diag(cv))
+            f = np.minimum(1.0, cap / np.maximum(d, 1e-12))
+            out.append(gtsam.noiseModel.Gaussian.Covariance(cv * np.outer(f, f)))
+        return out
+
     def optimise(self) -> None:
         """Levenberg-Marquardt on the pose graph (gtsam), warm-started from the current estimate."""
         import gtsam
@@ -623,8 +676,10 @@ class Slam2d:
                                          gtsam.noiseModel.Diagonal.Sigmas(np.full(3, 1e-6))))  # fmt: skip
         L = np.array(self.node_local)
         rel = pose2.between(L[:-1], L[1:])
+        noises = self._local_noises(L) if cfg.local_edges == "information" else None
         for i in range(n - 1):
-            graph.add(gtsam.BetweenFactorPose2(i, i + 1, gtsam.Pose2(*rel[i]), local_noise))
+            noise = local_noise if noises is None or noises[i] is None else noises[i]
+            graph.add(gtsam.BetweenFactorPose2(i, i + 1, gtsam.Pose2(*rel[i]), noise))
         for c in self.loops:
             graph.add(
                 gtsam.BetweenFactorPose2(
