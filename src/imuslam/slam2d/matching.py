@@ -121,6 +121,58 @@ def _bilinear(
 
 
 @numba.njit(cache=True, nogil=True)
+def _bicubic(
+    prob: F32, u: float, v: float, p_unknown: float
+) -> tuple[float, float, float]:  # pragma: no cover
+    """Catmull-Rom bicubic value and gradient (d/du, d/dv) at continuous cell coordinates (cell centres
+    at i + 0.5): the interpolation Cartographer's Ceres scan matcher uses (ceres::BiCubicInterpolator),
+    continuous in its gradient where the bilinear one jumps at every cell border."""
+    H, W = prob.shape
+    u -= 0.5
+    v -= 0.5
+    i0 = int(np.floor(u))
+    j0 = int(np.floor(v))
+    if i0 < 1 or j0 < 1 or i0 + 2 >= W or j0 + 2 >= H:
+        return p_unknown, 0.0, 0.0
+    tu = u - i0
+    tv = v - j0
+    wu = np.empty(4)
+    wv = np.empty(4)
+    du = np.empty(4)
+    dv = np.empty(4)
+    for t, w, d in ((tu, wu, du), (tv, wv, dv)):
+        t2 = t * t
+        t3 = t2 * t
+        w[0] = 0.5 * (-t3 + 2 * t2 - t)
+        w[1] = 0.5 * (3 * t3 - 5 * t2 + 2)
+        w[2] = 0.5 * (-3 * t3 + 4 * t2 + t)
+        w[3] = 0.5 * (t3 - t2)
+        d[0] = 0.5 * (-3 * t2 + 4 * t - 1)
+        d[1] = 0.5 * (9 * t2 - 10 * t)
+        d[2] = 0.5 * (-9 * t2 + 8 * t + 1)
+        d[3] = 0.5 * (3 * t2 - 2 * t)
+    val = 0.0
+    gu = 0.0
+    gv = 0.0
+    for j in range(4):
+        for i in range(4):
+            p = prob[j0 - 1 + j, i0 - 1 + i]
+            val += wv[j] * wu[i] * p
+            gu += wv[j] * du[i] * p
+            gv += dv[j] * wu[i] * p
+    return val, gu, gv
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _interp(
+    prob: F32, u: float, v: float, p_unknown: float, cubic: bool
+) -> tuple[float, float, float]:  # pragma: no cover
+    if cubic:
+        return _bicubic(prob, u, v, p_unknown)
+    return _bilinear(prob, u, v, p_unknown)
+
+
+@numba.njit(cache=True, nogil=True)
 def refine_pose(
     prob: F32,
     x0: float,
@@ -134,10 +186,12 @@ def refine_pose(
     w_rot: float,
     p_unknown: float,
     iters: int,
+    cubic: bool = False,
 ) -> tuple[FloatArray, float]:  # pragma: no cover - compiled
     """Gauss-Newton (Levenberg-damped) on Hess 2016 eq. 4 plus the prior terms
     ``w_trans^2 |t - t_prior|^2 + w_rot^2 (theta - theta_prior)^2``; occupied residuals weighted
-    ``w_occ / sqrt(P)`` as Cartographer's. Returns the pose and the mean probability at the points."""
+    ``w_occ / sqrt(P)`` as Cartographer's; the grid interpolated bilinearly, or bicubically with
+    ``cubic``. Returns the pose and the mean probability at the points."""
     P = pts_b.shape[0]
     x = pose_init.copy()
     wo = w_occ / np.sqrt(P)
@@ -149,7 +203,7 @@ def refine_pose(
         for k in range(P):
             px = c * pts_b[k, 0] - s * pts_b[k, 1] + xx[0]
             py = s * pts_b[k, 0] + c * pts_b[k, 1] + xx[1]
-            val, _, _ = _bilinear(prob, (px - x0) / res, (py - y0) / res, p_unknown)
+            val, _, _ = _interp(prob, (px - x0) / res, (py - y0) / res, p_unknown, cubic)
             tot += (wo * (1.0 - val)) ** 2
         tot += (w_trans * (xx[0] - prior[0])) ** 2 + (w_trans * (xx[1] - prior[1])) ** 2
         tot += (w_rot * (xx[2] - prior[2])) ** 2
@@ -164,7 +218,7 @@ def refine_pose(
             bx, by = pts_b[k, 0], pts_b[k, 1]
             px = c * bx - s * by + x[0]
             py = s * bx + c * by + x[1]
-            val, du, dv = _bilinear(prob, (px - x0) / res, (py - y0) / res, p_unknown)
+            val, du, dv = _interp(prob, (px - x0) / res, (py - y0) / res, p_unknown, cubic)
             r = wo * (1.0 - val)
             jx = -wo * du / res
             jy = -wo * dv / res
@@ -206,16 +260,51 @@ def refine_pose(
     for k in range(P):
         px = c * pts_b[k, 0] - s * pts_b[k, 1] + x[0]
         py = s * pts_b[k, 0] + c * pts_b[k, 1] + x[1]
-        val, _, _ = _bilinear(prob, (px - x0) / res, (py - y0) / res, p_unknown)
+        val, _, _ = _interp(prob, (px - x0) / res, (py - y0) / res, p_unknown, cubic)
         acc += val
     return x, acc / P
+
+
+@numba.njit(cache=True, nogil=True)
+def match_information(
+    prob: F32,
+    x0: float,
+    y0: float,
+    res: float,
+    pts_b: FloatArray,
+    pose: FloatArray,
+    w_occ: float,
+    p_unknown: float,
+) -> FloatArray:  # pragma: no cover - compiled
+    """J^T J (3 x 3, [x, y, theta] in the grid's frame) of the refinement's occupied-space residuals at
+    ``pose``: the scan's information about its pose (small along a corridor's axis, where every shift
+    fits as well; Censi 2007's Hessian approximation of an ICP covariance, here of Hess 2016 eq. 4)."""
+    P = pts_b.shape[0]
+    wo = w_occ / np.sqrt(P)
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    A = np.zeros((3, 3))
+    for k in range(P):
+        bx, by = pts_b[k, 0], pts_b[k, 1]
+        px = c * bx - s * by + pose[0]
+        py = s * bx + c * by + pose[1]
+        _, du, dv = _bilinear(prob, (px - x0) / res, (py - y0) / res, p_unknown)
+        jx = -wo * du / res
+        jy = -wo * dv / res
+        jt = jx * (-s * bx - c * by) + jy * (c * bx - s * by)
+        J = (jx, jy, jt)
+        for i in range(3):
+            for j in range(3):
+                A[i, j] += J[i] * J[j]
+    return A
 
 
 def refine_pose_reference(
     prob: F32, x0: float, y0: float, res: float, pts_b: FloatArray, pose_init: FloatArray,
     prior: FloatArray, w_occ: float, w_trans: float, w_rot: float, p_unknown: float,
+    cubic: bool = False,
 ) -> FloatArray:  # fmt: skip
-    """Slow reference of :func:`refine_pose`: scipy's least squares on the same residuals (for tests)."""
+    """Slow reference of :func:`refine_pose`: scipy's least squares on the same residuals (for tests);
+    bilinear by scipy's grid interpolator, bicubic by the Catmull-Rom kernel written out in numpy."""
     from scipy.interpolate import RegularGridInterpolator
     from scipy.optimize import least_squares
 
@@ -226,11 +315,29 @@ def refine_pose_reference(
         (yc, xc), prob.astype(float), bounds_error=False, fill_value=p_unknown
     )
     wo = w_occ / np.sqrt(len(pts_b))
+    P64 = prob.astype(float)
+
+    def catmull_rom(p: FloatArray) -> FloatArray:
+        u, v = (p[:, 0] - x0) / res - 0.5, (p[:, 1] - y0) / res - 0.5
+        i0, j0 = np.floor(u).astype(int), np.floor(v).astype(int)
+        ok = (i0 >= 1) & (j0 >= 1) & (i0 + 2 < W) & (j0 + 2 < H)
+
+        def weights(t: FloatArray) -> FloatArray:  # Keys' cubic convolution kernel, a = -0.5
+            d = np.abs(t[:, None] - np.arange(-1, 3)[None, :])
+            return np.where(d <= 1, 1.5 * d**3 - 2.5 * d**2 + 1,
+                            np.where(d < 2, -0.5 * d**3 + 2.5 * d**2 - 4 * d + 2, 0.0))  # fmt: skip
+
+        wu, wv = weights(u - i0), weights(v - j0)
+        out = np.full(len(p), p_unknown)
+        for n in np.flatnonzero(ok):
+            patch = P64[j0[n] - 1 : j0[n] + 3, i0[n] - 1 : i0[n] + 3]
+            out[n] = wv[n] @ patch @ wu[n]
+        return out
 
     def resid(x: FloatArray) -> FloatArray:
         c, s = np.cos(x[2]), np.sin(x[2])
         p = pts_b @ np.array([[c, s], [-s, c]]) + x[:2]
-        occ = wo * (1.0 - f(p[:, ::-1]))
+        occ = wo * (1.0 - (catmull_rom(p) if cubic else f(p[:, ::-1])))
         return np.concatenate([occ, w_trans * (x[:2] - prior[:2]), [w_rot * (x[2] - prior[2])]])
 
     return np.asarray(least_squares(resid, pose_init, method="lm", xtol=1e-10).x)
@@ -283,13 +390,37 @@ def _score(
     return acc / (255.0 * P)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _excluded(
+    h: int, a: int, x: int, y: int, ex_a: int, ex_x: int, ex_y: int, ex_r: float, ex_ang: int
+) -> bool:  # pragma: no cover - compiled
+    """Whether every pose of the node (angle a, cells [x, x + 2^h) x [y, y + 2^h)) lies within ``ex_r``
+    cells and ``ex_ang`` angle steps of the excluded peak (ex_a, ex_x, ex_y); never when ex_r < 0."""
+    if ex_r < 0 or abs(a - ex_a) > ex_ang:
+        return False
+    e = (1 << h) - 1
+    fx = max(abs(x - ex_x), abs(x + e - ex_x))
+    fy = max(abs(y - ex_y), abs(y + e - ex_y))
+    return fx * fx + fy * fy <= ex_r * ex_r
+
+
 @numba.njit(cache=True, nogil=True)
 def branch_and_bound(
-    levels: U8, cells: NDArray[np.int64], lin_cells: int, min_score: float
+    levels: U8,
+    cells: NDArray[np.int64],
+    lin_cells: int,
+    min_score: float,
+    ex_a: int = 0,
+    ex_x: int = 0,
+    ex_y: int = 0,
+    ex_r: float = -1.0,
+    ex_ang: int = 0,
 ) -> tuple[int, int, int, float]:  # pragma: no cover - compiled
     """Best (angle index, dx, dy) cells over the window [-lin_cells, lin_cells]^2 of every discretised
     rotation ``cells`` (A, P, 2) (padded level-0 cell indices at zero offset); returns score -1 if none
-    reaches ``min_score``."""
+    reaches ``min_score``. With ``ex_r >= 0`` the poses within ``ex_r`` cells and ``ex_ang`` angle steps
+    of (ex_a, ex_x, ex_y) are left out: the best pose clearly away from a peak found before (nodes
+    wholly inside that neighbourhood are pruned; their bounds stay valid for the others)."""
     depth = levels.shape[0] - 1
     A = cells.shape[0]
     step = 1 << depth
@@ -318,6 +449,8 @@ def branch_and_bound(
     order = np.argsort(rs[:nroot])
     top = 0
     for q in order:
+        if _excluded(depth, ra[q], rx[q], ry[q], ex_a, ex_x, ex_y, ex_r, ex_ang):
+            continue
         if rs[q] > min_score and top < cap:
             st_h[top] = depth
             st_a[top] = ra[q]
@@ -346,6 +479,8 @@ def branch_and_bound(
             for ddy in (0, s):
                 nx, ny = x + ddx, y + ddy
                 if nx > lin_cells or ny > lin_cells:
+                    continue
+                if _excluded(hh, a, nx, ny, ex_a, ex_x, ex_y, ex_r, ex_ang):
                     continue
                 cs[n] = _score(levels, hh, cells, a, nx, ny)
                 cx[n] = nx
@@ -378,18 +513,10 @@ def make_index(prob: F32, x0: float, y0: float, res: float, depth: int) -> Subma
     return SubmapIndex(precompute_max_grids(prob, depth), x0, y0, res, (1 << depth) - 1)
 
 
-def bnb_match(
-    index: SubmapIndex,
-    pts_b: FloatArray,
-    pose0: FloatArray,
-    lin_window: float,
-    ang_window: float,
-    min_score: float,
-    step_range: float = np.inf,
-) -> tuple[FloatArray, float]:
-    """Branch-and-bound search around ``pose0`` (in the submap's frame): the best pose on the search
-    lattice and its score (mean probability), or score -1 when nothing reaches ``min_score``. The angular
-    step moves a point at ``min(step_range, farthest point)`` by one cell."""
+def _rotated_cells(
+    index: SubmapIndex, pts_b: FloatArray, pose0: FloatArray, ang_window: float, step_range: float
+) -> tuple[FloatArray, NDArray[np.int64]]:
+    """The search's rotations around ``pose0`` and every point's padded level-0 cell under each."""
     res = index.res
     d_max = float(np.max(np.hypot(pts_b[:, 0], pts_b[:, 1]))) if len(pts_b) else 1.0
     d_max = min(d_max, step_range)
@@ -402,11 +529,64 @@ def bnb_match(
     cells = np.empty((len(th), len(pts_b), 2), np.int64)
     cells[..., 0] = np.floor((px - index.x0) / res).astype(np.int64) + index.pad
     cells[..., 1] = np.floor((py - index.y0) / res).astype(np.int64) + index.pad
-    lin_cells = int(np.ceil(lin_window / res))
+    return th, cells
+
+
+def bnb_match(
+    index: SubmapIndex,
+    pts_b: FloatArray,
+    pose0: FloatArray,
+    lin_window: float,
+    ang_window: float,
+    min_score: float,
+    step_range: float = np.inf,
+) -> tuple[FloatArray, float]:
+    """Branch-and-bound search around ``pose0`` (in the submap's frame): the best pose on the search
+    lattice and its score (mean probability), or score -1 when nothing reaches ``min_score``. The angular
+    step moves a point at ``min(step_range, farthest point)`` by one cell."""
+    th, cells = _rotated_cells(index, pts_b, pose0, ang_window, step_range)
+    lin_cells = int(np.ceil(lin_window / index.res))
     a, dx, dy, score = branch_and_bound(index.levels, cells, lin_cells, min_score)
     if a < 0:
         return pose0.copy(), -1.0
-    return np.array([pose0[0] + dx * res, pose0[1] + dy * res, th[a]]), float(score)
+    return np.array([pose0[0] + dx * index.res, pose0[1] + dy * index.res, th[a]]), float(score)
+
+
+def bnb_match_distinct(
+    index: SubmapIndex,
+    pts_b: FloatArray,
+    pose0: FloatArray,
+    lin_window: float,
+    ang_window: float,
+    min_score: float,
+    step_range: float,
+    peak_radius: float,
+    peak_angle: float,
+    margin: float,
+) -> tuple[FloatArray, float, float]:
+    """``bnb_match``, then a second branch and bound over the same window without the poses within
+    ``peak_radius`` m and ``peak_angle`` rad of the best: the match is distinct when no pose clearly
+    away from it scores within ``margin`` of it (a corridor or a repeated room gives several peaks of
+    about the same score; Olson's "local uniqueness" test, E. Olson, "Recognizing places using spectrally
+    clustered local matches", Robotics and Autonomous Systems 57(12), 2009). Returns the pose, its
+    lattice score (-1 when nothing reaches ``min_score``) and the best score away from it (-1 when none
+    reaches ``score - margin``: distinct; the score itself when the best pose is on the window's edge)."""
+    th, cells = _rotated_cells(index, pts_b, pose0, ang_window, step_range)
+    lin_cells = int(np.ceil(lin_window / index.res))
+    a, dx, dy, score = branch_and_bound(index.levels, cells, lin_cells, min_score)
+    if a < 0:
+        return pose0.copy(), -1.0, -1.0
+    pose = np.array([pose0[0] + dx * index.res, pose0[1] + dy * index.res, th[a]])
+    if max(abs(dx), abs(dy)) >= lin_cells or (len(th) > 1 and a in (0, len(th) - 1)):
+        # the best pose on the window's edge is no peak: the scan may fit better outside the window
+        return pose, float(score), float(score)
+    step = float(th[1] - th[0]) if len(th) > 1 else np.inf
+    ex_ang = int(np.floor(peak_angle / step)) if np.isfinite(step) else 0
+    a2, _, _, second = branch_and_bound(
+        index.levels, cells, lin_cells, max(score - margin, 0.0), a, dx, dy,
+        peak_radius / index.res, ex_ang,
+    )  # fmt: skip
+    return pose, float(score), float(second) if a2 >= 0 else -1.0
 
 
 @numba.njit(cache=True, nogil=True)

@@ -45,6 +45,9 @@ def summary(result: Slam2dResult, log_: LaserLog, wall_s: float) -> dict[str, An
         "submaps": result.n_submaps,
         "loop_constraints": len(result.loops),
         "loop_searches": result.loops_searched,
+        # matches above the minimum score: all, rejected without a distinct peak, rejected as
+        # inconsistent with their neighbours' (the rest are the loop constraints)
+        **{k: int(v) for k, v in result.extra.items() if k.startswith("loop_")},
         "mean_match_score": result.mean_match_score,
         "wall_time_s": wall_s,
         "faster_than_real_time": log_.duration_s / wall_s if wall_s > 0 else float("inf"),

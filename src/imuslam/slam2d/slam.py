@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,8 +38,10 @@ from imuslam.slam2d.matching import (
     SubmapIndex,
     angular_step,
     bnb_match,
+    bnb_match_distinct,
     correlative_search,
     make_index,
+    match_information,
     refine_pose,
 )
 
@@ -65,6 +68,9 @@ class MatcherConfig(BaseModel):
     translation_weight: float = Field(3.0, ge=0, description="pull towards the prior, per m")
     rotation_weight: float = Field(40.0, ge=0, description="pull towards the prior, per rad")
     max_iterations: int = Field(20, ge=1)
+    interpolation: Literal["bilinear", "bicubic"] = Field(
+        "bilinear", description="of the probability grid in the refinement (Cartographer: bicubic)"
+    )
     # a scan whose match scores this far below the running median is searched again over a wide window
     # by branch and bound against the same submap (an odometry jump, a slip while turning: on ACES a
     # 61 deg turn in 0.16 s is read as a jump and replaced by no motion; the +-10 deg window cannot
@@ -112,11 +118,38 @@ class LoopConfig(BaseModel):
     huber_k: float = Field(1.0, gt=0, description="Huber threshold on whitened loop residuals")
     local_sigma_m: float = Field(0.004, gt=0)
     local_sigma_rad: float = Field(0.0015, gt=0)
+    # "information": each local edge's covariance from its scan match (J^T J of the refinement's
+    # residuals plus the prior's weights, inverted, scaled so its median translation sigma is
+    # local_sigma_m and capped at 25x): loop closures may then stretch a corridor along its axis where
+    # the scan could not fix the pose (MIT-CSAIL's corridor slip) instead of bending every edge alike
+    local_edges: Literal["fixed", "information"] = "fixed"
     loop_sigma_m: float = Field(0.1, gt=0)
     loop_sigma_rad: float = Field(0.05, gt=0)
     skip_recent_submaps: int = Field(
         2, ge=0, description="the newest finished submaps are local SLAM's"
     )
+    # acceptance beyond the absolute score (a corridor, a row of equal rooms: a match can score well at
+    # several places). 1) the peak must be distinct: a second branch and bound over the same window,
+    # without the poses near the best, finds nothing within ``distinct_margin`` of its score (Olson's
+    # local uniqueness test, Robotics and Autonomous Systems 57(12), 2009; 0 switches it off).
+    # 2) candidates must agree with each other: a candidate is accepted once ``consistent_min`` - 1
+    # candidates of other nodes within ``consistency_window_nodes`` imply the same relative pose between
+    # their nodes as the local SLAM (pairwise consistency, as Olson's single-cluster graph partitioning
+    # and Latif et al.'s RRR group loop hypotheses; Cartographer relies on the Huber loss alone). 1: off.
+    distinct_margin: float = Field(
+        0.05, ge=0, description="best score minus the best clearly different pose's, at least"
+    )
+    peak_radius: float = Field(0.5, gt=0, description="'clearly different': this far, m ...")
+    peak_angle_deg: float = Field(10.0, gt=0, description="... or turned this much, deg")
+    consistent_min: int = Field(
+        3, ge=1, description="mutually consistent candidates (of distinct nodes) to accept one"
+    )
+    consistency_window_nodes: int = Field(30, ge=1)
+    consistency_ratio: float = Field(
+        2.0, ge=0, description="agreeing nodes at least this many times the disagreeing ones"
+    )
+    consistency_tol_m: float = Field(0.2, gt=0, description="plus 2 % of the nodes' distance")
+    consistency_tol_deg: float = Field(2.0, gt=0)
 
 
 class Slam2dConfig(BaseModel):
@@ -253,6 +286,9 @@ class Slam2d:
         self.node_global: list[FloatArray] = []
         self.node_points: list[FloatArray] = []
         self.loops: list[LoopConstraint] = []
+        # per node: the information (3 x 3, local frame) of its scan match and prior, None if unmatched
+        self.node_info: list[FloatArray | None] = []
+        self.last_info: FloatArray | None = None
         self.loops_searched = 0
         self.last_node_t = -1e18
         # loop_search: wall time of the matching jobs; loop_search_cpu: their thread's CPU time
@@ -266,12 +302,21 @@ class Slam2d:
         self._pool: ThreadPoolExecutor | None = None
         if cfg.loop.enabled and cfg.loop.background:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="slam2d-loops")
-        self._pending: list[Future[tuple[list[LoopConstraint], float, float]]] = []
+        # the worker's jobs in submission order, each with the node it searched for (-1: a submap index)
+        self._pending: list[tuple[Future[tuple[list[LoopConstraint], float, float]], int]] = []
+        self._searched_upto = -1  # every node up to this one has had its loop search collected
         self.main_loop_time = 0.0  # loop-closure time spent on the main thread
+        # loop candidates (matches above min_score) waiting for the consistency check, and the counts:
+        # matched, rejected as ambiguous (on the worker), rejected as inconsistent
+        self._candidates: list[LoopConstraint] = []
+        self._decided: set[int] = set()  # id() of the candidates in _candidates already decided
+        self.loop_stats = {"candidates": 0, "ambiguous": 0, "inconsistent": 0}
 
     # ---------------------------------------------------------------- local SLAM
     def match(self, pts: FloatArray, prior: FloatArray) -> tuple[FloatArray, float]:
-        """Pose of a scan in the local frame, from the prior, against the oldest active submap."""
+        """Pose of a scan in the local frame, from the prior, against the oldest active submap (and, for
+        information-weighted local edges, ``last_info``: the match's information)."""
+        self.last_info = None
         if not self.active:
             return prior, 0.0
         g = self.submaps[self.active[0]].grid
@@ -293,7 +338,15 @@ class Slam2d:
         pose, score = refine_pose(
             g.prob, g.x0, g.y0, p.resolution, pts, init, target, m.occupied_space_weight,
             m.translation_weight, m.rotation_weight, p.p_unknown, m.max_iterations,
+            m.interpolation == "bicubic",
         )  # fmt: skip
+        if self.cfg.loop.enabled and self.cfg.loop.local_edges == "information":
+            info = match_information(
+                g.prob, g.x0, g.y0, p.resolution, pts, pose, m.occupied_space_weight, p.p_unknown
+            )
+            self.last_info = info + np.diag(
+                [m.translation_weight**2, m.translation_weight**2, m.rotation_weight**2]
+            )
         return pose, float(score)
 
     def relocalise(
@@ -316,7 +369,7 @@ class Slam2d:
         p = self.params
         refined, sc2 = refine_pose(
             prob, x0, y0, p.resolution, pts, pose, pose, m.occupied_space_weight, m.translation_weight,
-            m.rotation_weight, p.p_unknown, m.max_iterations,
+            m.rotation_weight, p.p_unknown, m.max_iterations, m.interpolation == "bicubic",
         )  # fmt: skip
         if sc2 < need:
             return None
@@ -347,6 +400,7 @@ class Slam2d:
         self.node_local.append(local.copy())
         self.node_global.append(glob)
         self.node_points.append(pts)
+        self.node_info.append(self.last_info)
         self.last_node_t = t_s
         if not self.active or self.submaps[self.active[-1]].n_nodes >= cfg.scans_per_submap // 2:
             if len(self.active) < 2:
@@ -392,25 +446,97 @@ class Slam2d:
         return self._pool is not None
 
     def _run(
-        self, fn: Callable[..., tuple[list[LoopConstraint], float, float]], *args: object
+        self,
+        fn: Callable[..., tuple[list[LoopConstraint], float, float]],
+        *args: object,
+        node: int = -1,
     ) -> None:
         """``fn(*args)`` on the loop worker (or here without one); its constraints join the graph
-        when collected."""
+        when collected (``node``: the node whose loop search it is)."""
         if self._pool is not None:
-            self._pending.append(self._pool.submit(fn, *args))
+            self._pending.append((self._pool.submit(fn, *args), node))
         else:
-            self._add_loops(*fn(*args))
+            self._add_loops(*fn(*args), node)
 
-    def _add_loops(self, loops: list[LoopConstraint], dt: float, dt_cpu: float) -> None:
-        self.loops.extend(loops)
-        self._loops_since_opt += len(loops)
+    def _add_loops(
+        self, loops: list[LoopConstraint], dt: float, dt_cpu: float, node: int = -1
+    ) -> None:
         self.timing["loop_search"] += dt
         self.timing["loop_search_cpu"] += dt_cpu
+        self._searched_upto = max(self._searched_upto, node)
+        self.add_candidates(loops)
+
+    def add_candidates(self, loops: list[LoopConstraint]) -> None:
+        """Loop matches that passed the search's tests: constraints at once when the consistency check is
+        off, else waiting for it (``vet_candidates``)."""
+        if not loops:
+            return
+        self.loop_stats["candidates"] += len(loops)
+        if self.cfg.loop.consistent_min <= 1:
+            self.loops.extend(loops)
+            self._loops_since_opt += len(loops)
+            return
+        self._candidates.extend(loops)
+        self.vet_candidates(final=False)
+
+    def _consistent(self, c1: LoopConstraint, c2: LoopConstraint) -> bool:
+        """Whether two loop candidates of different nodes imply the relative pose of their nodes that the
+        local SLAM gives (each candidate puts its node at anchor's global pose x its constraint)."""
+        cfg = self.cfg.loop
+        g1 = pose2.compose(self.node_global[c1.anchor], c1.T_anchor_node)
+        g2 = pose2.compose(self.node_global[c2.anchor], c2.T_anchor_node)
+        implied = pose2.between(g1, g2)
+        local = pose2.between(self.node_local[c1.node], self.node_local[c2.node])
+        d = pose2.between(implied, local)
+        tol = cfg.consistency_tol_m + 0.02 * float(np.hypot(local[0], local[1]))
+        return bool(
+            np.hypot(d[0], d[1]) <= tol
+            and abs(pose2.wrap(d[2])) <= np.deg2rad(cfg.consistency_tol_deg)
+        )
+
+    def vet_candidates(self, final: bool) -> None:
+        """Decide every waiting candidate whose window (the nodes within ``consistency_window_nodes``) has
+        been searched (all when ``final``): accepted when candidates of at least ``consistent_min`` - 1
+        other nodes agree with it and those nodes outnumber the ones whose candidates all disagree by
+        ``consistency_ratio`` (two groups of matches that contradict each other: neither is trusted,
+        the "global sufficiency" side of Olson 2009)."""
+        cfg = self.cfg.loop
+        t0 = time.perf_counter()
+        W = cfg.consistency_window_nodes
+        cands = self._candidates
+        for c in cands:
+            # settled once every node within the window after it has been searched (the background
+            # worker can lag far behind the newest node)
+            if id(c) in self._decided or not (final or c.node + W < self._searched_upto):
+                continue
+            self._decided.add(id(c))
+            agree: set[int] = set()
+            others: set[int] = set()
+            for o in cands:
+                if o.node != c.node and abs(o.node - c.node) <= W:
+                    others.add(o.node)
+                    if o.node not in agree and self._consistent(c, o):
+                        agree.add(o.node)
+            disagree = len(others) - len(agree)
+            if (
+                len(agree) + 1 >= cfg.consistent_min
+                and len(agree) >= cfg.consistency_ratio * disagree
+            ):
+                self.loops.append(c)
+                self._loops_since_opt += 1
+            else:
+                self.loop_stats["inconsistent"] += 1
+        # a candidate is kept while an undecided one may still count it
+        keep = [c for c in cands if not final and c.node + 2 * W >= self._searched_upto]
+        self._decided &= {id(c) for c in keep}
+        self._candidates = keep
+        self.main_loop_time += time.perf_counter() - t0
 
     def collect_loops(self, wait: bool = False) -> None:
         """Constraints of the finished background jobs (all of them with ``wait``), in submission order."""
-        while self._pending and (wait or self._pending[0].done()):
-            self._add_loops(*self._pending.pop(0).result())
+        while self._pending and (wait or self._pending[0][0].done()):
+            fut, node = self._pending.pop(0)
+            self._add_loops(*fut.result(), node)
 
     def close(self) -> None:
         """Wait for the loop worker and stop it."""
@@ -452,7 +578,7 @@ class Slam2d:
         self.loops_searched += len(jobs)
         self.main_loop_time += time.perf_counter() - t0
         if jobs:
-            self._run(self._match_job, j, pts, jobs)
+            self._run(self._match_job, j, pts, jobs, node=j)
 
     def _match_job(
         self, j: int, pts: FloatArray, jobs: list[tuple[int, FloatArray]]
@@ -465,15 +591,21 @@ class Slam2d:
         for s, T_s_n in jobs:
             idx = self.submaps[s].index
             assert idx is not None  # built by an earlier job of the same worker
-            pose, score = bnb_match(
-                idx,
-                pts,
-                T_s_n,
-                cfg.linear_window,
-                np.deg2rad(cfg.angular_window_deg),
-                cfg.min_score,
-                cfg.step_range,
-            )
+            if cfg.distinct_margin > 0:
+                pose, score, second = bnb_match_distinct(
+                    idx, pts, T_s_n, cfg.linear_window, np.deg2rad(cfg.angular_window_deg),
+                    cfg.min_score, cfg.step_range, cfg.peak_radius, np.deg2rad(cfg.peak_angle_deg),
+                    cfg.distinct_margin,
+                )  # fmt: skip
+                if score >= 0 and second >= 0:
+                    # one writer (the single worker); read after it has finished
+                    self.loop_stats["ambiguous"] += 1
+                    continue
+            else:
+                pose, score = bnb_match(
+                    idx, pts, T_s_n, cfg.linear_window, np.deg2rad(cfg.angular_window_deg),
+                    cfg.min_score, cfg.step_range,
+                )  # fmt: skip
             if score < 0:
                 continue
             grid = self.submaps[s].grid
@@ -487,6 +619,40 @@ class Slam2d:
             )
             out.append(LoopConstraint(j, s, refined, float(sc2), sm.anchor_node, T_a_n))
         return out, time.perf_counter() - t0, time.thread_time() - c0
+
+    def _local_noises(self, L: FloatArray) -> list[Any]:
+        """Per local edge i -> i + 1: a Gaussian noise model of node i + 1's match covariance (inverse
+        information) in node i's frame, scaled so the median translation sigma is ``local_sigma_m``,
+        each sigma capped at 25x the fixed ones; None where the node has no match."""
+        import gtsam
+
+        cfg = self.cfg.loop
+        covs: list[FloatArray | None] = []
+        for i in range(len(L) - 1):
+            info = self.node_info[i + 1]
+            if info is None or not np.all(np.isfinite(info)):
+                covs.append(None)
+                continue
+            c, s = np.cos(L[i, 2]), np.sin(L[i, 2])
+            R = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # local frame -> node i's
+            cov = R @ np.linalg.inv(info + 1e-9 * np.eye(3)) @ R.T
+            covs.append(0.5 * (cov + cov.T))
+        sig = [np.sqrt(0.5 * (c[0, 0] + c[1, 1])) for c in covs if c is not None]
+        if not sig:
+            return [None] * len(covs)
+        scale = (cfg.local_sigma_m / float(np.median(sig))) ** 2
+        cap = np.array([25 * cfg.local_sigma_m] * 2 + [25 * cfg.local_sigma_rad])
+        out: list[Any] = []
+        for cov in covs:
+            if cov is None:
+                out.append(None)
+                continue
+            cv = cov * scale
+            # cap: shrink the covariance where a sigma exceeds 25x the fixed one
+            d = np.sqrt(np.diag(cv))
+            f = np.minimum(1.0, cap / np.maximum(d, 1e-12))
+            out.append(gtsam.noiseModel.Gaussian.Covariance(cv * np.outer(f, f)))
+        return out
 
     def optimise(self) -> None:
         """Levenberg-Marquardt on the pose graph (gtsam), warm-started from the current estimate."""
@@ -510,8 +676,10 @@ class Slam2d:
                                          gtsam.noiseModel.Diagonal.Sigmas(np.full(3, 1e-6))))  # fmt: skip
         L = np.array(self.node_local)
         rel = pose2.between(L[:-1], L[1:])
+        noises = self._local_noises(L) if cfg.local_edges == "information" else None
         for i in range(n - 1):
-            graph.add(gtsam.BetweenFactorPose2(i, i + 1, gtsam.Pose2(*rel[i]), local_noise))
+            noise = local_noise if noises is None or noises[i] is None else noises[i]
+            graph.add(gtsam.BetweenFactorPose2(i, i + 1, gtsam.Pose2(*rel[i]), noise))
         for c in self.loops:
             graph.add(
                 gtsam.BetweenFactorPose2(
@@ -632,6 +800,8 @@ def _run_slam2d(
     t_wait = time.perf_counter()
     slam.collect_loops(wait=True)
     slam.timing["loop_wait"] = time.perf_counter() - t_wait
+    if cfg.loop.enabled:
+        slam.vet_candidates(final=True)
     if cfg.loop.enabled and slam.loops:
         slam.optimise()
     # loop_search: the matching's own time (on the worker thread when in the background)
@@ -659,6 +829,7 @@ def _run_slam2d(
         np.array(slam.node_scan), len(slam.submaps), slam.loops, slam.loops_searched, dict(slam.timing),
         warnings, float(np.mean(slam.scores)) if slam.scores else 0.0, cfg, log_.source, rejected_tilt,
         match_score=match_score,
+        extra={f"loop_{k}": float(v) for k, v in slam.loop_stats.items()},
     )  # fmt: skip
 
 
