@@ -10,6 +10,13 @@ runs) and the ratio the methods' own covariances predict (mean reported variance
 holds when the NEES does and is far less noisy.
 Run: OPENBLAS_NUM_THREADS=1 PYTHONPATH=src python bench/calibrate_montecarlo.py --runs 100
 (about 1 s of CPU per run; --start moves the first seed)
+
+One plan, many noise draws: ``--plan-seed 16 --runs 60`` keeps the pose plan of seed 16's log and draws
+the sensor noise anew for each run (generators seeded 1000, 1001, ...), so the ratio is that plan's
+expected one rather than one draw's; the last table gives, per gyro parameter, each method's mean error
+over the runs divided by its standard error (|t| > 3: a bias of the estimator on that plan).
+``--gyro-ends first_quiet`` runs the joint fit with the gyro segment ends it had before (see
+``CalibrationConfig.gyro_ends``).
 """
 
 from __future__ import annotations
@@ -22,7 +29,7 @@ from rich.console import Console
 from rich.table import Table
 
 from imuslam.imu.calibrate import CalibrationConfig, calibrate
-from imuslam.imu.model import ImuCalibration, TriadModel
+from imuslam.imu.model import GYRO_PARAM_NAMES, ImuCalibration, TriadModel
 from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO
 from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
 
@@ -42,16 +49,23 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=100)
     ap.add_argument("--start", type=int, default=0, help="first seed")
+    ap.add_argument("--plan-seed", type=int, default=None, help="one plan, noise drawn per run")
+    ap.add_argument("--gyro-ends", choices=("rest", "first_quiet"), default="rest")
     args = ap.parse_args()
     t0, c0 = time.perf_counter(), time.process_time()
     err = {(m, t): [] for m in METHODS for t in "ag"}  # type: dict[tuple[str, str], list[np.ndarray]]
     var = {(m, t): [] for m in METHODS for t in "ag"}  # type: dict[tuple[str, str], list[np.ndarray]]
     nees = {(m, t): [] for m in METHODS for t in "ag"}  # type: dict[tuple[str, str], list[float]]
     for seed in range(args.start, args.start + args.runs):
-        rng = np.random.default_rng(seed)
-        sim = simulate_multipose(sphere_plan_deg(40, rng), rng)
+        if args.plan_seed is None:
+            rng = np.random.default_rng(seed)
+            sim = simulate_multipose(sphere_plan_deg(40, rng), rng)
+        else:
+            plan = sphere_plan_deg(40, np.random.default_rng(args.plan_seed))
+            sim = simulate_multipose(plan, np.random.default_rng(1000 + seed - args.start))
         for m in METHODS:
-            c = calibrate(sim.log, CalibrationConfig(g=sim.truth.g, method=m)).calibration
+            cfg = CalibrationConfig(g=sim.truth.g, method=m, gyro_ends=args.gyro_ends)
+            c = calibrate(sim.log, cfg).calibration
             assert c.cov_accel is not None and c.cov_gyro is not None
             for t, e, P in (
                 ("a", c.accel_params - TRUTH.accel_params, c.cov_accel),
@@ -63,7 +77,12 @@ def main() -> None:
     R = args.runs
     band = 3 * np.sqrt(18 / R)
     rng = np.random.default_rng(0)
-    table = Table(title=f"joint vs tedaldi, seeds {args.start}-{args.start + R - 1} ({R} runs)")
+    what = (
+        f"seeds {args.start}-{args.start + R - 1}"
+        if args.plan_seed is None
+        else f"plan of seed {args.plan_seed}, noise seeds 1000-{1000 + R - 1}"
+    )
+    table = Table(title=f"joint (gyro ends: {args.gyro_ends}) vs tedaldi, {what} ({R} runs)")
     for col in ("triad", "NEES tedaldi", "NEES joint", f"band 9 +- {band:.2f}",
                 "MSE ratio joint / tedaldi", "95 % bootstrap interval", "predicted by the covariances",
                 "ratio without the 2 worst runs"):  # fmt: skip
@@ -93,6 +112,15 @@ def main() -> None:
             f"{mse_ratio(ej[keep], et[keep]):.3f} (seeds {', '.join(str(args.start + w) for w in worst)})",
         )
     Console(width=200).print(table)
+    bias = Table(title="gyro: mean error over the runs / its standard error (t)")
+    bias.add_column("method")
+    for name in GYRO_PARAM_NAMES:
+        bias.add_column(name, justify="right")
+    for m in METHODS:
+        e = np.asarray(err[m, "g"])
+        t = e.mean(axis=0) / (e.std(axis=0, ddof=1) / np.sqrt(R))
+        bias.add_row(m, *(f"{v:+.1f}" for v in t))
+    Console(width=200).print(bias)
     print(f"CPU {time.process_time() - c0:.0f} s, wall {time.perf_counter() - t0:.0f} s")
 
 

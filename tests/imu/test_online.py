@@ -9,6 +9,7 @@ import pytest
 from imuslam.imu.history import CalibrationHistory
 from imuslam.imu.online import OnlineConfig, StillDetector
 from imuslam.imu.online_sim import T0_NS, Drift, run_simulated_robot
+from imuslam.imu.poseplan import PlanModel, optimise_order
 from imuslam.imu.static import windowed_variance_norm
 from imuslam.sim.multipose import sphere_plan_deg
 
@@ -17,9 +18,11 @@ CHI2_9_999 = 27.88  # 99.9 % quantile of chi-square with 9 degrees of freedom
 
 
 def _run(drift: Drift, seed: int, tmp_path: Path | None = None):  # type: ignore[no-untyped-def]
+    """One simulated hour, the 40 poses in the order ``imuslam online`` flies them."""
     rng = np.random.default_rng(seed)
     hist = CalibrationHistory(tmp_path) if tmp_path else None
-    return run_simulated_robot(sphere_plan_deg(40, rng), 3600.0, drift, rng, CFG, hist)
+    plan = optimise_order(PlanModel.seed000(), sphere_plan_deg(40, rng), iterations=1000)
+    return run_simulated_robot(plan, 3600.0, drift, rng, CFG, hist)
 
 
 def test_no_trigger_below_threshold() -> None:

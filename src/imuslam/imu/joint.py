@@ -68,6 +68,7 @@ class JointFit:
     # whether the accelerometer residuals exceed their measured noise significantly (chi-square, 99.7 %;
     # False without measured noise)
     accel_misfit: bool = False
+    cost: float = float("nan")  # weighted sum of squared residuals at the solution
 
 
 def _accel_h(theta_a: FloatArray, means: FloatArray, sign: float) -> FloatArray:
@@ -408,6 +409,7 @@ def joint_refine(
         dir_residual=rd,
         iterations=n_iter,
         accel_misfit=bool(c[0] != 1.0) if noise is not None else False,
+        cost=float(r @ r),
     )
 
 

@@ -121,7 +121,9 @@ class OnlinePipeline:
         predicted)`` sees the pose plan before the first session; ``on_event`` each event of the robot
         as it happens."""
         c, ds = self.config, self.dataset
-        cfg = OnlineConfig(calibration=CalibrationConfig(t_init_s=c.t_init_s))
+        cfg = OnlineConfig(
+            calibration=CalibrationConfig(t_init_s=c.t_init_s, accel_bias_drift=True)
+        )
         model, plan = self.plan()
         pred = self.predicted(model, plan) if c.poses < SEED_POSES else None
         if on_plan is not None:
