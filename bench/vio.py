@@ -207,11 +207,11 @@ def _nis_ess_band(nis: np.ndarray, dof: int, max_lag: int = 20) -> tuple[float, 
     return ess, float(chi2.ppf(0.025, ess * dof) / ess), float(chi2.ppf(0.975, ess * dof) / ess)
 
 
-def sim(
-    duration: float, rate: float, seed: int, calib_duration: float, calib_seeds: list[int] | None,
-    correction: bool,
-) -> dict[str, float]:  # fmt: skip
-    from imuslam.eval.vio_compare import compare_tracks
+def calibrate_vo_cov(
+    rate: float, calib_duration: float, cseeds: list[int], correction: bool
+) -> tuple[np.ndarray | None, float, float]:
+    """The VO covariance's shape ``M`` (None without ``correction``) and block scales (velocity, rate)
+    learnt on the rendered calibration run(s) ``cseeds`` against their truth."""
     from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
     from imuslam.vio.pipeline import VioConfig, run_vio
 
@@ -221,7 +221,6 @@ def sim(
     # scale whose filter mean NIS there equals the 3 dof (fixed point s <- s * NIS / 3; the NIS is not
     # linear in s, the prior shrinks with it)
     # several calibration runs pool their frames: the scale's own sampling error shrinks with them
-    cseeds = [seed + 1] if not calib_seeds else calib_seeds
     cals = [_sim_vo(calib_duration, rate, cs) for cs in cseeds]
     M = None
     if correction:
@@ -251,6 +250,19 @@ def sim(
           f"velocity {s_vel:.3f}, rate {s_rate:.3f} (mean NIS there {cal['vo_velocity']:.2f} "
           f"+- {sd['vo_velocity']:.2f}, {cal['vo_rate']:.2f} +- {sd['vo_rate']:.2f}, 1-sigma of the "
           "calibration's mean: carried into this run's mean NIS as well)")  # fmt: skip
+    return M, s_vel, s_rate
+
+
+def sim(
+    duration: float, rate: float, seed: int, calib_duration: float, calib_seeds: list[int] | None,
+    correction: bool,
+) -> dict[str, float]:  # fmt: skip
+    from imuslam.eval.vio_compare import compare_tracks
+    from imuslam.vio.pipeline import VioConfig, run_vio
+
+    cseeds = [seed + 1] if not calib_seeds else calib_seeds
+    M, s_vel, s_rate = calibrate_vo_cov(rate, calib_duration, cseeds, correction)
+    corr = {"vo_cov_correction": M.tolist() if M is not None else None}
     run, vo_run = _sim_vo(duration, rate, seed)
     truth = run.truth()
     rows = []

@@ -46,7 +46,7 @@ def _correlated(vo_run: VoRun, seed: int) -> VoRun:
     "kw",
     [
         {"nhc": True, "outlier_fraction": 0.2, "outlier_seed": 4, "correlated": True},
-        {"nhc": True, "vo_joint": False, "correlated": True},
+        {"nhc": True, "vo_joint": False, "correlated": True, "nhc_std_vertical": 0.005},
         {"nhc": False},
         {"nhc": True, "nhc_rate_hz": 33.0, "gate_prob": None, "vehicle_p_b": (-0.2, 0.0, 0.1),
          "vehicle_rpy_deg": (1.0, -2.0, 3.0)},

@@ -75,6 +75,13 @@ class VioConfig(BaseModel):
     nhc_std: float = Field(
         0.02, gt=0, description="1-sigma of lateral / vertical vehicle velocity, m/s"
     )
+    nhc_std_vertical: float | None = Field(
+        None,
+        gt=0,
+        description="1-sigma of the vertical vehicle velocity, m/s (None: nhc_std). On uneven ground the "
+        "body pitches while the path stays level: the vertical body velocity is speed x pitch, a "
+        "slowly varying error that white noise at nhc_rate_hz must cover with a larger sigma",
+    )
     nhc_rate_hz: float = Field(20.0, gt=0, le=1000)
     vehicle_rpy_deg: tuple[float, float, float] = Field(
         (0.0, 0.0, 0.0), description="vehicle frame in the body (roll, pitch, yaw), deg"
@@ -308,7 +315,9 @@ class VioFilter:
         while cfg.nhc and self.next_nhc < t_s:
             self.advance(self.next_nhc)
             gyro = self.sample_at(self.next_nhc)[1]
-            self.update(NonHolonomic(cfg.nhc_std, gyro, self.R_b_v, self.p_b_v), 2)
+            self.update(
+                NonHolonomic(cfg.nhc_std, gyro, self.R_b_v, self.p_b_v, cfg.nhc_std_vertical), 2
+            )
             self.mark()
             self.next_nhc += 1.0 / cfg.nhc_rate_hz
         self.advance(t_s)
@@ -398,8 +407,9 @@ class CompiledVioFilter(VioFilter):
         self._kern = kern
         self._meas = np.zeros(M_LEN)
         self._const = np.zeros(C_LEN)
+        std_z = cfg.nhc_std if cfg.nhc_std_vertical is None else cfg.nhc_std_vertical
         self._const[:] = (float(cfg.nhc), cfg.nhc_std, 1.0 / cfg.nhc_rate_hz, self.noise.gyro**2,
-                          float(self._gate), self._thr2, self._thr3)  # fmt: skip
+                          float(self._gate), self._thr2, self._thr3, std_z)  # fmt: skip
         self.R_b_v = np.ascontiguousarray(self.R_b_v, dtype=np.float64)
         self.p_b_v = np.ascontiguousarray(self.p_b_v, dtype=np.float64)
 
