@@ -7,6 +7,9 @@
                                          # rendered ground robot: NHC off/on, 10 % corrupted VO, NIS;
                                          # VO covariance shape and scales calibrated on the run(s)
                                          # with --calib-seeds (default seed + 1)
+    python bench/vio.py nhc [--seeds 0 1 2 3 4]
+                                         # sim on several seeds (calibration seed + 1): NHC cut per
+                                         # seed, its mean and spread, gating and NIS per seed
     python bench/vio.py vostats          # the cached rendered runs' VO errors against the truth: rate-
                                          # velocity correlation, NEES with the learnt shape, its tail
     python bench/vio.py husky            # wheel odometry + IMU EKF against GPS (robot_localization bag)
@@ -315,8 +318,45 @@ def sim(
     b = results["VO + IMU, NHC on"][1]["fused"].ape_trans.rmse
     print(f"NHC cuts the fused ATE by {100 * (1 - b / a):.1f} % (target >= 30 %)")
     g = results["VO + IMU, NHC on"][0].summary()["gating"]
-    return {"nhc_cut": 1 - b / a, "nis_vel": g["vo_velocity"]["nis_mean_accepted"],
-            "nis_rate": g["vo_rate"]["nis_mean_accepted"], "s_vel": s_vel, "s_rate": s_rate}  # fmt: skip
+    # the four filter runs with the calibrated covariance: good VO rejected, corrupted rejected, NIS
+    four = [results[k][0].summary() for k in list(results)[:4]]
+    in_band = sum(
+        int(lo <= x["nis_mean_accepted"] <= hi)
+        for r in four for x in (r["gating"]["vo_velocity"], r["gating"]["vo_rate"])
+        for lo, hi in [x["nis_mean_band_95"]]
+    )  # fmt: skip
+    return {"nhc_cut": 1 - b / a, "ate_off": a, "ate_on": b,
+            "nis_vel": g["vo_velocity"]["nis_mean_accepted"],
+            "nis_rate": g["vo_rate"]["nis_mean_accepted"], "s_vel": s_vel, "s_rate": s_rate,
+            "good_rejected": max(r["outliers"]["good_rejected"] / r["outliers"]["good"] for r in four),
+            "good_rejected_n": [f"{r['outliers']['good_rejected']}/{r['outliers']['good']}" for r in four],
+            "corrupted_rejected": min(r["outliers"]["corrupted_rejected"] / r["outliers"]["corrupted"]
+                                      for r in four if r["outliers"]["corrupted"]),
+            "in_band": in_band,
+            "nis_range": [min(r["gating"][k]["nis_mean_accepted"] for r in four for k in ("vo_velocity", "vo_rate")),
+                          max(r["gating"][k]["nis_mean_accepted"] for r in four for k in ("vo_velocity", "vo_rate"))]}  # fmt: skip
+
+
+def nhc_seeds(duration: float, rate: float, seeds: list[int], calib_duration: float) -> None:
+    """``sim`` on several evaluated seeds, each with its covariance calibrated on seed + 1
+    (``calib_duration`` s, shape + scales), summarised: the NHC's ATE cut per seed and its mean and
+    spread, good VO rejected (worst of the four filter runs), corrupted rejected, mean NIS in band."""
+    out = {s: sim(duration, rate, s, calib_duration, None, True) for s in seeds}
+    rows = [(f"{s}{' (the README run)' if s == 0 else ''}", f"{r['ate_off']:.4f}", f"{r['ate_on']:.4f}",
+             f"{100 * r['nhc_cut']:.1f} %", ", ".join(r["good_rejected_n"]),
+             f"{100 * r['good_rejected']:.2f} %", f"{100 * r['corrupted_rejected']:.0f} %",
+             f"{r['in_band']}/8", f"{r['nis_range'][0]:.2f}-{r['nis_range'][1]:.2f}")
+            for s, r in out.items()]  # fmt: skip
+    cuts = np.array([r["nhc_cut"] for r in out.values()])
+    print(f"\nrendered ground robot, {duration:g} s at {rate:g} Hz, seeds {seeds} (calibration: seed + 1, "
+          f"{calib_duration:g} s, shape + scales)")  # fmt: skip
+    _table(["seed", "ATE NHC off [m]", "ATE NHC on [m]", "NHC cut", "good VO rejected (off, on, on + "
+            "10 %, off + 10 %)", "worst", "corrupted rejected (worst)", "mean NIS in band",
+            "mean NIS range"], rows)  # fmt: skip
+    print(f"NHC cut over seeds {seeds}: mean {100 * cuts.mean():.1f} %, sd {100 * cuts.std(ddof=1):.1f} %, "
+          f"range {100 * cuts.min():.1f}-{100 * cuts.max():.1f} % (target >= 30 %); "
+          f"ATE NHC off mean {np.mean([r['ate_off'] for r in out.values()]):.4f} m, on "
+          f"{np.mean([r['ate_on'] for r in out.values()]):.4f} m")  # fmt: skip
 
 
 def vostats(rate: float, calib_seeds: list[int] | None) -> None:
@@ -374,7 +414,8 @@ def vostats(rate: float, calib_seeds: list[int] | None) -> None:
 
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("what", choices=["speed", "sim", "vostats", "husky"])
+    ap.add_argument("what", choices=["speed", "sim", "nhc", "vostats", "husky"])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="nhc: seeds")
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--rate", type=float, default=5.0)
     ap.add_argument("--seed", type=int, default=0)
@@ -389,6 +430,8 @@ def main(argv: list[str]) -> None:
     a = ap.parse_args(argv)
     if a.what == "speed":
         speed(a.only)
+    elif a.what == "nhc":
+        nhc_seeds(a.duration, a.rate, a.seeds, a.calib_duration)
     elif a.what == "vostats":
         vostats(a.rate, a.calib_seeds)
     elif a.what == "sim":
