@@ -30,6 +30,8 @@ import numpy as np
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 CACHE = Path(__file__).resolve().parent / ".cache"
+# the filters' chi-square gate in the sim study (``--gate-prob``; VioConfig's default 0.999)
+GATE = {"gate_prob": 0.999}
 
 
 def _rate(fn, n: int, repeat: int = 3) -> tuple[float, float]:  # type: ignore[no-untyped-def]
@@ -237,7 +239,7 @@ def calibrate_vo_cov(
     for _ in range(6):
         nis = {"vo_velocity": [], "vo_rate": []}  # type: dict[str, list[float]]
         for cr, cv in cals:
-            r = run_vio(cr, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel,
+            r = run_vio(cr, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel, **GATE,
                                       vo_rate_cov_scale=s_rate, **corr),  # type: ignore[arg-type]
                         vo_run=cv)  # fmt: skip
             for k in nis:
@@ -272,7 +274,7 @@ def sim(
     results = {}
     # this robot's constraint noise: the body origin is the axle centre (no lateral slip); the simulated
     # pitch / roll oscillation (0.005 rad) at 0.3-0.4 m/s makes about 0.002 m/s of vertical velocity.
-    base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate, **corr}
+    base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate, **corr, **GATE}
     for name, cfg in (
         ("VO + IMU, NHC off", VioConfig(**base)),  # type: ignore[arg-type]
         ("VO + IMU, NHC on", VioConfig(nhc=True, **base)),  # type: ignore[arg-type]
@@ -280,9 +282,9 @@ def sim(
          VioConfig(nhc=True, outlier_fraction=0.1, outlier_seed=seed, **base)),  # type: ignore[arg-type]
         ("VO + IMU, NHC off, 10 % VO corrupted",
          VioConfig(outlier_fraction=0.1, outlier_seed=seed, **base)),  # type: ignore[arg-type]
-        ("NHC on, VO covariance as reported (scale 1)", VioConfig(nhc=True, nhc_std=0.002)),
+        ("NHC on, VO covariance as reported (scale 1)", VioConfig(nhc=True, nhc_std=0.002, **GATE)),
         ("NHC on, VO covariance from the residuals alone",
-         VioConfig(nhc=True, nhc_std=0.002, vo_cov_model="residual")),
+         VioConfig(nhc=True, nhc_std=0.002, vo_cov_model="residual", **GATE)),
     ):  # fmt: skip
         res = run_vio(run, cfg, vo_run=vo_run)
         ev = compare_tracks(
@@ -349,7 +351,7 @@ def nhc_seeds(duration: float, rate: float, seeds: list[int], calib_duration: fl
             for s, r in out.items()]  # fmt: skip
     cuts = np.array([r["nhc_cut"] for r in out.values()])
     print(f"\nrendered ground robot, {duration:g} s at {rate:g} Hz, seeds {seeds} (calibration: seed + 1, "
-          f"{calib_duration:g} s, shape + scales)")  # fmt: skip
+          f"{calib_duration:g} s, shape + scales), gate {GATE['gate_prob']:g}")  # fmt: skip
     _table(["seed", "ATE NHC off [m]", "ATE NHC on [m]", "NHC cut", "good VO rejected (off, on, on + "
             "10 %, off + 10 %)", "worst", "corrupted rejected (worst)", "mean NIS in band",
             "mean NIS range"], rows)  # fmt: skip
@@ -426,8 +428,11 @@ def main(argv: list[str]) -> None:
                     help="sim: calibration run seed(s), default seed + 1")  # fmt: skip
     ap.add_argument("--no-correction", action="store_true",
                     help="sim: block scales only, no learnt covariance shape")  # fmt: skip
+    ap.add_argument("--gate-prob", type=float, default=0.999,
+                    help="sim, nhc: the filters' chi-square gate probability")  # fmt: skip
     ap.add_argument("--only", choices=["all", "vo", "ekf"], default="all", help="speed: one part")
     a = ap.parse_args(argv)
+    GATE["gate_prob"] = a.gate_prob
     if a.what == "speed":
         speed(a.only)
     elif a.what == "nhc":
