@@ -92,7 +92,7 @@ def _filter_share(data, cfg, vo_run, repeat: int = 5):  # type: ignore[no-untype
     """Best-of-``repeat`` wall and CPU seconds of a whole ``run_vio`` and of its filter frame steps."""
     from imuslam.vio import pipeline
 
-    orig = pipeline.CompiledVioFilter.frame
+    orig = pipeline.CompiledVioFilter.frames
     acc = [0.0, 0.0]
 
     def timed(self, *a, **k):  # type: ignore[no-untyped-def]
@@ -103,7 +103,7 @@ def _filter_share(data, cfg, vo_run, repeat: int = 5):  # type: ignore[no-untype
         return r
 
     best = (np.inf, np.inf, np.inf, np.inf)
-    pipeline.CompiledVioFilter.frame = timed  # type: ignore[method-assign]
+    pipeline.CompiledVioFilter.frames = timed  # type: ignore[method-assign]
     try:
         for _ in range(repeat):
             acc[:] = [0.0, 0.0]
@@ -113,7 +113,7 @@ def _filter_share(data, cfg, vo_run, repeat: int = 5):  # type: ignore[no-untype
             if ct < best[3]:
                 best = (acc[0], acc[1], wt, ct)
     finally:
-        pipeline.CompiledVioFilter.frame = orig  # type: ignore[method-assign]
+        pipeline.CompiledVioFilter.frames = orig  # type: ignore[method-assign]
     return best
 
 

@@ -411,3 +411,26 @@ def frame_step(
             return DIVERGED
     mark_state(clock[0], p, R, ba, bg, P, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, cnt)
     return OK
+
+
+@numba.njit(cache=True)
+def run_frames(
+    t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
+    p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
+    P: FloatArray, clock: FloatArray, meas: FloatArray, const: FloatArray,
+    R_b_v: FloatArray, p_b_v: FloatArray, q: FloatArray, off: IntArray,
+    tr_t: FloatArray, tr_p: FloatArray, tr_R: FloatArray,
+    bias_t: FloatArray, bias: FloatArray, bias_std: FloatArray,
+    nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray, vel_ok: NDArray[np.bool_],
+) -> int:  # fmt: skip  # pragma: no cover - compiled
+    """:func:`frame_step` over the frames' packed measurements ``meas`` (n, M_LEN) in one call (no
+    Python between frames); ``vel_ok`` (n,) receives whether each frame's velocity update was accepted
+    (True without one). The buffers must hold the whole batch. Returns -1, or the index of the frame at
+    which the filter diverged."""
+    for i in range(meas.shape[0]):
+        if frame_step(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, meas[i], const, R_b_v, p_b_v,
+                      q, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, nis_buf, acc_buf,
+                      cnt) == DIVERGED:  # fmt: skip
+            return i
+        vel_ok[i] = acc_buf[KIND_VEL, cnt[3] - 1] if meas[i, M_VEL_ON] != 0.0 else True
+    return -1
