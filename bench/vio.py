@@ -10,6 +10,9 @@
     python bench/vio.py nhc [--seeds 0 1 2 3 4]
                                          # sim on several seeds (calibration seed + 1): NHC cut per
                                          # seed, its mean and spread, gating and NIS per seed
+    python bench/vio.py nhcsweep [--seed 0]
+                                         # one seed: the error budget of NHC off / on and the NHC cut
+                                         # for other constraint noises, rates, vo_joint, bias walk
     python bench/vio.py vostats          # the cached rendered runs' VO errors against the truth: rate-
                                          # velocity correlation, NEES with the learnt shape, its tail
     python bench/vio.py husky            # wheel odometry + IMU EKF against GPS (robot_localization bag)
@@ -361,6 +364,84 @@ def nhc_seeds(duration: float, rate: float, seeds: list[int], calib_duration: fl
           f"{np.mean([r['ate_on'] for r in out.values()]):.4f} m")  # fmt: skip
 
 
+def _error_budget(truth, est, t_ns) -> tuple[float, float, float, float, float]:  # type: ignore[no-untyped-def]
+    """ATE (SE(3) aligned, Umeyama) split into along-track, cross-track and vertical RMS (m, in the
+    true heading frame), the yaw error RMS (deg) and the ATE after a Sim(3) alignment (m)."""
+    from imuslam.eval.associate import interpolate
+
+    t = t_ns[(t_ns >= est.t_ns[0]) & (t_ns <= est.t_ns[-1])]
+    e, r = interpolate(est, t), interpolate(truth, t)
+    P, Q = e.p_w, r.p_w
+    mp, mq = P.mean(0), Q.mean(0)
+    U, S, Vt = np.linalg.svd((Q - mq).T @ (P - mp))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    Ra = U @ D @ Vt
+    d = (P - mp) @ Ra.T + mq - Q
+    hd = np.arctan2(*np.gradient(Q, axis=0)[:, 1::-1].T)
+    along = d[:, 0] * np.cos(hd) + d[:, 1] * np.sin(hd)
+    cross = -d[:, 0] * np.sin(hd) + d[:, 1] * np.cos(hd)
+    Re = np.einsum("ij,njk->nik", Ra, e.R_w_b)
+    yaw = np.arctan2(Re[:, 1, 0], Re[:, 0, 0]) - np.arctan2(r.R_w_b[:, 1, 0], r.R_w_b[:, 0, 0])
+    yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
+    sc = np.trace(np.diag(S) @ D) / ((P - mp) ** 2).sum()
+    d3 = sc * (P - mp) @ Ra.T + mq - Q
+    rms = lambda x: float(np.sqrt(np.mean(x**2)))  # noqa: E731
+    return (
+        rms(along),
+        rms(cross),
+        rms(d[:, 2]),
+        float(np.degrees(rms(yaw))),
+        float(np.sqrt(np.mean((d3**2).sum(1)))),
+    )
+
+
+def nhc_sweep(duration: float, rate: float, seed: int, calib_duration: float) -> None:
+    """Where the NHC-on error sits and what the NHC settings change, on one seed (calibration seed + 1):
+    the error budget of NHC off / on, then the NHC cut for other constraint noises, rates, the
+    separate vertical sigma, the VO rate and velocity as two updates, and a smaller gyro bias walk."""
+    from imuslam.eval.vio_compare import compare_tracks
+    from imuslam.vio.pipeline import VioConfig, run_vio
+
+    M, s_vel, s_rate = calibrate_vo_cov(rate, calib_duration, [seed + 1], True)
+    run, vo_run = _sim_vo(duration, rate, seed)
+    truth = run.truth()
+    base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate,
+            "vo_cov_correction": M.tolist() if M is not None else None, **GATE}  # fmt: skip
+
+    def one(**kw):  # type: ignore[no-untyped-def]
+        res = run_vio(run, VioConfig(**{**base, **kw}), vo_run=vo_run)  # type: ignore[arg-type]
+        return compare_tracks(truth, {"f": res.fused}, run.t_frames_ns)["f"].ape_trans.rmse, res
+
+    rows = []
+    for name, kw in (("NHC off", {}), ("NHC on", {"nhc": True})):
+        a, res = one(**kw)
+        b = _error_budget(truth, res.fused, run.t_frames_ns)
+        rows.append((name, f"{a:.4f}", f"{1e3 * b[0]:.1f}", f"{1e3 * b[1]:.1f}", f"{1e3 * b[2]:.1f}",
+                     f"{b[3]:.3f}", f"{b[4]:.4f}"))  # fmt: skip
+    print(
+        f"seed {seed}: error budget (SE(3) aligned; along / cross track in the true heading frame)"
+    )
+    _table(["run", "ATE [m]", "along [mm]", "cross [mm]", "vertical [mm]", "yaw RMS [deg]",
+            "ATE Sim(3) [m]"], rows)  # fmt: skip
+    off = one()[0]
+    rows = []
+    for label, kw in (
+        ("as the sim study: nhc_std 0.002 m/s at 20 Hz, joint VO", {}),
+        ("nhc_std 0.0005", {"nhc_std": 0.0005}), ("nhc_std 0.001", {"nhc_std": 0.001}),
+        ("nhc_std 0.005", {"nhc_std": 0.005}), ("nhc_std 0.02", {"nhc_std": 0.02}),
+        ("NHC at 5 Hz", {"nhc_rate_hz": 5.0}), ("NHC at 100 Hz", {"nhc_rate_hz": 100.0}),
+        ("vertical sigma 0.01 (lateral 0.002)", {"nhc_std_vertical": 0.01}),
+        ("vertical sigma 0.01, lateral 0.001", {"nhc_std": 0.001, "nhc_std_vertical": 0.01}),
+        ("VO rate and velocity as two updates (vo_joint false)", {"vo_joint": False}),
+        ("gyro bias walk / 10", {"noise": {"gyro_bias_rw": 2e-6}}),
+    ):  # fmt: skip
+        a, res = one(nhc=True, **kw)
+        rows.append((label, f"{a:.4f}", f"{100 * (1 - a / off):.1f} %",
+                     f"{res.gating['nhc'].summary()['nis_mean_accepted']:.2f}"))  # fmt: skip
+    print(f"seed {seed}: NHC off {off:.4f} m; NHC on with")
+    _table(["setting", "ATE NHC on [m]", "NHC cut", "mean NIS nhc (2)"], rows)
+
+
 def vostats(rate: float, calib_seeds: list[int] | None) -> None:
     """The VO errors of the cached rendered runs against their truth (``sim`` renders them): the
     rate-velocity correlation, the NEES with the shape learnt on ``calib_seeds`` (default 1 and 3, 120 s),
@@ -416,7 +497,7 @@ def vostats(rate: float, calib_seeds: list[int] | None) -> None:
 
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("what", choices=["speed", "sim", "nhc", "vostats", "husky"])
+    ap.add_argument("what", choices=["speed", "sim", "nhc", "nhcsweep", "vostats", "husky"])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="nhc: seeds")
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--rate", type=float, default=5.0)
@@ -437,6 +518,8 @@ def main(argv: list[str]) -> None:
         speed(a.only)
     elif a.what == "nhc":
         nhc_seeds(a.duration, a.rate, a.seeds, a.calib_duration)
+    elif a.what == "nhcsweep":
+        nhc_sweep(a.duration, a.rate, a.seed, a.calib_duration)
     elif a.what == "vostats":
         vostats(a.rate, a.calib_seeds)
     elif a.what == "sim":
