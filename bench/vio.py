@@ -75,7 +75,7 @@ def ekf_speed() -> list[tuple[str, ...]]:
             for compiled in (True, False):
                 cfg = VioConfig(g=g, nhc=nhc, compiled=compiled)
                 w, c = _rate(lambda cfg=cfg, d=data, v=vo_run: run_vio(d, cfg, vo_run=v), n,
-                             repeat=3 if compiled else 1)  # fmt: skip
+                             repeat=10 if compiled else 1)  # fmt: skip
                 name = (
                     f"EKF {'compiled' if compiled else 'Python reference'}, {label}: VO velocity"
                     f" + rate at 20 Hz{', NHC at 20 Hz' if nhc else ''}"
