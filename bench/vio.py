@@ -478,12 +478,15 @@ def vostats(rate: float, calib_seeds: list[int] | None) -> None:
             f"{nv.mean():.2f} / {nw.mean():.2f}", f"{nv.var():.1f}",
             f"{nv[top].sum() / nv.sum():.2f}",
             f"{np.corrcoef(nv, inl)[0, 1]:.2f} / {np.corrcoef(nv, vf)[0, 1]:.2f}",
+            f"{1e5 * E[:, 2].mean():+.1f} ({1e5 * E[:, 2].std() / np.sqrt(len(E)):.1f}) / "
+            f"{1e4 * E[:, 4].mean():+.1f} ({1e4 * E[:, 4].std() / np.sqrt(len(E)):.1f})",
         ))  # fmt: skip
     print(f"VO errors against the truth, shape learnt on seeds {cs}: eigenvalues of M "
           f"{np.array2string(np.linalg.eigvalsh(M), precision=2)}")  # fmt: skip
     _table(["run (seed)", "max |corr| rate-velocity reported / against truth",
             "NEES velocity / rate (3) with the shape", "NEES velocity variance (6)",
-            "top 5 % share of the NEES sum", "corr(NEES, inliers) / corr(NEES, variance factor)"],
+            "top 5 % share of the NEES sum", "corr(NEES, inliers) / corr(NEES, variance factor)",
+            "mean error yaw rate [1e-5 rad/s] / lateral velocity [1e-4 m/s] (standard error)"],
            rows)  # fmt: skip
     if 0 in runs:
         _, run, vo = runs[0]
