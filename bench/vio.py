@@ -7,6 +7,12 @@
                                          # rendered ground robot: NHC off/on, 10 % corrupted VO, NIS;
                                          # VO covariance shape and scales calibrated on the run(s)
                                          # with --calib-seeds (default seed + 1)
+    python bench/vio.py nhc [--seeds 0 1 2 3 4]
+                                         # sim on several seeds (calibration seed + 1): NHC cut per
+                                         # seed, its mean and spread, gating and NIS per seed
+    python bench/vio.py nhcsweep [--seed 0]
+                                         # one seed: the error budget of NHC off / on and the NHC cut
+                                         # for other constraint noises, rates, vo_joint, bias walk
     python bench/vio.py vostats          # the cached rendered runs' VO errors against the truth: rate-
                                          # velocity correlation, NEES with the learnt shape, its tail
     python bench/vio.py husky            # wheel odometry + IMU EKF against GPS (robot_localization bag)
@@ -27,6 +33,8 @@ import numpy as np
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 CACHE = Path(__file__).resolve().parent / ".cache"
+# the filters' chi-square gate in the sim study (``--gate-prob``; VioConfig's default 0.999)
+GATE = {"gate_prob": 0.999}
 
 
 def _rate(fn, n: int, repeat: int = 3) -> tuple[float, float]:  # type: ignore[no-untyped-def]
@@ -67,7 +75,7 @@ def ekf_speed() -> list[tuple[str, ...]]:
             for compiled in (True, False):
                 cfg = VioConfig(g=g, nhc=nhc, compiled=compiled)
                 w, c = _rate(lambda cfg=cfg, d=data, v=vo_run: run_vio(d, cfg, vo_run=v), n,
-                             repeat=3 if compiled else 1)  # fmt: skip
+                             repeat=10 if compiled else 1)  # fmt: skip
                 name = (
                     f"EKF {'compiled' if compiled else 'Python reference'}, {label}: VO velocity"
                     f" + rate at 20 Hz{', NHC at 20 Hz' if nhc else ''}"
@@ -80,6 +88,13 @@ def ekf_speed() -> list[tuple[str, ...]]:
             rows.append((f"  of which the filter's frame steps alone, {label}{', NHC' if nhc else ''}",
                          f"{n / wf:,.0f}", f"{n / cf:,.0f}", "IMU samples/s",
                          f"set-up: {100 * (1 - cf / ct):.0f} % of the run's CPU"))  # fmt: skip
+            if not nhc:
+                steps_no_nhc = (wf, cf)
+            else:  # what the NHC adds to the frame steps, per NHC update (20 Hz over the run)
+                n_nhc = (res.fused.t_ns[-1] - res.fused.t_ns[0]) * 1e-9 * 20.0
+                rows.append((f"  NHC cost per update, {label} (frame steps with minus without)",
+                             f"{1e6 * (wf - steps_no_nhc[0]) / n_nhc:.1f}",
+                             f"{1e6 * (cf - steps_no_nhc[1]) / n_nhc:.1f}", "us per update", ""))  # fmt: skip
     return rows
 
 
@@ -87,7 +102,7 @@ def _filter_share(data, cfg, vo_run, repeat: int = 5):  # type: ignore[no-untype
     """Best-of-``repeat`` wall and CPU seconds of a whole ``run_vio`` and of its filter frame steps."""
     from imuslam.vio import pipeline
 
-    orig = pipeline.CompiledVioFilter.frame
+    orig = pipeline.CompiledVioFilter.frames
     acc = [0.0, 0.0]
 
     def timed(self, *a, **k):  # type: ignore[no-untyped-def]
@@ -98,7 +113,7 @@ def _filter_share(data, cfg, vo_run, repeat: int = 5):  # type: ignore[no-untype
         return r
 
     best = (np.inf, np.inf, np.inf, np.inf)
-    pipeline.CompiledVioFilter.frame = timed  # type: ignore[method-assign]
+    pipeline.CompiledVioFilter.frames = timed  # type: ignore[method-assign]
     try:
         for _ in range(repeat):
             acc[:] = [0.0, 0.0]
@@ -108,7 +123,7 @@ def _filter_share(data, cfg, vo_run, repeat: int = 5):  # type: ignore[no-untype
             if ct < best[3]:
                 best = (acc[0], acc[1], wt, ct)
     finally:
-        pipeline.CompiledVioFilter.frame = orig  # type: ignore[method-assign]
+        pipeline.CompiledVioFilter.frames = orig  # type: ignore[method-assign]
     return best
 
 
@@ -207,11 +222,11 @@ def _nis_ess_band(nis: np.ndarray, dof: int, max_lag: int = 20) -> tuple[float, 
     return ess, float(chi2.ppf(0.025, ess * dof) / ess), float(chi2.ppf(0.975, ess * dof) / ess)
 
 
-def sim(
-    duration: float, rate: float, seed: int, calib_duration: float, calib_seeds: list[int] | None,
-    correction: bool,
-) -> dict[str, float]:  # fmt: skip
-    from imuslam.eval.vio_compare import compare_tracks
+def calibrate_vo_cov(
+    rate: float, calib_duration: float, cseeds: list[int], correction: bool
+) -> tuple[np.ndarray | None, float, float]:
+    """The VO covariance's shape ``M`` (None without ``correction``) and block scales (velocity, rate)
+    learnt on the rendered calibration run(s) ``cseeds`` against their truth."""
     from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
     from imuslam.vio.pipeline import VioConfig, run_vio
 
@@ -221,7 +236,6 @@ def sim(
     # scale whose filter mean NIS there equals the 3 dof (fixed point s <- s * NIS / 3; the NIS is not
     # linear in s, the prior shrinks with it)
     # several calibration runs pool their frames: the scale's own sampling error shrinks with them
-    cseeds = [seed + 1] if not calib_seeds else calib_seeds
     cals = [_sim_vo(calib_duration, rate, cs) for cs in cseeds]
     M = None
     if correction:
@@ -235,7 +249,7 @@ def sim(
     for _ in range(6):
         nis = {"vo_velocity": [], "vo_rate": []}  # type: dict[str, list[float]]
         for cr, cv in cals:
-            r = run_vio(cr, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel,
+            r = run_vio(cr, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel, **GATE,
                                       vo_rate_cov_scale=s_rate, **corr),  # type: ignore[arg-type]
                         vo_run=cv)  # fmt: skip
             for k in nis:
@@ -251,13 +265,26 @@ def sim(
           f"velocity {s_vel:.3f}, rate {s_rate:.3f} (mean NIS there {cal['vo_velocity']:.2f} "
           f"+- {sd['vo_velocity']:.2f}, {cal['vo_rate']:.2f} +- {sd['vo_rate']:.2f}, 1-sigma of the "
           "calibration's mean: carried into this run's mean NIS as well)")  # fmt: skip
+    return M, s_vel, s_rate
+
+
+def sim(
+    duration: float, rate: float, seed: int, calib_duration: float, calib_seeds: list[int] | None,
+    correction: bool,
+) -> dict[str, float]:  # fmt: skip
+    from imuslam.eval.vio_compare import compare_tracks
+    from imuslam.vio.pipeline import VioConfig, run_vio
+
+    cseeds = [seed + 1] if not calib_seeds else calib_seeds
+    M, s_vel, s_rate = calibrate_vo_cov(rate, calib_duration, cseeds, correction)
+    corr = {"vo_cov_correction": M.tolist() if M is not None else None}
     run, vo_run = _sim_vo(duration, rate, seed)
     truth = run.truth()
     rows = []
     results = {}
     # this robot's constraint noise: the body origin is the axle centre (no lateral slip); the simulated
     # pitch / roll oscillation (0.005 rad) at 0.3-0.4 m/s makes about 0.002 m/s of vertical velocity.
-    base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate, **corr}
+    base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate, **corr, **GATE}
     for name, cfg in (
         ("VO + IMU, NHC off", VioConfig(**base)),  # type: ignore[arg-type]
         ("VO + IMU, NHC on", VioConfig(nhc=True, **base)),  # type: ignore[arg-type]
@@ -265,9 +292,9 @@ def sim(
          VioConfig(nhc=True, outlier_fraction=0.1, outlier_seed=seed, **base)),  # type: ignore[arg-type]
         ("VO + IMU, NHC off, 10 % VO corrupted",
          VioConfig(outlier_fraction=0.1, outlier_seed=seed, **base)),  # type: ignore[arg-type]
-        ("NHC on, VO covariance as reported (scale 1)", VioConfig(nhc=True, nhc_std=0.002)),
+        ("NHC on, VO covariance as reported (scale 1)", VioConfig(nhc=True, nhc_std=0.002, **GATE)),
         ("NHC on, VO covariance from the residuals alone",
-         VioConfig(nhc=True, nhc_std=0.002, vo_cov_model="residual")),
+         VioConfig(nhc=True, nhc_std=0.002, vo_cov_model="residual", **GATE)),
     ):  # fmt: skip
         res = run_vio(run, cfg, vo_run=vo_run)
         ev = compare_tracks(
@@ -303,8 +330,126 @@ def sim(
     b = results["VO + IMU, NHC on"][1]["fused"].ape_trans.rmse
     print(f"NHC cuts the fused ATE by {100 * (1 - b / a):.1f} % (target >= 30 %)")
     g = results["VO + IMU, NHC on"][0].summary()["gating"]
-    return {"nhc_cut": 1 - b / a, "nis_vel": g["vo_velocity"]["nis_mean_accepted"],
-            "nis_rate": g["vo_rate"]["nis_mean_accepted"], "s_vel": s_vel, "s_rate": s_rate}  # fmt: skip
+    # the four filter runs with the calibrated covariance: good VO rejected, corrupted rejected, NIS
+    four = [results[k][0].summary() for k in list(results)[:4]]
+    in_band = sum(
+        int(lo <= x["nis_mean_accepted"] <= hi)
+        for r in four for x in (r["gating"]["vo_velocity"], r["gating"]["vo_rate"])
+        for lo, hi in [x["nis_mean_band_95"]]
+    )  # fmt: skip
+    return {"nhc_cut": 1 - b / a, "ate_off": a, "ate_on": b,
+            "nis_vel": g["vo_velocity"]["nis_mean_accepted"],
+            "nis_rate": g["vo_rate"]["nis_mean_accepted"], "s_vel": s_vel, "s_rate": s_rate,
+            "good_rejected": max(r["outliers"]["good_rejected"] / r["outliers"]["good"] for r in four),
+            "good_rejected_n": [f"{r['outliers']['good_rejected']}/{r['outliers']['good']}" for r in four],
+            "corrupted_rejected": min(r["outliers"]["corrupted_rejected"] / r["outliers"]["corrupted"]
+                                      for r in four if r["outliers"]["corrupted"]),
+            "in_band": in_band,
+            "nis_range": [min(r["gating"][k]["nis_mean_accepted"] for r in four for k in ("vo_velocity", "vo_rate")),
+                          max(r["gating"][k]["nis_mean_accepted"] for r in four for k in ("vo_velocity", "vo_rate"))]}  # fmt: skip
+
+
+def nhc_seeds(duration: float, rate: float, seeds: list[int], calib_duration: float) -> None:
+    """``sim`` on several evaluated seeds, each with its covariance calibrated on seed + 1
+    (``calib_duration`` s, shape + scales), summarised: the NHC's ATE cut per seed and its mean and
+    spread, good VO rejected (worst of the four filter runs), corrupted rejected, mean NIS in band."""
+    out = {s: sim(duration, rate, s, calib_duration, None, True) for s in seeds}
+    rows = [(f"{s}{' (the README run)' if s == 0 else ''}", f"{r['ate_off']:.4f}", f"{r['ate_on']:.4f}",
+             f"{100 * r['nhc_cut']:.1f} %", ", ".join(r["good_rejected_n"]),
+             f"{100 * r['good_rejected']:.2f} %", f"{100 * r['corrupted_rejected']:.0f} %",
+             f"{r['in_band']}/8", f"{r['nis_range'][0]:.2f}-{r['nis_range'][1]:.2f}")
+            for s, r in out.items()]  # fmt: skip
+    cuts = np.array([r["nhc_cut"] for r in out.values()])
+    print(f"\nrendered ground robot, {duration:g} s at {rate:g} Hz, seeds {seeds} (calibration: seed + 1, "
+          f"{calib_duration:g} s, shape + scales), gate {GATE['gate_prob']:g}")  # fmt: skip
+    _table(["seed", "ATE NHC off [m]", "ATE NHC on [m]", "NHC cut", "good VO rejected (off, on, on + "
+            "10 %, off + 10 %)", "worst", "corrupted rejected (worst)", "mean NIS in band",
+            "mean NIS range"], rows)  # fmt: skip
+    print(f"NHC cut over seeds {seeds}: mean {100 * cuts.mean():.1f} %, sd {100 * cuts.std(ddof=1):.1f} %, "
+          f"range {100 * cuts.min():.1f}-{100 * cuts.max():.1f} % (target >= 30 %); "
+          f"ATE NHC off mean {np.mean([r['ate_off'] for r in out.values()]):.4f} m, on "
+          f"{np.mean([r['ate_on'] for r in out.values()]):.4f} m")  # fmt: skip
+
+
+def _error_budget(truth, est, t_ns) -> tuple[float, float, float, float, float]:  # type: ignore[no-untyped-def]
+    """ATE (SE(3) aligned, Umeyama) split into along-track, cross-track and vertical RMS (m, in the
+    true heading frame), the yaw error RMS (deg) and the ATE after a Sim(3) alignment (m)."""
+    from imuslam.eval.associate import interpolate
+
+    t = t_ns[(t_ns >= est.t_ns[0]) & (t_ns <= est.t_ns[-1])]
+    e, r = interpolate(est, t), interpolate(truth, t)
+    P, Q = e.p_w, r.p_w
+    mp, mq = P.mean(0), Q.mean(0)
+    U, S, Vt = np.linalg.svd((Q - mq).T @ (P - mp))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    Ra = U @ D @ Vt
+    d = (P - mp) @ Ra.T + mq - Q
+    hd = np.arctan2(*np.gradient(Q, axis=0)[:, 1::-1].T)
+    along = d[:, 0] * np.cos(hd) + d[:, 1] * np.sin(hd)
+    cross = -d[:, 0] * np.sin(hd) + d[:, 1] * np.cos(hd)
+    Re = np.einsum("ij,njk->nik", Ra, e.R_w_b)
+    yaw = np.arctan2(Re[:, 1, 0], Re[:, 0, 0]) - np.arctan2(r.R_w_b[:, 1, 0], r.R_w_b[:, 0, 0])
+    yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
+    sc = np.trace(np.diag(S) @ D) / ((P - mp) ** 2).sum()
+    d3 = sc * (P - mp) @ Ra.T + mq - Q
+    rms = lambda x: float(np.sqrt(np.mean(x**2)))  # noqa: E731
+    return (
+        rms(along),
+        rms(cross),
+        rms(d[:, 2]),
+        float(np.degrees(rms(yaw))),
+        float(np.sqrt(np.mean((d3**2).sum(1)))),
+    )
+
+
+def nhc_sweep(duration: float, rate: float, seed: int, calib_duration: float) -> None:
+    """Where the NHC-on error sits and what the NHC settings change, on one seed (calibration seed + 1):
+    the error budget of NHC off / on, then the NHC cut for other constraint noises, rates, the
+    separate vertical sigma, the VO rate and velocity as two updates, and a smaller gyro bias walk."""
+    from imuslam.eval.vio_compare import compare_tracks
+    from imuslam.vio.pipeline import VioConfig, run_vio
+
+    M, s_vel, s_rate = calibrate_vo_cov(rate, calib_duration, [seed + 1], True)
+    run, vo_run = _sim_vo(duration, rate, seed)
+    truth = run.truth()
+    base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate,
+            "vo_cov_correction": M.tolist() if M is not None else None, **GATE}  # fmt: skip
+
+    def one(**kw):  # type: ignore[no-untyped-def]
+        res = run_vio(run, VioConfig(**{**base, **kw}), vo_run=vo_run)  # type: ignore[arg-type]
+        return compare_tracks(truth, {"f": res.fused}, run.t_frames_ns)["f"].ape_trans.rmse, res
+
+    vb, _ = run.velocity_b(run.imu.t_ns)
+    print(f"seed {seed}: true body velocity RMS lateral {np.sqrt(np.mean(vb[:, 1] ** 2)):.1e} m/s, "
+          f"vertical {np.sqrt(np.mean(vb[:, 2] ** 2)):.1e} m/s (the constraint's true violation)")  # fmt: skip
+    rows = []
+    for name, kw in (("NHC off", {}), ("NHC on", {"nhc": True})):
+        a, res = one(**kw)
+        b = _error_budget(truth, res.fused, run.t_frames_ns)
+        rows.append((name, f"{a:.4f}", f"{1e3 * b[0]:.1f}", f"{1e3 * b[1]:.1f}", f"{1e3 * b[2]:.1f}",
+                     f"{b[3]:.3f}", f"{b[4]:.4f}"))  # fmt: skip
+    print(
+        f"seed {seed}: error budget (SE(3) aligned; along / cross track in the true heading frame)"
+    )
+    _table(["run", "ATE [m]", "along [mm]", "cross [mm]", "vertical [mm]", "yaw RMS [deg]",
+            "ATE Sim(3) [m]"], rows)  # fmt: skip
+    off = one()[0]
+    rows = []
+    for label, kw in (
+        ("as the sim study: nhc_std 0.002 m/s at 20 Hz, joint VO", {}),
+        ("nhc_std 0.0005", {"nhc_std": 0.0005}), ("nhc_std 0.001", {"nhc_std": 0.001}),
+        ("nhc_std 0.005", {"nhc_std": 0.005}), ("nhc_std 0.02", {"nhc_std": 0.02}),
+        ("NHC at 5 Hz", {"nhc_rate_hz": 5.0}), ("NHC at 100 Hz", {"nhc_rate_hz": 100.0}),
+        ("vertical sigma 0.01 (lateral 0.002)", {"nhc_std_vertical": 0.01}),
+        ("vertical sigma 0.01, lateral 0.001", {"nhc_std": 0.001, "nhc_std_vertical": 0.01}),
+        ("VO rate and velocity as two updates (vo_joint false)", {"vo_joint": False}),
+        ("gyro bias walk / 10", {"noise": {"gyro_bias_rw": 2e-6}}),
+    ):  # fmt: skip
+        a, res = one(nhc=True, **kw)
+        rows.append((label, f"{a:.4f}", f"{100 * (1 - a / off):.1f} %",
+                     f"{res.gating['nhc'].summary()['nis_mean_accepted']:.2f}"))  # fmt: skip
+    print(f"seed {seed}: NHC off {off:.4f} m; NHC on with")
+    _table(["setting", "ATE NHC on [m]", "NHC cut", "mean NIS nhc (2)"], rows)
 
 
 def vostats(rate: float, calib_seeds: list[int] | None) -> None:
@@ -343,12 +488,15 @@ def vostats(rate: float, calib_seeds: list[int] | None) -> None:
             f"{nv.mean():.2f} / {nw.mean():.2f}", f"{nv.var():.1f}",
             f"{nv[top].sum() / nv.sum():.2f}",
             f"{np.corrcoef(nv, inl)[0, 1]:.2f} / {np.corrcoef(nv, vf)[0, 1]:.2f}",
+            f"{1e5 * E[:, 2].mean():+.1f} ({1e5 * E[:, 2].std() / np.sqrt(len(E)):.1f}) / "
+            f"{1e4 * E[:, 4].mean():+.1f} ({1e4 * E[:, 4].std() / np.sqrt(len(E)):.1f})",
         ))  # fmt: skip
     print(f"VO errors against the truth, shape learnt on seeds {cs}: eigenvalues of M "
           f"{np.array2string(np.linalg.eigvalsh(M), precision=2)}")  # fmt: skip
     _table(["run (seed)", "max |corr| rate-velocity reported / against truth",
             "NEES velocity / rate (3) with the shape", "NEES velocity variance (6)",
-            "top 5 % share of the NEES sum", "corr(NEES, inliers) / corr(NEES, variance factor)"],
+            "top 5 % share of the NEES sum", "corr(NEES, inliers) / corr(NEES, variance factor)",
+            "mean error yaw rate [1e-5 rad/s] / lateral velocity [1e-4 m/s] (standard error)"],
            rows)  # fmt: skip
     if 0 in runs:
         _, run, vo = runs[0]
@@ -362,7 +510,8 @@ def vostats(rate: float, calib_seeds: list[int] | None) -> None:
 
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("what", choices=["speed", "sim", "vostats", "husky"])
+    ap.add_argument("what", choices=["speed", "sim", "nhc", "nhcsweep", "vostats", "husky"])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="nhc: seeds")
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--rate", type=float, default=5.0)
     ap.add_argument("--seed", type=int, default=0)
@@ -373,10 +522,17 @@ def main(argv: list[str]) -> None:
                     help="sim: calibration run seed(s), default seed + 1")  # fmt: skip
     ap.add_argument("--no-correction", action="store_true",
                     help="sim: block scales only, no learnt covariance shape")  # fmt: skip
+    ap.add_argument("--gate-prob", type=float, default=0.999,
+                    help="sim, nhc: the filters' chi-square gate probability")  # fmt: skip
     ap.add_argument("--only", choices=["all", "vo", "ekf"], default="all", help="speed: one part")
     a = ap.parse_args(argv)
+    GATE["gate_prob"] = a.gate_prob
     if a.what == "speed":
         speed(a.only)
+    elif a.what == "nhc":
+        nhc_seeds(a.duration, a.rate, a.seeds, a.calib_duration)
+    elif a.what == "nhcsweep":
+        nhc_sweep(a.duration, a.rate, a.seed, a.calib_duration)
     elif a.what == "vostats":
         vostats(a.rate, a.calib_seeds)
     elif a.what == "sim":

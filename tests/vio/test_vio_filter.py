@@ -46,7 +46,7 @@ def _correlated(vo_run: VoRun, seed: int) -> VoRun:
     "kw",
     [
         {"nhc": True, "outlier_fraction": 0.2, "outlier_seed": 4, "correlated": True},
-        {"nhc": True, "vo_joint": False, "correlated": True},
+        {"nhc": True, "vo_joint": False, "correlated": True, "nhc_std_vertical": 0.005},
         {"nhc": False},
         {"nhc": True, "nhc_rate_hz": 33.0, "gate_prob": None, "vehicle_p_b": (-0.2, 0.0, 0.1),
          "vehicle_rpy_deg": (1.0, -2.0, 3.0)},
@@ -111,3 +111,35 @@ def test_sparse_propagation_equals_the_core_kernel(gravity: bool) -> None:
     np.testing.assert_array_equal(Vs1, Vs0)
     np.testing.assert_array_equal(Rs1, Rs0)
     np.testing.assert_allclose(P1, P0, rtol=0, atol=1e-14 * np.abs(P0).max())
+
+
+def test_nhc_vertical_sigma_and_jacobian() -> None:
+    """The constraint's noise is diag(lateral^2, vertical^2), and its Jacobian matches a finite
+    difference of the vehicle-frame velocity under the right attitude perturbation."""
+    from imuslam.geometry import exp
+    from imuslam.ins.core import ErrorLayout, InsState
+    from imuslam.vio.measurements import NonHolonomic
+    from imuslam.vio.pipeline import rpy_matrix
+
+    rng = np.random.default_rng(3)
+    lay = ErrorLayout.full()
+    x = InsState(np.zeros(3), rng.normal(size=3), exp(rng.normal(size=3) * 0.3), np.zeros(3),
+                 rng.normal(size=3) * 0.01, np.array([0.0, 0.0, -9.81]))  # fmt: skip
+    meas = NonHolonomic(0.002, rng.normal(size=3) * 0.2, rpy_matrix((2.0, -3.0, 10.0)),
+                        np.array([-0.3, 0.05, 0.1]), std_vertical=0.01)  # fmt: skip
+    r, H, Rm = meas.linearize(x, lay)
+    np.testing.assert_allclose(Rm, np.diag([0.002**2, 0.01**2]))
+    assert np.allclose(NonHolonomic(0.002).linearize(x, lay)[2], np.eye(2) * 0.002**2)
+    eps = 1e-7
+    for j in [
+        *range(lay.TH.start, lay.TH.stop),
+        *range(lay.V.start, lay.V.stop),
+        *range(lay.BG.start, lay.BG.stop),
+    ]:
+        dx = np.zeros(lay.dim)
+        dx[j] = eps
+        x2 = InsState(x.p_n, x.v_n + dx[lay.V], x.R_n_b @ exp(dx[lay.TH]), x.accel_bias,
+                      x.gyro_bias + dx[lay.BG], x.g_n)  # fmt: skip
+        r2 = meas.linearize(x2, lay)[0]
+        # r = -h(x): the residual falls by H dx
+        np.testing.assert_allclose((r - r2) / eps, H[:, j], atol=1e-5)

@@ -4,9 +4,10 @@
 per event: the non-holonomic pseudo-measurements due before the frame's mid-time (predict to each, gated
 update, record), the prediction to the mid-time, the gated VO rate and VO velocity updates (the velocity
 conditioned on the rate), and the record. The prediction is the inertial core's (:func:`imuslam.ins.core.propagate`: its strapdown step, its
-transition matrix) with the covariance product taken block by block (:func:`propagate_sparse`), the update
-its :func:`~imuslam.ins.core.kalman_update` (Joseph form) and attitude perturbation
-:func:`~imuslam.ins.core.boxplus_attitude`; only the three measurement models are written again here, as
+transition matrix) with the covariance product taken block by block (:func:`propagate_sparse`); the
+update (:func:`update_sparse`) works on the 3 or 9 error states a measurement touches, in the standard
+form where the core's :func:`~imuslam.ins.core.kalman_update` uses the Joseph form (equal for the
+optimal gain), with the core's attitude perturbation :func:`~imuslam.ins.core.boxplus_attitude`; only the three measurement models are written again here, as
 compiled twins of :mod:`imuslam.vio.measurements` (which stay the reference: ``tests/vio`` runs both
 filters and compares them to 1e-9).
 
@@ -23,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.geometry.so3_nb import exp_nb, hat_nb
-from imuslam.ins.core import boxplus_attitude, integrate_corrected, is_pd, kalman_update
+from imuslam.ins.core import boxplus_attitude, integrate_corrected, is_pd
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -241,16 +242,42 @@ def mark_state(
 
 
 @numba.njit(cache=True)
-def _update(
-    r: FloatArray, H: FloatArray, Rm: FloatArray,
+def update_sparse(
+    r: FloatArray, Hc: FloatArray, cols: IntArray, Rm: FloatArray,
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
     P: FloatArray, off: IntArray, gate_on: bool, threshold: float,
     kind: int, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
 ) -> int:  # fmt: skip  # pragma: no cover - compiled
-    """Chi-square gate (nis = r^T (H P H^T + R)^-1 r) and the core's Kalman update; records the nis and
-    the verdict of this kind. Returns 1 accepted, 0 rejected, -1 diverged."""
-    S = H @ P @ H.T + Rm
-    nis = r @ np.linalg.solve(S, r)
+    """Chi-square gate (nis = r^T (H P H^T + R)^-1 r) and the Kalman update, the attitude by the core's
+    :func:`~imuslam.ins.core.boxplus_attitude`, for a Jacobian whose nonzero columns are ``cols`` (nc,), given there as ``Hc``
+    (k, nc): the VIO's measurements touch 3 (VO rate) or 9 (NHC, VO velocity) of the 15 error states.
+    ``P H^T`` is formed from those columns only, ``S`` (k <= 3) inverted directly, and the covariance
+    updated in the standard form ``P - K S K^T = P - P H^T S^-1 H P`` (a rank-k downdate instead of
+    the Joseph form's two dense (m, m) products; equal for the optimal gain, Maybeck, *Stochastic
+    Models, Estimation and Control* vol. 1, eq. 5-50 against 5-47; the symmetrised result is checked
+    positive definite by :func:`_check`). Records the nis and the verdict of this kind; returns 1
+    accepted, 0 rejected, -1 diverged."""
+    m = P.shape[0]
+    k = r.shape[0]
+    nc = cols.shape[0]
+    PHt = np.zeros((m, k))
+    for i in range(m):
+        for j in range(nc):
+            pij = P[i, cols[j]]
+            for a in range(k):
+                PHt[i, a] += pij * Hc[a, j]
+    S = Rm.copy()
+    for a in range(k):
+        for b in range(k):
+            acc = 0.0
+            for j in range(nc):
+                acc += Hc[a, j] * PHt[cols[j], b]
+            S[a, b] += acc
+    S = 0.5 * (S + S.T)
+    Si = np.linalg.inv(S)
+    Si = 0.5 * (Si + Si.T)
+    Sr = Si @ r
+    nis = r @ Sr
     j = cnt[2 + kind]
     nis_buf[kind, j] = nis
     cnt[2 + kind] = j + 1
@@ -258,10 +285,16 @@ def _update(
         acc_buf[kind, j] = False
         return 0
     acc_buf[kind, j] = True
-    m = P.shape[0]
-    dx, Pn, _, _ = kalman_update(P, np.zeros((m, m)), r, H, Rm, False, np.zeros((r.shape[0],
-                                 r.shape[0])), False, 0.95, 3.0, 5.0)  # fmt: skip
-    P[:, :] = Pn
+    dx = PHt @ Sr
+    K = PHt @ Si
+    for i in range(m):
+        for c in range(i, m):
+            acc = 0.0
+            for a in range(k):
+                acc += K[i, a] * PHt[c, a]
+            P[i, c] -= acc
+            if c != i:
+                P[c, i] = P[i, c]
     R[:, :] = boxplus_attitude(R, np.ascontiguousarray(dx[off[0] : off[0] + 3]))
     p += dx[off[1] : off[1] + 3]
     v += dx[off[2] : off[2] + 3]
@@ -277,7 +310,8 @@ def _update(
 # layout of frame_step's packed inputs (one array each: fewer arguments to type-check per call)
 M_T, M_VEL, M_COV_V, M_OMEGA, M_COV_W, M_T0, M_T1, M_VEL_ON, M_RATE_ON, M_COV_WV, M_JOINT, M_LEN = (
     0, 1, 4, 13, 16, 25, 26, 27, 28, 29, 38, 39)  # fmt: skip
-C_NHC_ON, C_NHC_STD, C_NHC_DT, C_GYRO_Q, C_GATE_ON, C_THR2, C_THR3, C_LEN = 0, 1, 2, 3, 4, 5, 6, 7
+C_NHC_ON, C_NHC_STD, C_NHC_DT, C_GYRO_Q, C_GATE_ON, C_THR2, C_THR3, C_NHC_STD_Z, C_LEN = (
+    0, 1, 2, 3, 4, 5, 6, 7, 8)  # fmt: skip
 
 
 @numba.njit(cache=True)
@@ -296,7 +330,8 @@ def frame_step(
     ``measurements.VoVelocityGivenRate``), and a record. ``meas`` (M_LEN,): mid-time, velocity (3,)
     m/s, its covariance (9,), rate (3,) rad/s, its covariance (9,), the interval [t0, t1] s, the two
     flags, the rate-velocity cross-covariance (9,), the joint flag; ``const`` (C_LEN,): NHC on,
-    its sigma m/s and period s, gyro density^2, gate on, chi-square thresholds for 2 and 3 dof.
+    its lateral sigma m/s and period s, gyro density^2, gate on, chi-square thresholds for 2 and 3
+    dof, its vertical sigma m/s.
     Returns OK or DIVERGED (the time is in clock[0])."""
     t_target = meas[M_T]
     nhc_on = const[C_NHC_ON] != 0.0
@@ -305,8 +340,16 @@ def frame_step(
     gate_on = const[C_GATE_ON] != 0.0
     thr2 = const[C_THR2]
     thr3 = const[C_THR3]
-    m = P.shape[0]
     R_v_b = np.ascontiguousarray(R_b_v.T)
+    cols_thvbg = np.empty(9, np.int64)
+    for i in range(3):
+        cols_thvbg[i] = off[0] + i
+        cols_thvbg[3 + i] = off[2] + i
+        cols_thvbg[6 + i] = off[4] + i
+    cols_bg = np.ascontiguousarray(cols_thvbg[6:])
+    Rm_nhc = np.zeros((2, 2))
+    Rm_nhc[0, 0] = nhc_std**2
+    Rm_nhc[1, 1] = const[C_NHC_STD_Z] ** 2
     while nhc_on and clock[1] < t_target:
         tn = clock[1]
         if not _advance(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, tn, q, off,
@@ -316,15 +359,14 @@ def frame_step(
         w = sample_at_nb(t_imu, acc, gyr, tn)[1] - bg
         vb = R.T @ v
         vv = R_v_b @ (vb + np.cross(w, p_b_v))
-        Hf = np.zeros((3, m))
-        Hf[:, off[2] : off[2] + 3] = R_v_b @ R.T
-        Hf[:, off[0] : off[0] + 3] = R_v_b @ hat_nb(vb)
-        Hf[:, off[4] : off[4] + 3] = R_v_b @ hat_nb(p_b_v)
+        # Jacobian on [dtheta, dv, db_g] only (cols_thvbg)
+        Hc = np.empty((2, 9))
+        Hc[:, 0:3] = (R_v_b @ hat_nb(vb))[1:]
+        Hc[:, 3:6] = (R_v_b @ R.T)[1:]
+        Hc[:, 6:9] = (R_v_b @ hat_nb(p_b_v))[1:]
         r = -vv[1:]
-        H = np.ascontiguousarray(Hf[1:])
-        Rm = np.eye(2) * nhc_std**2
-        if _update(r, H, Rm, p, v, R, ba, bg, g_n, P, off, gate_on, thr2, KIND_NHC, nis_buf,
-                   acc_buf, cnt) < 0:  # fmt: skip
+        if update_sparse(r, Hc, cols_thvbg, Rm_nhc, p, v, R, ba, bg, g_n, P, off, gate_on, thr2,
+                         KIND_NHC, nis_buf, acc_buf, cnt) < 0:  # fmt: skip
             return DIVERGED
         mark_state(clock[0], p, R, ba, bg, P, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, cnt)
         clock[1] = tn + nhc_dt
@@ -340,13 +382,11 @@ def frame_step(
         t0 = meas[M_T0]
         t1 = meas[M_T1]
         g_mean = gyro_mean_nb(t_imu, acc, gyr, t0, t1)
-        H = np.zeros((3, m))
-        for i in range(3):
-            H[i, off[4] + i] = -1.0
+        Hc = -np.eye(3)  # on db_g (cols_bg)
         r = omega_b - (g_mean - bg)
         Rm_w = cov_w + np.eye(3) * (const[C_GYRO_Q] / (t1 - t0))
-        st = _update(r, H, Rm_w, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_RATE, nis_buf,
-                     acc_buf, cnt)  # fmt: skip
+        st = update_sparse(r, Hc, cols_bg, Rm_w, p, v, R, ba, bg, g_n, P, off, gate_on, thr3,
+                           KIND_RATE, nis_buf, acc_buf, cnt)  # fmt: skip
         if st < 0:
             return DIVERGED
         rate_ok = st == 1
@@ -355,19 +395,42 @@ def frame_step(
         vel_b = meas[M_VEL : M_VEL + 3]
         cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3))
         vb = R.T @ v
-        H = np.zeros((3, m))
-        H[:, off[2] : off[2] + 3] = R.T
-        H[:, off[0] : off[0] + 3] = hat_nb(vb)
+        Hc = np.zeros((3, 9))  # on [dtheta, dv, db_g] (cols_thvbg)
+        Hc[:, 0:3] = hat_nb(vb)
+        Hc[:, 3:6] = R.T
         r = vel_b - vb
         if rate_ok and meas[M_JOINT] != 0.0:  # conditioned on the rate (VoVelocityGivenRate)
             C_wv = np.ascontiguousarray(meas[M_COV_WV : M_COV_WV + 9]).reshape((3, 3))
             G = np.linalg.solve(Rm_w, C_wv).T
             r = r - G @ r_w
-            H[:, off[4] : off[4] + 3] += G
+            Hc[:, 6:9] += G
             cov_v = cov_v - G @ C_wv
             cov_v = 0.5 * (cov_v + cov_v.T)
-        if _update(r, H, cov_v, p, v, R, ba, bg, g_n, P, off, gate_on, thr3, KIND_VEL,
-                   nis_buf, acc_buf, cnt) < 0:  # fmt: skip
+        if update_sparse(r, Hc, cols_thvbg, cov_v, p, v, R, ba, bg, g_n, P, off, gate_on, thr3,
+                         KIND_VEL, nis_buf, acc_buf, cnt) < 0:  # fmt: skip
             return DIVERGED
     mark_state(clock[0], p, R, ba, bg, P, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, cnt)
     return OK
+
+
+@numba.njit(cache=True)
+def run_frames(
+    t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
+    p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
+    P: FloatArray, clock: FloatArray, meas: FloatArray, const: FloatArray,
+    R_b_v: FloatArray, p_b_v: FloatArray, q: FloatArray, off: IntArray,
+    tr_t: FloatArray, tr_p: FloatArray, tr_R: FloatArray,
+    bias_t: FloatArray, bias: FloatArray, bias_std: FloatArray,
+    nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray, vel_ok: NDArray[np.bool_],
+) -> int:  # fmt: skip  # pragma: no cover - compiled
+    """:func:`frame_step` over the frames' packed measurements ``meas`` (n, M_LEN) in one call (no
+    Python between frames); ``vel_ok`` (n,) receives whether each frame's velocity update was accepted
+    (True without one). The buffers must hold the whole batch. Returns -1, or the index of the frame at
+    which the filter diverged."""
+    for i in range(meas.shape[0]):
+        if frame_step(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, meas[i], const, R_b_v, p_b_v,
+                      q, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, nis_buf, acc_buf,
+                      cnt) == DIVERGED:  # fmt: skip
+            return i
+        vel_ok[i] = acc_buf[KIND_VEL, cnt[3] - 1] if meas[i, M_VEL_ON] != 0.0 else True
+    return -1

@@ -80,19 +80,23 @@ def _vehicle_velocity(
 @dataclass
 class NonHolonomic:
     """The vehicle neither slides nor jumps: lateral and vertical vehicle-frame velocity are zero with
-    1-sigma ``std`` m/s (seed 004). ``gyro`` (3,) is the raw rate at the time (for the lever arm)."""
+    1-sigma ``std`` m/s (seed 004), the vertical with ``std_vertical`` when given (the body pitches on
+    uneven ground while the path stays level). ``gyro`` (3,) is the raw rate at the time (for the
+    lever arm)."""
 
     std: float
     gyro: FloatArray = field(default_factory=lambda: np.zeros(3))
     R_b_v: FloatArray = field(default_factory=lambda: np.eye(3))
     p_b_v: FloatArray = field(default_factory=lambda: np.zeros(3))
+    std_vertical: float | None = None
     kind: str = "nhc"
 
     def linearize(
         self, x: InsState, layout: ErrorLayout
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         vv, H = _vehicle_velocity(x, layout, self.gyro, self.R_b_v, self.p_b_v)
-        return -vv[1:], H[1:], np.eye(2) * self.std**2
+        sz = self.std if self.std_vertical is None else self.std_vertical
+        return -vv[1:], H[1:], np.diag([self.std**2, sz**2])
 
 
 @dataclass

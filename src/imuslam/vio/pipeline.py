@@ -75,6 +75,13 @@ class VioConfig(BaseModel):
     nhc_std: float = Field(
         0.02, gt=0, description="1-sigma of lateral / vertical vehicle velocity, m/s"
     )
+    nhc_std_vertical: float | None = Field(
+        None,
+        gt=0,
+        description="1-sigma of the vertical vehicle velocity, m/s (None: nhc_std). On uneven ground the "
+        "body pitches while the path stays level: the vertical body velocity is speed x pitch, a "
+        "slowly varying error that white noise at nhc_rate_hz must cover with a larger sigma",
+    )
     nhc_rate_hz: float = Field(20.0, gt=0, le=1000)
     vehicle_rpy_deg: tuple[float, float, float] = Field(
         (0.0, 0.0, 0.0), description="vehicle frame in the body (roll, pitch, yaw), deg"
@@ -308,7 +315,9 @@ class VioFilter:
         while cfg.nhc and self.next_nhc < t_s:
             self.advance(self.next_nhc)
             gyro = self.sample_at(self.next_nhc)[1]
-            self.update(NonHolonomic(cfg.nhc_std, gyro, self.R_b_v, self.p_b_v), 2)
+            self.update(
+                NonHolonomic(cfg.nhc_std, gyro, self.R_b_v, self.p_b_v, cfg.nhc_std_vertical), 2
+            )
             self.mark()
             self.next_nhc += 1.0 / cfg.nhc_rate_hz
         self.advance(t_s)
@@ -393,13 +402,13 @@ class CompiledVioFilter(VioFilter):
         self._q = self.noise.q
         self._off = self.kf.layout.offsets
         import imuslam.vio.kernels as kern
-        from imuslam.vio.kernels import C_LEN, M_LEN
+        from imuslam.vio.kernels import C_LEN
 
         self._kern = kern
-        self._meas = np.zeros(M_LEN)
         self._const = np.zeros(C_LEN)
+        std_z = cfg.nhc_std if cfg.nhc_std_vertical is None else cfg.nhc_std_vertical
         self._const[:] = (float(cfg.nhc), cfg.nhc_std, 1.0 / cfg.nhc_rate_hz, self.noise.gyro**2,
-                          float(self._gate), self._thr2, self._thr3)  # fmt: skip
+                          float(self._gate), self._thr2, self._thr3, std_z)  # fmt: skip
         self.R_b_v = np.ascontiguousarray(self.R_b_v, dtype=np.float64)
         self.p_b_v = np.ascontiguousarray(self.p_b_v, dtype=np.float64)
 
@@ -430,7 +439,7 @@ class CompiledVioFilter(VioFilter):
         self._nis = grow(self._nis, need, 1)
         self._acc = grow(self._acc, need, 1)
 
-    def frame(
+    def pack(
         self,
         t_s: float,
         vel_b: FloatArray | None = None,
@@ -440,21 +449,10 @@ class CompiledVioFilter(VioFilter):
         t0_s: float = 0.0,
         t1_s: float = 0.0,
         cov_wv: FloatArray | None = None,
-    ) -> bool:
-        K = self._kern  # the kernels module (imported once: this runs per frame)
-        cfg = self.cfg
-        t_now, t_nhc = float(self._clock[0]), float(self._clock[1])
-        n_nhc = int(np.ceil((t_s - t_nhc) * cfg.nhc_rate_hz)) + 2 if cfg.nhc and t_s > t_nhc else 0
-        i0, i1 = self.t_imu.searchsorted((t_now, t_s), side="right")
-        n_track = max(int(i1 - i0), 0) + 2 * n_nhc + 4
-        c = self._cnt
-        if (c[0] + n_track > len(self._tr_t) or c[1] + n_nhc + 2 > len(self._b_t)
-                or max(c[2], c[3], c[4]) + n_nhc + 2 > self._nis.shape[1]):  # fmt: skip
-            self._reserve(n_track, n_nhc + 2)
-        x = self.kf.x
-        vel_on = vel_b is not None and cov_vel is not None
-        meas = self._meas
-        meas[:] = 0.0
+    ) -> FloatArray:
+        """One frame's arguments of :meth:`frame` as the kernel's packed row (M_LEN,)."""
+        K = self._kern
+        meas = np.zeros(K.M_LEN)
         meas[K.M_T] = t_s
         if vel_b is not None and cov_vel is not None:
             meas[K.M_VEL : K.M_VEL + 3] = vel_b
@@ -467,23 +465,66 @@ class CompiledVioFilter(VioFilter):
             if cov_wv is not None:
                 meas[K.M_COV_WV : K.M_COV_WV + 9] = cov_wv.reshape(9)
                 meas[K.M_JOINT] = 1.0
-        status = K.frame_step(
+        return meas
+
+    def frames(self, meas: FloatArray) -> NDArray[np.bool_]:
+        """Several frames at once, their packed rows ``meas`` (n, M_LEN) from :meth:`pack` in time
+        order, in one compiled call (:func:`imuslam.vio.kernels.run_frames`). Returns per frame whether
+        its velocity update was accepted (True without one)."""
+        K = self._kern
+        cfg = self.cfg
+        meas = np.ascontiguousarray(meas, dtype=np.float64).reshape(-1, K.M_LEN)
+        n = len(meas)
+        if n == 0:
+            return np.zeros(0, bool)
+        t_now, t_nhc = float(self._clock[0]), float(self._clock[1])
+        t_last = float(meas[:, K.M_T].max())
+        n_nhc = (
+            int(np.ceil((t_last - t_nhc) * cfg.nhc_rate_hz)) + 2
+            if cfg.nhc and t_last > t_nhc
+            else 0
+        )
+        i0, i1 = self.t_imu.searchsorted((t_now, t_last), side="right")
+        # per frame at most: its IMU samples, two interpolated block ends per NHC and per frame
+        n_track = max(int(i1 - i0), 0) + 2 * n_nhc + 4 * n
+        c = self._cnt
+        n_events = n_nhc + 2 * n
+        if (c[0] + n_track > len(self._tr_t) or c[1] + n_events > len(self._b_t)
+                or max(c[2], c[3], c[4]) + n_events > self._nis.shape[1]):  # fmt: skip
+            self._reserve(n_track, n_events)
+        x = self.kf.x
+        vel_ok = np.ones(n, bool)
+        bad = K.run_frames(
             self.t_imu, self.acc, self.gyr, x.p_n, x.v_n, x.R_n_b, x.accel_bias, x.gyro_bias, x.g_n,
             self.kf.P, self._clock, meas, self._const, self.R_b_v, self.p_b_v, self._q, self._off,
             self._tr_t, self._tr_p, self._tr_R, self._b_t, self._b, self._b_s,
-            self._nis, self._acc, self._cnt,
+            self._nis, self._acc, self._cnt, vel_ok,
         )  # fmt: skip
-        if status == K.DIVERGED:
+        self.t = float(self._clock[0])
+        self.next_nhc = float(self._clock[1])
+        if bad >= 0:
             from imuslam.errors import FilterDivergence
 
             raise FilterDivergence(
                 f"filter diverged at t = {self._clock[0]:.3f} s after the start (frame mid-time "
-                f"{t_s:.3f} s): covariance not positive definite or state not finite; check the noise "
-                "settings and the aiding"
+                f"{meas[bad, K.M_T]:.3f} s): covariance not positive definite or state not finite; "
+                "check the noise settings and the aiding"
             )
-        self.t = float(self._clock[0])
-        self.next_nhc = float(self._clock[1])
-        return bool(self._acc[K.KIND_VEL, self._cnt[3] - 1]) if vel_on else True
+        return vel_ok
+
+    def frame(
+        self,
+        t_s: float,
+        vel_b: FloatArray | None = None,
+        cov_vel: FloatArray | None = None,
+        omega_b: FloatArray | None = None,
+        cov_omega: FloatArray | None = None,
+        t0_s: float = 0.0,
+        t1_s: float = 0.0,
+        cov_wv: FloatArray | None = None,
+    ) -> bool:
+        row = self.pack(t_s, vel_b, cov_vel, omega_b, cov_omega, t0_s, t1_s, cov_wv)
+        return bool(self.frames(row[None])[0])
 
     def mark(self) -> None:
         from imuslam.vio.kernels import mark_state
@@ -667,6 +708,7 @@ def run_vio(
     meas_all: list[VoMeasurement] = []
     corrupted: list[bool] = []
     vel_acc: list[bool] = []
+    batch: list[FloatArray] = []
     frames_seen = vo_run.seen
     unreadable = vo_run.unreadable
     if vo_run.frames:
@@ -737,16 +779,19 @@ def run_vio(
                 m.n_inliers, m.cov_fit, m.var_factor,
             )  # fmt: skip
         cov = vo_cov(m, cfg, M_cov)
-        ok_v = filt.frame(
+        args = (
             (m.t_mid_ns - t_ref) * 1e-9,
             m.vel_b if cfg.vo_velocity else None, cov[3:, 3:],
             m.omega_b if cfg.vo_rate else None, cov[:3, :3],
             (m.t0_ns - t_ref) * 1e-9, (m.t1_ns - t_ref) * 1e-9,
             cov[:3, 3:] if cfg.vo_joint else None,
         )  # fmt: skip
+        if isinstance(filt, CompiledVioFilter):  # the whole run in one compiled call, below
+            batch.append(filt.pack(*args))
+        else:
+            vel_acc.append(filt.frame(*args))
         meas_all.append(m)
         corrupted.append(bad)
-        vel_acc.append(ok_v)
 
     if filt is None or imu_track is None:
         raise InputError(
@@ -754,6 +799,8 @@ def run_vio(
             f"({unreadable} unreadable, {vo_run.stats.skipped_few_features} with too few features); "
             "nothing to fuse"
         )
+    if isinstance(filt, CompiledVioFilter):
+        vel_acc = filt.frames(np.asarray(batch).reshape(-1, len(filt.pack(0.0)))).tolist()
     # to the last frame
     filt.frame((vo_t[-1] - t_ref) * 1e-9)
     fused = filt.trajectory("fused")

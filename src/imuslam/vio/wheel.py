@@ -78,7 +78,7 @@ def run_wheel_ekf(
             WheelYawRate(float(odom.angular_b[k, 2]), yaw_rate_std, filt.gyro_mean(t_prev, t)), 1
         )
         if cfg.nhc:
-            filt.update(NonHolonomic(cfg.nhc_std, g), 2)
+            filt.update(NonHolonomic(cfg.nhc_std, g, std_vertical=cfg.nhc_std_vertical), 2)
         filt.mark()
         t_prev = t
     return WheelResult(
