@@ -1,6 +1,7 @@
 """Tables parsed in a forked child beside the caller's imports: the same result and errors as in place."""
 
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +11,9 @@ from imuslam.errors import InputError
 from imuslam.io import text
 from imuslam.io.text import cancel_prefetch, prefetch_tables, read_table
 
-pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="prefetch needs a POSIX fork")
+pytestmark = pytest.mark.skipif(
+    not sys.platform.startswith("linux"), reason="the prefetch forks on Linux only"
+)
 
 
 @pytest.fixture(autouse=True)

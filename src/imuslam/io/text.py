@@ -5,6 +5,7 @@ from __future__ import annotations
 import codecs
 import os
 import pickle
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import cast
@@ -74,13 +75,13 @@ def prefetch_tables(
     """Start parsing ``paths`` in a forked child while this process goes on (its imports, say), so
     that two cores share the work; a later :func:`read_table` of the same path and arguments takes
     the child's result (or its InputError, with the same message). Done only where it can pay: a
-    POSIX fork, two or more usable cores and at least ``PREFETCH_MIN_BYTES`` of files; otherwise (and
+    Linux fork, two or more usable cores and at least ``PREFETCH_MIN_BYTES`` of files; otherwise (and
     whenever the child fails) the files are parsed in place, as without this call. Returns whether a
     child was started."""
     allowed = (n_cols,) if isinstance(n_cols, int) else tuple(n_cols)
     cancel_prefetch()
-    if not hasattr(os, "fork") or len(os.sched_getaffinity(0)) < 2:
-        return False
+    if not sys.platform.startswith("linux") or len(os.sched_getaffinity(0)) < 2:
+        return False  # fork is unsafe with macOS's system frameworks; Windows has none
     try:
         size = sum(os.stat(p).st_size for p in paths)
     except OSError:  # the reader names what is missing
