@@ -185,13 +185,7 @@ def _nees(street: LidarDrive) -> tuple[list[float], list[float], list[tuple[floa
     return nees, nees_rel, parts
 
 
-def test_covariance_is_not_overconfident(street: LidarDrive) -> None:
-    """The absolute pose covariance covers the error: mean NEES over the filtered scans below the
-    99.9 % quantile of chi2(6 n) / n. The map is built from the filter's own poses, so the pose error
-    relative to the truth includes the map's; the default ``filter.map_covariance`` adds the matched
-    map's insertion covariance to the filter's (``MapCovariance``, a consider term). The filter's
-    own covariance (the map taken as exact, as FAST-LIO2 does) is overconfident for the same error by
-    orders of magnitude, which this test also checks, so the bound can fail."""
+def _check_consistent(street: LidarDrive) -> None:
     from scipy.stats import chi2
 
     nees, nees_rel, parts = _nees(street)
@@ -204,5 +198,23 @@ def test_covariance_is_not_overconfident(street: LidarDrive) -> None:
     print("NEES per scan, map taken as exact:", np.round(nees_rel, 1))
     print(f"mean NEES, map taken as exact: {np.mean(nees_rel):.1f}")
     assert n > 30
-    assert np.mean(nees) < bound
+    assert lower < np.mean(nees) < bound
     assert np.mean(nees_rel) > 10 * bound
+
+
+def test_covariance_is_consistent(street: LidarDrive) -> None:
+    """The absolute pose covariance matches the absolute error: mean NEES over the filtered scans
+    inside the 0.1 / 99.9 % quantiles of chi2(6 n) / n, in the world of the first IMU pose. The map is
+    built from the filter's own poses, so the pose error relative to the truth includes the map's; the
+    default ``filter.map_covariance`` adds the matched map's insertion covariance to the filter's
+    (``MapCovariance``, a consider term) with the map's drift along the path
+    (``filter.map_drift_*``, set from seeds 5, 7, 11 and 13; seeds 17 and 19 held out, below). The
+    filter's own covariance (the map taken as exact, as FAST-LIO2 does) is overconfident for the
+    same error by orders of magnitude, which this test also checks, so the bounds can fail."""
+    _check_consistent(street)
+
+
+@pytest.mark.slow
+def test_covariance_is_consistent_on_a_held_out_seed() -> None:
+    """The same check on a drive whose seed was not used to set ``filter.map_drift_*``."""
+    _check_consistent(simulate_lidar_drive("street", 6.0, seed=17))

@@ -138,9 +138,19 @@ class MapCovariance:
     dtheta x (p_k - p_j) at the current pose). The pieces' errors come from one drifting trajectory,
     so they are taken as fully correlated: C is the mean of J_kj P_j J_kj^T over the matched rows (a
     mean, not the covariance of a mean of independent errors, which would shrink with the count).
-    The points from before the filter (LiDAR-only, tag -1) carry the filter's initial covariance."""
+    The world is the first IMU pose (FAST-LIO2's), where the map has no error by construction. The
+    map's error grows along the path: the registration of each scan against a map built from the
+    earlier poses leaves a small, slowly varying error that every new piece inherits (on the simulated
+    street, 0.5-1 deg of roll / pitch over 50 m, as large with LiDAR alone as with the IMU, against a
+    map-relative sigma of 0.035 deg: not white noise, so not in P_rel). ``drift`` models it as a random
+    walk: a record gains ``drift`` times the path since the previous record; the points from before
+    the filter (LiDAR-only, tag -1) carry the drift over the start's path."""
 
-    def __init__(self, R0: FloatArray, p0: FloatArray, C0: FloatArray, slots: int = 4096) -> None:
+    def __init__(self, R0: FloatArray, p0: FloatArray, C0: FloatArray, slots: int = 4096,
+                 drift: FloatArray | None = None) -> None:  # fmt: skip
+        # drift (6,): the diagonal [theta, p] variance the map gains per metre of path (rad^2/m, m^2/m)
+        self.drift = np.zeros(6) if drift is None else np.asarray(drift, float)
+        self._last_p = np.asarray(p0, float).copy()
         # a ring of ``slots`` records (memory flat over any drive): slot 0 holds the points from before
         # the filter (tag -1), tag t >= 0 the slot 1 + t mod (slots - 1); a point older than that many
         # scans still in the map (a revisit) reads a later scan's covariance, which is larger
@@ -157,7 +167,9 @@ class MapCovariance:
         """Record an inserting pose and its absolute [theta, p] covariance (6, 6); returns its tag."""
         tag = self.n
         i = int(self._slot(np.array([tag]))[0])
-        self._R[i], self._p[i], self._C[i] = R_w_i, p_w, C
+        step = float(np.linalg.norm(p_w - self._last_p))  # path since the last record, m
+        self._last_p = np.asarray(p_w, float).copy()
+        self._R[i], self._p[i], self._C[i] = R_w_i, p_w, C + np.diag(self.drift * step)
         self.n += 1
         return tag
 
@@ -303,10 +315,18 @@ class LioEstimator:
         P0 = np.diag(lay.diag(theta=np.deg2rad(1.0) ** 2, p=0.05**2, v=0.2**2, ba=sb**2 * 100,
                               bg=sb**2, g=0.05**2))  # fmt: skip
         self.eskf = Eskf(x, P=P0, noise=self.noise, layout=lay, g=cfg.filter.g)
-        if cfg.filter.map_covariance:  # the points from before the filter: the initial covariance
+        if cfg.filter.map_covariance:
+            # the world is the first IMU pose (the first scan's end, levelled once by R_w_i0): the map
+            # has no error there by construction (FAST-LIO2's world); the points from before the filter
+            # (the LiDAR-only start) carry the drift over the start's path, and every later record the
+            # drift over the path since the previous one (``MapCovariance``, ``filter.map_drift_*``)
             idx = self._pose_index
-            C0 = P0[np.ix_(idx, idx)]
-            self.map_cov = MapCovariance(R_end, p_end, C0)
+            fc = cfg.filter
+            drift = np.r_[np.full(3, np.deg2rad(fc.map_drift_deg_per_sqrt_m) ** 2),
+                          np.full(3, fc.map_drift_m_per_sqrt_m**2)]  # fmt: skip
+            path0 = float(np.sum(np.linalg.norm(np.diff(p_k, axis=0), axis=1)))
+            C0 = np.diag(drift * path0)
+            self.map_cov = MapCovariance(R_end, p_end, C0, drift=drift)
             self._D[np.ix_(idx, idx)] = C0
         # the LiDAR-only map moves into w: x_w = T_w_i0 T_i_l x_l0
         T_w_l0 = np.eye(4)
