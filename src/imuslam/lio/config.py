@@ -6,7 +6,7 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 FloatArray = NDArray[np.float64]
 
@@ -62,6 +62,10 @@ class MapConfig(BaseModel):
     knn: Literal["ivox", "pykdtree", "small_gicp", "scipy"] = "ivox"
 
 
+# the map's drift per front end: (attitude deg, position m) per sqrt(m) of path (FilterConfig)
+MAP_DRIFT = {"features": (0.08, 0.011), "direct": (0.123, 0.017)}
+
+
 class FilterConfig(BaseModel):
     """state: reduced [p, v, theta, g] (12) for a corrected IMU or full with biases (18); noise densities
     of the IMU (continuous, per sqrt(Hz)) and bias random walks; lidar_std: point-to-plane 1-sigma, m;
@@ -79,10 +83,11 @@ class FilterConfig(BaseModel):
     taken as exact (FAST-LIO2's), overconfident for the absolute pose; map_drift_deg_per_sqrt_m /
     map_drift_m_per_sqrt_m: the map's error as a random walk along the path, per axis (attitude deg
     and position m per sqrt(m) of path; each map record gains that variance times the path since the
-    previous one), in the world of the first IMU pose where the map has no error; the defaults are
-    set from the simulated street drive (seeds 5, 7, 11, 13: mean NEES about 6 for 6 dof), where the
-    scan-to-map registration drifts by 0.5-1 deg in roll / pitch over 50 m, LiDAR-only as much as
-    with the IMU; max_speed /
+    previous one), in the world of the first IMU pose where the map has no error; ``None`` takes
+    the front end's default (``MAP_DRIFT``), set from the simulated street drive (direct: seeds 5,
+    7, 11, 13; features: seeds 5, 7, 11; a mean NEES near 6 for 6 dof), where the scan-to-map
+    registration drifts by 0.5-1 deg in roll / pitch over 50 m, LiDAR-only as much as with the
+    IMU; max_speed /
     max_rate bound a physically possible state (divergence check)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -97,8 +102,8 @@ class FilterConfig(BaseModel):
     reassociate: float = Field(0.02, ge=0)
     converge: float = Field(1e-3, gt=0)
     map_covariance: bool = True
-    map_drift_deg_per_sqrt_m: float = Field(0.123, ge=0)
-    map_drift_m_per_sqrt_m: float = Field(0.017, ge=0)
+    map_drift_deg_per_sqrt_m: float | None = Field(None, ge=0)
+    map_drift_m_per_sqrt_m: float | None = Field(None, ge=0)
     max_speed: float = Field(60.0, gt=0)
     g: float = Field(9.80665, gt=0)
 
@@ -114,3 +119,16 @@ class LioConfig(BaseModel):
     align: Literal["none", "kf", "stkf", "rwnn"] = "none"
     align_seconds: float = Field(1.0, gt=0)
     use_imu: bool = True
+
+    @model_validator(mode="after")
+    def _map_drift(self) -> LioConfig:
+        """Fill ``filter.map_drift_*`` left empty with the front end's default (``MAP_DRIFT``), so the
+        effective configuration written beside the results carries the numbers used."""
+        q_deg, q_m = MAP_DRIFT[self.frontend.mode]
+        f = self.filter
+        if f.map_drift_deg_per_sqrt_m is None or f.map_drift_m_per_sqrt_m is None:
+            self.filter = f.model_copy(update={
+                "map_drift_deg_per_sqrt_m": q_deg if f.map_drift_deg_per_sqrt_m is None else f.map_drift_deg_per_sqrt_m,
+                "map_drift_m_per_sqrt_m": q_m if f.map_drift_m_per_sqrt_m is None else f.map_drift_m_per_sqrt_m,
+            })  # fmt: skip
+        return self

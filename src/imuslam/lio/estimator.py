@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from imuslam.errors import FilterDivergence, InputError
 from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise, propagate_covariance
 from imuslam.io.imulog import ImuLog
-from imuslam.lio.config import LioConfig
+from imuslam.lio.config import MAP_DRIFT, LioConfig
 from imuslam.lio.deskew import deskew
 from imuslam.lio.frontend import select_indices, select_points
 from imuslam.lio.lidar_only import LidarOdometry
@@ -322,8 +322,10 @@ class LioEstimator:
             # drift over the path since the previous one (``MapCovariance``, ``filter.map_drift_*``)
             idx = self._pose_index
             fc = cfg.filter
-            drift = np.r_[np.full(3, np.deg2rad(fc.map_drift_deg_per_sqrt_m) ** 2),
-                          np.full(3, fc.map_drift_m_per_sqrt_m**2)]  # fmt: skip
+            q_deg, q_m = MAP_DRIFT[cfg.frontend.mode]
+            q_deg = q_deg if fc.map_drift_deg_per_sqrt_m is None else fc.map_drift_deg_per_sqrt_m
+            q_m = q_m if fc.map_drift_m_per_sqrt_m is None else fc.map_drift_m_per_sqrt_m
+            drift = np.r_[np.full(3, np.deg2rad(q_deg) ** 2), np.full(3, q_m**2)]
             path0 = float(np.sum(np.linalg.norm(np.diff(p_k, axis=0), axis=1)))
             C0 = np.diag(drift * path0)
             self.map_cov = MapCovariance(R_end, p_end, C0, drift=drift)
