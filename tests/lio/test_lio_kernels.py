@@ -307,3 +307,17 @@ def test_map_covariance_transfers_a_map_pieces_error_to_the_pose() -> None:
     ref = (3 * J[0] @ np.diag(np.arange(1.0, 7.0)) @ J[0].T + Ji[0] @ (2 * np.eye(6)) @ Ji[0].T
            + J0[0] @ C0 @ J0[0].T) / 5  # fmt: skip
     np.testing.assert_allclose(C, ref, rtol=1e-12)
+
+
+def test_map_drift_defaults_follow_the_front_end() -> None:
+    """An empty ``filter.map_drift_*`` resolves to the front end in use, also when the mode is
+    changed after construction (as ``imuslam lio --mode`` does); a value given is kept."""
+    from imuslam.lio.config import MAP_DRIFT, FilterConfig, LioConfig
+
+    cfg = LioConfig()
+    cfg.frontend.mode = "direct"
+    f = cfg.resolved().filter
+    assert (f.map_drift_deg_per_sqrt_m, f.map_drift_m_per_sqrt_m) == MAP_DRIFT["direct"]
+    assert MAP_DRIFT["direct"] != MAP_DRIFT["features"]
+    f = LioConfig(filter=FilterConfig(map_drift_deg_per_sqrt_m=0.3)).resolved().filter
+    assert (f.map_drift_deg_per_sqrt_m, f.map_drift_m_per_sqrt_m) == (0.3, MAP_DRIFT["features"][1])

@@ -6,7 +6,7 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 FloatArray = NDArray[np.float64]
 
@@ -84,11 +84,11 @@ class FilterConfig(BaseModel):
     map_drift_m_per_sqrt_m: the map's error as a random walk along the path, per axis (attitude deg
     and position m per sqrt(m) of path; each map record gains that variance times the path since the
     previous one), in the world of the first IMU pose where the map has no error; ``None`` takes
-    the front end's default (``MAP_DRIFT``), set from the simulated street drive (direct: seeds 5,
-    7, 11, 13; features: seeds 5, 7, 11; a mean NEES near 6 for 6 dof), where the scan-to-map
-    registration drifts by 0.5-1 deg in roll / pitch over 50 m, LiDAR-only as much as with the
-    IMU; max_speed /
-    max_rate bound a physically possible state (divergence check)."""
+    the front end's default (``MAP_DRIFT``, filled in by ``LioConfig.resolved``), set from the
+    simulated street drive (direct: seeds 5, 7, 11, 13; features: seeds 5, 7, 11; a mean NEES near
+    6 for 6 dof), where the scan-to-map registration drifts by 0.5-1 deg in roll / pitch over 50 m,
+    LiDAR-only as much as with the IMU; max_speed / max_rate bound a physically possible state
+    (divergence check)."""
 
     model_config = ConfigDict(extra="forbid")
     state: Literal["reduced", "full"] = "full"
@@ -120,15 +120,12 @@ class LioConfig(BaseModel):
     align_seconds: float = Field(1.0, gt=0)
     use_imu: bool = True
 
-    @model_validator(mode="after")
-    def _map_drift(self) -> LioConfig:
-        """Fill ``filter.map_drift_*`` left empty with the front end's default (``MAP_DRIFT``), so the
-        effective configuration written beside the results carries the numbers used."""
+    def resolved(self) -> LioConfig:
+        """A copy with ``filter.map_drift_*`` left empty filled with the front end's default
+        (``MAP_DRIFT``): what the estimator uses and what is written beside the results (resolved
+        at use, so a front end changed after construction takes its own rates)."""
         q_deg, q_m = MAP_DRIFT[self.frontend.mode]
         f = self.filter
-        if f.map_drift_deg_per_sqrt_m is None or f.map_drift_m_per_sqrt_m is None:
-            self.filter = f.model_copy(update={
-                "map_drift_deg_per_sqrt_m": q_deg if f.map_drift_deg_per_sqrt_m is None else f.map_drift_deg_per_sqrt_m,
-                "map_drift_m_per_sqrt_m": q_m if f.map_drift_m_per_sqrt_m is None else f.map_drift_m_per_sqrt_m,
-            })  # fmt: skip
-        return self
+        drift = {"map_drift_deg_per_sqrt_m": q_deg if f.map_drift_deg_per_sqrt_m is None else f.map_drift_deg_per_sqrt_m,
+                 "map_drift_m_per_sqrt_m": q_m if f.map_drift_m_per_sqrt_m is None else f.map_drift_m_per_sqrt_m}  # fmt: skip
+        return self.model_copy(update={"filter": f.model_copy(update=drift)})

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from imuslam.errors import FilterDivergence, InputError
 from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise, propagate_covariance
 from imuslam.io.imulog import ImuLog
-from imuslam.lio.config import MAP_DRIFT, LioConfig
+from imuslam.lio.config import LioConfig
 from imuslam.lio.deskew import deskew
 from imuslam.lio.frontend import select_indices, select_points
 from imuslam.lio.lidar_only import LidarOdometry
@@ -321,10 +321,11 @@ class LioEstimator:
             # (the LiDAR-only start) carry the drift over the start's path, and every later record the
             # drift over the path since the previous one (``MapCovariance``, ``filter.map_drift_*``)
             idx = self._pose_index
-            fc = cfg.filter
-            q_deg, q_m = MAP_DRIFT[cfg.frontend.mode]
-            q_deg = q_deg if fc.map_drift_deg_per_sqrt_m is None else fc.map_drift_deg_per_sqrt_m
-            q_m = q_m if fc.map_drift_m_per_sqrt_m is None else fc.map_drift_m_per_sqrt_m
+            rf = cfg.resolved().filter
+            q_deg, q_m = (
+                float(rf.map_drift_deg_per_sqrt_m or 0.0),
+                float(rf.map_drift_m_per_sqrt_m or 0.0),
+            )
             drift = np.r_[np.full(3, np.deg2rad(q_deg) ** 2), np.full(3, q_m**2)]
             path0 = float(np.sum(np.linalg.norm(np.diff(p_k, axis=0), axis=1)))
             C0 = np.diag(drift * path0)

@@ -34,7 +34,7 @@ def write_results(
         write_ply(tmp / "map.ply", result.map_points)
         write_pcd(tmp / "map.pcd", result.map_points)
         (tmp / "config.yaml").write_text(
-            yaml.safe_dump(result.config.model_dump(mode="json"), sort_keys=False)
+            yaml.safe_dump(result.config.resolved().model_dump(mode="json"), sort_keys=False)
         )
         rows = ["t_ns,n_points,n_dropped,n_used,iterations,n_corr,time_ms"] + [
             f"{s.t_ns},{s.n_points},{s.n_dropped},{s.n_used},{s.iterations},{s.n_corr},{s.time_s * 1e3:.3f}"
