@@ -29,6 +29,7 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
 
 from imuslam.eval.metrics import KITTI_LENGTHS, evaluate  # noqa: E402
 from imuslam.imu.model import ImuCalibration, TriadModel  # noqa: E402
@@ -40,6 +41,7 @@ from imuslam.sim.drive import LidarDrive, simulate_lidar_drive  # noqa: E402
 from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO  # noqa: E402
 
 LAP_S = 34.32  # one lap of the street loop (sim.drive.car_loop_period_s)
+FloatArr = NDArray[np.float64]
 
 
 def true_calibration() -> ImuCalibration:
@@ -313,9 +315,104 @@ def frontend_bench(args: Any) -> None:
               f"{n_p:.0f} | {n_e:.0f} |")  # fmt: skip
 
 
+def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = False,
+                     use_imu: bool = True) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
+    """Register ``d``'s scans one by one (calibrated IMU); returns, for the scans after the filter
+    start (all scans without the IMU), the NEES of [attitude, position] against the reported 6 x 6
+    covariance (NaN without the IMU), the body-frame attitude error (K, 3) rad and the position error
+    (K, 3) m, in the world of the first IMU pose (the first scan end; the filter's levelling R_w_i0
+    applied once), the truth at the first sample at or after each scan end."""
+    from imuslam.geometry import log as so3_log
+    from imuslam.lio.estimator import LioEstimator
+    from imuslam.lio.lidar_only import LidarOdometry
+
+    cfg = LioConfig(frontend=FrontEndConfig(mode=mode),  # type: ignore[arg-type]
+                    extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])),  # type: ignore[arg-type]
+                    filter=FilterConfig(state=state), use_imu=use_imu)  # type: ignore[arg-type]  # fmt: skip
+    imu = true_calibration().correct(d.imu)
+    est = LioEstimator(cfg, imu) if use_imu else None
+    lo = None if use_imu else LidarOdometry(cfg)
+    t_ref = d.imu.t_ns[0]
+    rows: list[tuple[int, FloatArr, FloatArr | None]] = []
+    for s in d.scans:
+        t = (s.t_ns - t_ref) * 1e-9 + s.t_offset_s.astype(np.float64)
+        pts = s.points_l.astype(np.float64)
+        t_end = t_ref + int(round(t.max() * 1e9))
+        if est is None:
+            assert lo is not None
+            rows.append((t_end, lo.register_scan(pts, t, s.ring), None))
+            continue
+        started = est.eskf is not None
+        T = est.register_scan(pts, t, s.ring)
+        if est.eskf is not None and not started and true_gravity:  # the filter's g set to the truth
+            g0 = int(np.searchsorted(d.gt_t_ns, rows[0][0] if rows else t_end))
+            R_a = est.T_w_i0[:3, :3] @ d.gt_R_w_b[min(g0, len(d.gt_t_ns) - 1)].T
+            est.eskf.x.g_n[:] = R_a @ np.array([0.0, 0.0, -cfg.filter.g])
+        if est.covariance is not None:
+            idx = np.r_[est.layout.TH, est.layout.P]
+            rows.append((t_end, T, est.covariance[np.ix_(idx, idx)]))
+        elif not rows:
+            rows.append((t_end, T, None))  # the first scan end defines the world
+    t0 = rows[0][0]
+    n = len(d.gt_t_ns) - 1
+    g0 = min(int(np.searchsorted(d.gt_t_ns, t0)), n)
+    R_w_i0 = est.T_w_i0[:3, :3] if est is not None else np.eye(3)
+    R_a = R_w_i0 @ d.gt_R_w_b[g0].T
+    nees, e_th, e_p = [], [], []
+    for t_end, T, C in rows[1:] if est is not None else rows:
+        g = min(int(np.searchsorted(d.gt_t_ns, t_end)), n)
+        th = so3_log(T[:3, :3].T @ (R_a @ d.gt_R_w_b[g]))
+        dp = R_a @ (d.gt_p_w[g] - d.gt_p_w[g0]) - T[:3, 3]
+        e = np.r_[th, dp]
+        nees.append(float(e @ np.linalg.solve(C, e)) if C is not None else np.nan)
+        e_th.append(th)
+        e_p.append(dp)
+    return np.array(nees), np.array(e_th), np.array(e_p)
+
+
+def consistency_bench(args: Any) -> None:
+    """Mean NEES of the reported covariance per seed and front end (``LioEstimator.covariance``: the
+    filter's map-relative covariance plus ``MapCovariance``'s consider term with the map's drift),
+    against the chi-square band of the mean; with ``--diagnose`` the first seed's attitude errors
+    with LiDAR alone and with the filter started at the true gravity (README, LIO covariance)."""
+    from scipy.stats import chi2
+
+    dur = args.duration or 6.0
+    modes = ["direct", "features"]
+    print(f"street excerpt {dur:g} s, {args.state} state, calibrated IMU; mean NEES of [attitude, "
+          f"position] (6 dof) in the world of the first IMU pose")  # fmt: skip
+    print("| seed | " + " | ".join(modes) + " | n | chi2 band 0.1-99.9 % | CPU s |")
+    print("|---" * (len(modes) + 4) + "|")
+    for seed in args.seeds:
+        d = drive("street", dur, args.cache, seed=seed)
+        c0 = time.process_time()
+        means, n = [], 0
+        for mode in modes:
+            nees, _, _ = _consistency_run(d, mode, args.state)
+            means.append(f"{np.mean(nees):.2f}")
+            n = len(nees)
+        lo, hi = chi2.ppf(0.001, 6 * n) / n, chi2.ppf(0.999, 6 * n) / n
+        print(f"| {seed} | " + " | ".join(means) + f" | {n} | [{lo:.2f}, {hi:.2f}] | "
+              f"{time.process_time() - c0:.1f} |")  # fmt: skip
+    if args.diagnose:
+        d = drive("street", dur, args.cache, seed=args.seeds[0])
+        _, th, _ = _consistency_run(d, "direct", args.state)
+        _, th_g, _ = _consistency_run(d, "direct", args.state, true_gravity=True)
+        _, th_lo, _ = _consistency_run(d, "direct", args.state, use_imu=False)
+        deg = np.rad2deg
+        print(f"seed {args.seeds[0]}, direct: body attitude error (roll, pitch) ranges, deg")
+        for name, e in (("LIO", th), ("LiDAR only", th_lo)):
+            print(f"  {name}: roll {deg(e[:, 0].min()):.2f} to {deg(e[:, 0].max()):.2f}, pitch "
+                  f"{deg(e[:, 1].min()):.2f} to {deg(e[:, 1].max()):.2f}")  # fmt: skip
+        print(f"  LIO started at the true gravity: largest change of a scan's attitude error "
+              f"{deg(np.max(np.linalg.norm(th_g - th, axis=1))):.3f} deg")  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("what", choices=["main", "imu", "rotating", "corridor", "memory", "frontend"])
+    ap.add_argument(
+        "what", choices=["main", "imu", "rotating", "corridor", "memory", "frontend", "consistency"]
+    )
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/imuslam-bench-lio"))
     ap.add_argument("--columns", type=int, default=450, help="memory: LiDAR columns per turn")
@@ -323,10 +420,22 @@ def main() -> None:
     ap.add_argument("--no-map-covariance", action="store_true",
                     help="main: the filters with filter.map_covariance off (the map-relative "
                          "covariance only: the same estimate, without the consider term's cost)")  # fmt: skip
+    ap.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        default=[5, 7, 11, 13, 17, 19],
+        help="consistency: the street drive's seeds",
+    )
+    ap.add_argument("--state", default="full", help="consistency: reduced or full")
+    ap.add_argument("--diagnose", action="store_true",
+                    help="consistency: the first seed's attitude errors with LiDAR alone and with the "
+                         "true gravity")  # fmt: skip
     args = ap.parse_args()
     t0 = time.perf_counter()
     {"main": main_bench, "imu": imu_bench, "rotating": rotating_bench, "corridor": corridor_bench,
-     "memory": memory_bench, "frontend": frontend_bench}[args.what](args)  # fmt: skip
+     "memory": memory_bench, "frontend": frontend_bench,
+     "consistency": consistency_bench}[args.what](args)  # fmt: skip
     print(f"({time.perf_counter() - t0:.0f} s)")
 
 
