@@ -316,7 +316,8 @@ def frontend_bench(args: Any) -> None:
 
 
 def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = False,
-                     use_imu: bool = True) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
+                     use_imu: bool = True, g_w: list[FloatArr] | None = None,
+                     ) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
     """Register ``d``'s scans one by one (calibrated IMU); returns, for the scans after the filter
     start (all scans without the IMU), the NEES of [attitude, position] against the reported 6 x 6
     covariance (NaN without the IMU), the body-frame attitude error (K, 3) rad and the position error
@@ -349,6 +350,8 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
             R_a = est.T_w_i0[:3, :3] @ d.gt_R_w_b[min(g0, len(d.gt_t_ns) - 1)].T
             est.eskf.x.g_n[:] = R_a @ np.array([0.0, 0.0, -cfg.filter.g])
         if est.covariance is not None:
+            if g_w is not None and est.eskf is not None:
+                g_w.append(est.eskf.x.g_n.copy())  # the filter's gravity after each scan
             idx = np.r_[est.layout.TH, est.layout.P]
             rows.append((t_end, T, est.covariance[np.ix_(idx, idx)]))
         elif not rows:
@@ -358,6 +361,8 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
     g0 = min(int(np.searchsorted(d.gt_t_ns, t0)), n)
     R_w_i0 = est.T_w_i0[:3, :3] if est is not None else np.eye(3)
     R_a = R_w_i0 @ d.gt_R_w_b[g0].T
+    if g_w is not None:  # the true gravity in this world, last
+        g_w.append(R_a @ np.array([0.0, 0.0, -cfg.filter.g]))
     nees, e_th, e_p = [], [], []
     for t_end, T, C in rows[1:] if est is not None else rows:
         g = min(int(np.searchsorted(d.gt_t_ns, t_end)), n)
@@ -396,7 +401,11 @@ def consistency_bench(args: Any) -> None:
               f"{time.process_time() - c0:.1f} |")  # fmt: skip
     if args.diagnose:
         d = drive("street", dur, args.cache, seed=args.seeds[0])
-        _, th, _ = _consistency_run(d, "direct", args.state)
+        g_w: list[FloatArr] = []
+        _, th, _ = _consistency_run(d, "direct", args.state, g_w=g_w)
+        g_true = g_w.pop()
+        ang = [np.rad2deg(np.arccos(np.clip(g @ g_true / np.linalg.norm(g) / np.linalg.norm(g_true), -1, 1)))
+               for g in g_w]  # fmt: skip
         _, th_g, _ = _consistency_run(d, "direct", args.state, true_gravity=True)
         _, th_lo, _ = _consistency_run(d, "direct", args.state, use_imu=False)
         deg = np.rad2deg
@@ -404,6 +413,8 @@ def consistency_bench(args: Any) -> None:
         for name, e in (("LIO", th), ("LiDAR only", th_lo)):
             print(f"  {name}: roll {deg(e[:, 0].min()):.2f} to {deg(e[:, 0].max()):.2f}, pitch "
                   f"{deg(e[:, 1].min()):.2f} to {deg(e[:, 1].max()):.2f}")  # fmt: skip
+        print(f"  the filter's gravity against the true one: {ang[0]:.2f} deg at the filter start, "
+              f"{ang[-1]:.2f} deg at the last scan")  # fmt: skip
         print(f"  LIO started at the true gravity: largest change of a scan's attitude error "
               f"{deg(np.max(np.linalg.norm(th_g - th, axis=1))):.3f} deg")  # fmt: skip
 
