@@ -317,7 +317,7 @@ def frontend_bench(args: Any) -> None:
 
 def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = False,
                      use_imu: bool = True, g_w: list[FloatArr] | None = None,
-                     ) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
+                     drift: list[float] | None = None) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
     """Register ``d``'s scans one by one (calibrated IMU); returns, for the scans after the filter
     start (all scans without the IMU), the NEES of [attitude, position] against the reported 6 x 6
     covariance (NaN without the IMU), the body-frame attitude error (K, 3) rad and the position error
@@ -330,6 +330,8 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
     cfg = LioConfig(frontend=FrontEndConfig(mode=mode),  # type: ignore[arg-type]
                     extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])),  # type: ignore[arg-type]
                     filter=FilterConfig(state=state), use_imu=use_imu)  # type: ignore[arg-type]  # fmt: skip
+    if drift is not None:  # --map-drift: the rates of both front ends replaced
+        cfg.filter.map_drift_deg_per_sqrt_m, cfg.filter.map_drift_m_per_sqrt_m = drift[0], drift[1]
     imu = true_calibration().correct(d.imu)
     est = LioEstimator(cfg, imu) if use_imu else None
     lo = None if use_imu else LidarOdometry(cfg)
@@ -393,7 +395,7 @@ def consistency_bench(args: Any) -> None:
         c0 = time.process_time()
         means, n = [], 0
         for mode in modes:
-            nees, _, _ = _consistency_run(d, mode, args.state)
+            nees, _, _ = _consistency_run(d, mode, args.state, drift=args.map_drift)
             means.append(f"{np.mean(nees):.2f}")
             n = len(nees)
         lo, hi = chi2.ppf(0.001, 6 * n) / n, chi2.ppf(0.999, 6 * n) / n
@@ -439,6 +441,9 @@ def main() -> None:
         help="consistency: the street drive's seeds",
     )
     ap.add_argument("--state", default="full", help="consistency: reduced or full")
+    ap.add_argument("--map-drift", type=float, nargs=2, default=None, metavar=("DEG", "M"),
+                    help="consistency: filter.map_drift_deg_per_sqrt_m and map_drift_m_per_sqrt_m "
+                         "for both front ends (default: each front end's own)")  # fmt: skip
     ap.add_argument("--diagnose", action="store_true",
                     help="consistency: the first seed's attitude errors with LiDAR alone and with the "
                          "true gravity")  # fmt: skip
