@@ -6,6 +6,7 @@
     PYTHONPATH=src python bench/lio.py corridor  # LiDAR-only vs LIO in the corridor (degenerate for LiDAR)
     PYTHONPATH=src python bench/lio.py memory    # map size and peak RSS over a 30-minute drive (streamed)
     PYTHONPATH=src python bench/lio.py frontend  # the compiled front end against its numpy reference
+    PYTHONPATH=src python bench/lio.py consistency  # mean NEES of the reported covariance, 6 seeds x 2 modes
 
 Options: --duration S (drive length), --cache DIR (simulated drives are cached there, keyed by their
 parameters). The street drive is seed 001's car loop around an urban block: VLP-16 at 10 Hz (about 28k
