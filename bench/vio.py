@@ -694,7 +694,8 @@ def track_bias(n_frames: int) -> None:
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument(
-        "what", choices=["speed", "sim", "nhc", "nhcsweep", "vostats", "husky", "trackbias"]
+        "what",
+        choices=["speed", "sim", "nhc", "nhcsweep", "vostats", "husky", "trackbias", "nhcbias"],
     )
     ap.add_argument("--frames", type=int, default=60, help="trackbias: rendered pairs")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="nhc: seeds")
