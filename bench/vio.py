@@ -18,7 +18,7 @@
     python bench/vio.py nhcbias [--seeds 0 1 2 3 4]
                                          # the NHC cut with the VO error the seeds share removed
                                          # (per frame or its run mean, from the other seeds' truth)
-    python bench/vio.py trackbias [--frames 60]
+    python bench/vio.py trackbias [--frames 60 --image-noise 0]
                                          # the ZNCC tracker's sub-pixel bias: exact shifts of a random
                                          # image; rendered pairs against the true feature positions
     python bench/vio.py husky            # wheel odometry + IMU EKF against GPS (robot_localization bag)
@@ -602,7 +602,7 @@ def _bias_table(runs, errs) -> None:  # type: ignore[no-untyped-def]
                                                           strict=True)))  # fmt: skip
 
 
-def track_bias(n_frames: int) -> None:
+def track_bias(n_frames: int, image_noise: float | None) -> None:
     """The temporal tracker's sub-pixel bias: (1) on exact sub-pixel shifts (Fourier phase) of a
     band-limited random image, per start fraction and shift fraction; (2) on rendered pairs of the
     ground robot 0.2 s apart, tracked from the true prediction, against the true positions (from the
@@ -611,7 +611,7 @@ def track_bias(n_frames: int) -> None:
     import cv2
     from scipy.ndimage import gaussian_filter, map_coordinates
 
-    from imuslam.sim.render import render_stereo
+    from imuslam.sim.render import CameraRig, render_stereo
     from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
     from imuslam.vio.frontend import StereoVO, VoConfig
     from imuslam.vio.zncc import track
@@ -649,7 +649,10 @@ def track_bias(n_frames: int) -> None:
     _table(["start fraction", "bias per shift fraction [1e-3 px]"], rows)
     print(f"max |bias| {np.max(np.abs(allb)):.4f} px, mean over the grid {np.mean(allb):+.4f} px "
           "(the mirror symmetry bias(f, s) = -bias(1 - f, 1 - s) makes it zero)")  # fmt: skip
-    run = SimStereoRun(StereoRunConfig(duration_s=180.0, image_hz=5.0, seed=0))
+    rc = StereoRunConfig(duration_s=180.0, image_hz=5.0, seed=0)
+    if image_noise is not None:
+        rc.rig = CameraRig(noise=image_noise)
+    run = SimStereoRun(rc)
     rig, K = run.cfg.rig, run.cfg.rig.K
     vo = StereoVO(run.rectification(), c)
 
@@ -664,13 +667,10 @@ def track_bias(n_frames: int) -> None:
         lb, _, _ = render_stereo(run.world, rig, Rb, pb, rng)
         (L0, L1), (M0, M1) = prep(la), prep(lb)
         uv = vo._detect(la, np.zeros((0, 2)), c.max_features)
+        za = np.where(np.isfinite(za), za, 1e6)  # no hit: far (and cut by the edge test below)
         z = map_coordinates(za, [uv[:, 1], uv[:, 0]], order=1, cval=np.inf)
         zn = map_coordinates(za, [uv[:, 1], uv[:, 0]], order=0, cval=np.inf)
-        ok = (
-            np.isfinite(z)
-            & np.isfinite(zn)
-            & (np.abs(z - zn) < 0.02 * np.where(np.isfinite(zn), zn, 1))
-        )
+        ok = (zn < 1e5) & (np.abs(z - zn) < 0.02 * zn)
         uv, z = uv[ok], z[ok]  # away from depth edges
         X = np.column_stack([(uv - K[:2, 2]) * z[:, None] / rig.fx, z])
         Y = (X @ Ra.T + pa - pb) @ Rb
@@ -698,6 +698,8 @@ def main(argv: list[str]) -> None:
         choices=["speed", "sim", "nhc", "nhcsweep", "vostats", "husky", "trackbias", "nhcbias"],
     )
     ap.add_argument("--frames", type=int, default=60, help="trackbias: rendered pairs")
+    ap.add_argument("--image-noise", type=float, default=None,
+                    help="trackbias: image noise, grey levels (default the rig's 2)")  # fmt: skip
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="nhc: seeds")
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--rate", type=float, default=5.0)
@@ -725,7 +727,7 @@ def main(argv: list[str]) -> None:
     elif a.what == "nhcbias":
         nhc_bias_removed(a.duration, a.rate, a.seeds, a.calib_duration)
     elif a.what == "trackbias":
-        track_bias(a.frames)
+        track_bias(a.frames, a.image_noise)
     elif a.what == "sim":
         sim(a.duration, a.rate, a.seed, a.calib_duration, a.calib_seeds, not a.no_correction)
     else:
