@@ -7,7 +7,7 @@
                                          # rendered ground robot: NHC off/on, 10 % corrupted VO, NIS;
                                          # VO covariance shape and scales calibrated on the run(s)
                                          # with --calib-seeds (default seed + 1)
-    python bench/vio.py nhc [--seeds 0 1 2 3 4]
+    python bench/vio.py nhc [--seeds 0 1 2 3 4 --gate-prob 0.9999 --vo-bias 180]
                                          # sim on several seeds (calibration seed + 1): NHC cut per
                                          # seed, its mean and spread, gating and NIS per seed
     python bench/vio.py nhcsweep [--seed 0]
@@ -42,6 +42,10 @@ CACHE = Path(__file__).resolve().parent / ".cache"
 # the filters' chi-square gate in the sim study (``--gate-prob``): 0.999, the gate the tables of the
 # README were measured at (VioConfig's default before it became 0.9999; the seeds study's gate)
 GATE = {"gate_prob": 0.999}
+# ``--vo-bias SECONDS``: the VO's mean error against the truth on the first SECONDS of each calibration
+# seed, subtracted by the filters (``VioConfig.vo_bias``); empty: off
+VO_BIAS: dict[str, object] = {}
+VO_BIAS_S = [0.0]
 
 
 def _rate(fn, n: int, repeat: int = 3) -> tuple[float, float]:  # type: ignore[no-untyped-def]
@@ -243,6 +247,18 @@ def calibrate_vo_cov(
     # scale whose filter mean NIS there equals the 3 dof (fixed point s <- s * NIS / 3; the NIS is not
     # linear in s, the prior shrinks with it)
     # several calibration runs pool their frames: the scale's own sampling error shrinks with them
+    VO_BIAS.clear()
+    if VO_BIAS_S[0] > 0:
+        from imuslam.vio.covcal import vo_errors as _ve
+
+        bias_runs = [_sim_vo(VO_BIAS_S[0], rate, cs) for cs in cseeds]
+        eb = np.concatenate([_ve([m for _, m in bv.frames if m is not None], br.truth)[0]
+                             for br, bv in bias_runs])  # fmt: skip
+        VO_BIAS["vo_bias"] = tuple(float(x) for x in eb.mean(axis=0))
+        print(f"VO bias learnt on seed(s) {cseeds} ({VO_BIAS_S[0]:g} s, {len(eb)} frames): rate "
+              f"{np.array2string(eb.mean(0)[:3], precision=6)} rad/s, velocity "
+              f"{np.array2string(eb.mean(0)[3:], precision=6)} m/s (standard error "
+              f"{np.array2string(eb.std(0) / np.sqrt(len(eb)), precision=6)})")  # fmt: skip
     cals = [_sim_vo(calib_duration, rate, cs) for cs in cseeds]
     M = None
     if correction:
@@ -256,7 +272,7 @@ def calibrate_vo_cov(
     for _ in range(6):
         nis = {"vo_velocity": [], "vo_rate": []}  # type: dict[str, list[float]]
         for cr, cv in cals:
-            r = run_vio(cr, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel, **GATE,
+            r = run_vio(cr, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel, **GATE, **VO_BIAS,
                                       vo_rate_cov_scale=s_rate, **corr),  # type: ignore[arg-type]
                         vo_run=cv)  # fmt: skip
             for k in nis:
@@ -291,7 +307,8 @@ def sim(
     results = {}
     # this robot's constraint noise: the body origin is the axle centre (no lateral slip); the simulated
     # pitch / roll oscillation (0.005 rad) at 0.3-0.4 m/s makes about 0.002 m/s of vertical velocity.
-    base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate, **corr, **GATE}
+    base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate, **corr, **GATE,
+            **VO_BIAS}  # fmt: skip
     for name, cfg in (
         ("VO + IMU, NHC off", VioConfig(**base)),  # type: ignore[arg-type]
         ("VO + IMU, NHC on", VioConfig(nhc=True, **base)),  # type: ignore[arg-type]
@@ -368,7 +385,8 @@ def nhc_seeds(duration: float, rate: float, seeds: list[int], calib_duration: fl
             for s, r in out.items()]  # fmt: skip
     cuts = np.array([r["nhc_cut"] for r in out.values()])
     print(f"\nrendered ground robot, {duration:g} s at {rate:g} Hz, seeds {seeds} (calibration: seed + 1, "
-          f"{calib_duration:g} s, shape + scales), gate {GATE['gate_prob']:g}")  # fmt: skip
+          f"{calib_duration:g} s, shape + scales), gate {GATE['gate_prob']:g}"
+          + (f", VO bias learnt on the calibration seed's first {VO_BIAS_S[0]:g} s" if VO_BIAS_S[0] else ""))  # fmt: skip
     _table(["seed", "ATE NHC off [m]", "ATE NHC on [m]", "NHC cut", "good VO rejected (off, on, on + "
             "10 %, off + 10 %)", "worst", "corrupted rejected (worst)", "mean NIS in band",
             "mean NIS range"], rows)  # fmt: skip
@@ -713,9 +731,13 @@ def main(argv: list[str]) -> None:
                     help="sim: block scales only, no learnt covariance shape")  # fmt: skip
     ap.add_argument("--gate-prob", type=float, default=0.999,
                     help="sim, nhc: the filters' chi-square gate probability")  # fmt: skip
+    ap.add_argument("--vo-bias", type=float, default=0.0,
+                    help="sim, nhc: learn the VO's mean error on the calibration seed's first this many "
+                    "seconds (vio.covcal.vo_errors) and subtract it (VioConfig.vo_bias); 0: off")  # fmt: skip
     ap.add_argument("--only", choices=["all", "vo", "ekf"], default="all", help="speed: one part")
     a = ap.parse_args(argv)
     GATE["gate_prob"] = a.gate_prob
+    VO_BIAS_S[0] = a.vo_bias
     if a.what == "speed":
         speed(a.only)
     elif a.what == "nhc":
