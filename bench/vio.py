@@ -576,7 +576,7 @@ def vostats(rate: float, calib_seeds: list[int] | None) -> None:
     if 0 in runs:
         _, run, vo = runs[0]
         for name, kw in (("with the shape", {"vo_cov_correction": M.tolist()}), ("without", {})):
-            res = run_vio(run, VioConfig(nhc=True, nhc_std=0.002, **kw), vo_run=vo)  # type: ignore[arg-type]
+            res = run_vio(run, VioConfig(nhc=True, nhc_std=0.002, **kw, **GATE), vo_run=vo)  # type: ignore[arg-type]
             st = res.gating["vo_velocity"]
             x = np.asarray(st.nis)[np.asarray(st.accepted_mask, bool)]
             print(f"seed 0, NHC on, scales 1, {name}: VO-velocity NIS mean {x.mean():.2f}, variance "
