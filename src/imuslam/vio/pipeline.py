@@ -20,7 +20,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat
 
 from imuslam.errors import InputError
 from imuslam.geometry import exp
@@ -89,7 +89,13 @@ class VioConfig(BaseModel):
     vehicle_p_b: tuple[float, float, float] = Field(
         (0.0, 0.0, 0.0), description="vehicle origin (non-sliding point) in the body, m"
     )
-    gate_prob: float | None = Field(0.999, gt=0.5, lt=1.0, description="chi-square gate; None: off")
+    gate_prob: float | None = Field(
+        0.9999,
+        gt=0.5,
+        lt=1.0,
+        description="chi-square gate; None: off. 99.99 %: the VO errors have a heavier tail than "
+        "chi-square, and 99.9 % rejected up to 1.1 % of good VO on the rendered robot (bench/vio.py nhc)",
+    )
     vo_cov_model: Literal["prior_floor", "residual"] = Field(
         "prior_floor",
         description="VO covariance: the motion fit's (J^T W J)^-1 at the prior pixel sigma, raised by "
@@ -108,6 +114,15 @@ class VioConfig(BaseModel):
         description="6x6 second moment of the VO errors whitened by the front end's covariance, learnt "
         "on a run with truth (vio.covcal); the filter uses L M L^T (L L^T the reported covariance), "
         "then the block scales",
+    )
+    vo_bias: (
+        tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat] | None
+    ) = Field(
+        None,
+        description="mean VO error [omega_b rad/s (3), vel_b m/s (3)] learnt on a run with truth "
+        "(vio.covcal.vo_errors), subtracted from every VO measurement: the front end's sub-pixel "
+        "tracking bias leaves a steady lateral velocity / yaw rate error that the non-holonomic "
+        "constraint would otherwise explain by a gyro bias (README, VIO: the VO's shared error)",
     )
     vo_joint: bool = Field(
         True,
@@ -725,6 +740,10 @@ def run_vio(
         vo_T.append(T_vo.copy())
         if m is None:
             continue
+        if cfg.vo_bias is not None:  # the learnt steady VO error, before any use of the measurement
+            b = np.asarray(cfg.vo_bias, dtype=float)
+            m = VoMeasurement(m.t0_ns, m.t1_ns, m.omega_b - b[:3], m.vel_b - b[3:], m.cov, m.T_b0_b1,
+                              m.n_inliers, m.cov_fit, m.var_factor)  # fmt: skip
         if filt is None:
             # initial state at the first pair's mid-time: roll and pitch from the mean specific force,
             # yaw zero, velocity from the first VO velocity, the gyro bias from the first VO rate
