@@ -110,7 +110,7 @@ class CalibrationConfig(BaseModel):
     accel_bias_drift: bool | Literal["auto"] = Field(
         "auto",
         description="joint method: let the accelerometer bias drift linearly over the session in the fit "
-        "(a nuisance; the calibration keeps the bias at the middle of the session); auto: fit it and keep "
+        "(a nuisance; the calibration keeps the bias at the mean of the poses' times); auto: fit it and keep "
         "it only if it differs from zero significantly (Wald test, chi-square 3 dof, 99.9 %)",
     )
     joint_weights: Literal["measured", "variance_components"] = Field(
@@ -931,10 +931,10 @@ def calibrate(
         drift_notes["gravity_norm_weight"] = lam
         theta_a, theta_g, db = jf.theta_a, jf.theta_g, jf.db
         if with_drift:
-            # the fitted bias is the one at the middle of the poses' time span
+            # the fitted bias is the one at the mean of the poses' times (their average bias)
             drift_notes |= {
                 "accel_bias_drift_per_s": jf.drift.tolist(),
-                "accel_bias_drift_t_ref_s": float(0.5 * (pose_t.min() + pose_t.max())),
+                "accel_bias_drift_t_ref_s": float(np.mean(pose_t)),
             }
         G = jf.G if use_g else None
         bias_total = gyro_bias + db
