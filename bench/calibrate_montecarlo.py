@@ -15,6 +15,9 @@ One plan, many noise draws: ``--plan-seed 16 --runs 60`` keeps the pose plan of 
 the sensor noise anew for each run (generators seeded 1000, 1001, ...), so the ratio is that plan's
 expected one rather than one draw's; the last table gives, per gyro parameter, each method's mean error
 over the runs divided by its standard error (|t| > 3: a bias of the estimator on that plan).
+``--variants "no G, no drift" "no drift" "no G"`` adds joint-fit variants without the nuisance terms beside
+the default; the "G kept" and "drift kept" columns count the runs whose final calibration keeps the gyro
+g-sensitivity and the accelerometer bias drift (with the first seeds that do).
 ``--gyro-ends first_quiet`` runs the joint fit with the gyro segment ends it had before (see
 ``CalibrationConfig.gyro_ends``).
 """
