@@ -111,7 +111,8 @@ class CalibrationConfig(BaseModel):
         "auto",
         description="joint method: let the accelerometer bias drift linearly over the session in the fit "
         "(a nuisance; the calibration keeps the bias at the mean of the poses' times); auto: fit it and keep "
-        "it only if it differs from zero significantly (Wald test, chi-square 3 dof, 99.9 %)",
+        "it only if it differs from zero significantly (Wald test, chi-square 3 dof, 99.9 %; when G is "
+        "tested too, only if G and the drift together also pass, 12 dof, 99.9 %)",
     )
     joint_weights: Literal["measured", "variance_components"] = Field(
         "measured",
@@ -123,7 +124,8 @@ class CalibrationConfig(BaseModel):
     g_sensitivity_test: bool = Field(
         True,
         description="joint method: keep the g-sensitivity G only if it differs from zero significantly "
-        "(Wald test, chi-square 9 dof, 99.9 %); otherwise refit without it",
+        "(Wald test, chi-square 9 dof, 99.9 %; when the drift is tested too, only if G and the drift "
+        "together also pass, 12 dof, 99.9 %); otherwise refit without it",
     )
     norm_weight: float | Literal["auto"] = Field(
         "auto",
