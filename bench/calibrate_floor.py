@@ -188,7 +188,8 @@ def main() -> None:
             "repeat spread held-out (LOO cluster mean) [m/s^2]", "same, imu_tk's norms [m/s^2]",
             "measured held out on the repeated poses [m/s^2]",
             "5-fold cluster-mean predictor [m/s^2]", "measured held out, same poses [m/s^2]",
-            "measured held out per fold [m/s^2]", "CPU [s]", "wall [s]")  # fmt: skip
+            "measured held out per fold [m/s^2]",
+            "Wald statistics of the nuisance terms (G and drift 12 dof / G 9 / drift 3)", "CPU [s]", "wall [s]")  # fmt: skip
     vals: dict[str, list[str]] = {}
     terms = Table(
         title="Extra accelerometer terms, norm-only fit on the score's poses (same 5 folds)"
@@ -204,6 +205,11 @@ def main() -> None:
         terms.add_column(
             escape(c), justify="left" if c in ("log", "model", "fitted e") else "right"
         )
+    repeats = Table(
+        title="Norm error of the repeated poses in time (default calibration, in-sample), mm/s^2"
+    )
+    for c in ("log", "nearest axis", "poses", "time (s): error"):
+        repeats.add_column(c)
     for name, (fa, fg) in LOGS.items():
         t0, c0 = time.perf_counter(), time.process_time()
         log = load_imu(DATA / fa, DATA / fg)
@@ -246,6 +252,18 @@ def main() -> None:
         fcm = fold_cluster_mean(pe.norm_error, lab, cv.fold)
         ok = np.isfinite(fcm)
         rep = np.isin(lab, [c for c in np.unique(lab) if np.sum(lab == c) >= 2])
+        t_pose = log.t_s[(poses[:, 0] + poses[:, 1]) // 2]
+        for c in np.unique(lab):
+            members = np.flatnonzero(lab == c)
+            if len(members) >= 2:
+                axis = int(np.argmax(np.abs(h[c])))
+                d = f"{'+' if h[c, axis] > 0 else '-'}{'xyz'[axis]}"
+                repeats.add_row(
+                    name,
+                    d,
+                    f"{len(members)}",
+                    "  ".join(f"{t_pose[i]:.0f}: {1e3 * pe.norm_error[i]:+.1f}" for i in members),
+                )
         for label, ins, cvr, e, gain in term_cv(cal, raw, g, cv.fold):
             terms.add_row(
                 name,
@@ -264,7 +282,8 @@ def main() -> None:
             f"{ref:.5f}", f"{n_rep}", f"{b_in:.5f}", f"{b_loo:.5f}", f"{b_loo_ref:.5f}",
             f"{rms(cv.norm_error[rep]):.5f}", f"{rms(fcm[ok]):.5f}",
             f"{rms(cv.norm_error[ok]):.5f}",
-            " ".join(f"{rms(cv.norm_error[cv.fold == f]):.4f}" for f in range(cv.k_folds)), f"{dc:.0f}", f"{dt:.0f}",
+            " ".join(f"{rms(cv.norm_error[cv.fold == f]):.4f}" for f in range(cv.k_folds)),
+            " / ".join(f"{v:.1f}" for v in cal.notes.get("wald_statistics", {}).values()), f"{dc:.0f}", f"{dt:.0f}",
         ]  # fmt: skip
     table.add_column("quantity")
     for name in vals:
@@ -273,6 +292,7 @@ def main() -> None:
         table.add_row(escape(c), *(vals[name][k] for name in vals))
     Console(width=200).print(table)
     Console(width=200).print(terms)
+    Console(width=200).print(repeats)
 
 
 if __name__ == "__main__":

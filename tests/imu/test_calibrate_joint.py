@@ -184,6 +184,9 @@ def test_no_nuisance_term_kept_where_only_one_test_would_pass() -> None:
     c = calibrate(sim.log, cfg).calibration
     assert "accel_bias_drift_per_s" not in c.notes
     assert c.gyro_g_sensitivity is None
+    # the closed test's statistic is below chi-square 12 dof's 99.9 % point (32.91), and only it was run
+    assert c.notes["wald_statistics"]["g_sensitivity_and_accel_bias_drift_12dof"] < 32.91
+    assert set(c.notes["wald_statistics"]) == {"g_sensitivity_and_accel_bias_drift_12dof"}
     assert c.cov_accel is not None and c.cov_gyro is not None
     ea = c.accel_params - TRUTH.accel_params
     eg = c.gyro_params - TRUTH.gyro_params

@@ -900,6 +900,8 @@ def calibrate(
         lam = 1.0 if cfg.norm_weight == "auto" else float(cfg.norm_weight)
         jf = run_joint(use_g, with_drift, lam)
         n_b = 3 if (cfg.estimate_gyro_bias or cfg.gyro_g_sensitivity) else 0
+        # Wald statistics of the optional terms, recorded in the calibration's notes
+        wald_notes: dict[str, float] = {}
         test_g = use_g and cfg.g_sensitivity_test
         test_d = with_drift and cfg.accel_bias_drift == "auto"
         if test_g and test_d:
@@ -910,12 +912,14 @@ def calibrate(
             a = 18 + n_b
             w_both = wald(jf, a, a + 12, np.concatenate([jf.G.ravel(), jf.drift]))
             log.debug("g-sensitivity and drift together: Wald statistic %.1f (12 dof)", w_both)
+            wald_notes["g_sensitivity_and_accel_bias_drift_12dof"] = w_both
             if w_both < float(chdtri(12, 1.0 - 0.999)):
                 use_g = test_g = with_drift = test_d = False
                 jf = run_joint(False, False, lam)
         if test_g:
             w_G = wald(jf, 18 + n_b, 27 + n_b, jf.G.ravel())
             log.debug("g-sensitivity Wald statistic %.1f (9 dof)", w_G)
+            wald_notes["g_sensitivity_9dof"] = w_G
             if w_G < float(chdtri(9, 1.0 - 0.999)):
                 use_g = False
                 log.debug("g-sensitivity not significant (Wald %.1f): left out", w_G)
@@ -931,6 +935,7 @@ def calibrate(
             a = 18 + n_b + (9 if use_g else 0)
             w_d = wald(jf, a, a + 3, jf.drift)
             log.debug("accelerometer bias drift Wald statistic %.1f (3 dof)", w_d)
+            wald_notes["accel_bias_drift_3dof"] = w_d
             if w_d < float(chdtri(3, 1.0 - 0.999)):
                 with_drift = False
                 log.debug("accelerometer bias drift not significant (Wald %.1f): left out", w_d)
@@ -946,6 +951,8 @@ def calibrate(
                 jf = run_joint(use_g, with_drift, lam)
             log.debug("gravity-norm weight %g (norm-only fit: %.5f m/s^2)", lam, ref)
         drift_notes["gravity_norm_weight"] = lam
+        if wald_notes:
+            drift_notes["wald_statistics"] = wald_notes
         theta_a, theta_g, db = jf.theta_a, jf.theta_g, jf.db
         if with_drift:
             # the fitted bias is the one at the mean of the poses' times (their average bias)
