@@ -15,6 +15,9 @@ One plan, many noise draws: ``--plan-seed 16 --runs 60`` keeps the pose plan of 
 the sensor noise anew for each run (generators seeded 1000, 1001, ...), so the ratio is that plan's
 expected one rather than one draw's; the last table gives, per gyro parameter, each method's mean error
 over the runs divided by its standard error (|t| > 3: a bias of the estimator on that plan).
+``--variants "no G, no drift" "no drift" "no G"`` adds joint-fit variants without the nuisance terms beside
+the default; the "G kept" and "drift kept" columns count the runs whose final calibration keeps the gyro
+g-sensitivity and the accelerometer bias drift (with the first seeds that do).
 ``--gyro-ends first_quiet`` runs the joint fit with the gyro segment ends it had before (see
 ``CalibrationConfig.gyro_ends``).
 """
@@ -38,6 +41,17 @@ TRUTH = ImuCalibration(
     TriadModel(SEED000_GYRO.T, SEED000_GYRO.K, SEED000_GYRO.b),
 )
 METHODS = ("tedaldi", "joint")
+# joint-fit variants that ``--variants`` adds beside the default (each a CalibrationConfig update)
+VARIANTS: dict[str, dict[str, object]] = {
+    # without G the gyro bias is still estimated from the static poses' rates (estimate_gyro_bias)
+    "no G, no drift": {
+        "gyro_g_sensitivity": False,
+        "estimate_gyro_bias": True,
+        "accel_bias_drift": False,
+    },
+    "no drift": {"accel_bias_drift": False},
+    "no G": {"gyro_g_sensitivity": False, "estimate_gyro_bias": True},
+}
 
 
 def mse_ratio(err_j: np.ndarray, err_t: np.ndarray) -> float:
@@ -51,11 +65,16 @@ def main() -> None:
     ap.add_argument("--start", type=int, default=0, help="first seed")
     ap.add_argument("--plan-seed", type=int, default=None, help="one plan, noise drawn per run")
     ap.add_argument("--gyro-ends", choices=("rest", "first_quiet"), default="rest")
+    ap.add_argument(
+        "--variants", nargs="*", default=[], choices=list(VARIANTS), help="joint variants beside"
+    )
     args = ap.parse_args()
+    methods = (*METHODS, *args.variants)
     t0, c0 = time.perf_counter(), time.process_time()
-    err = {(m, t): [] for m in METHODS for t in "ag"}  # type: dict[tuple[str, str], list[np.ndarray]]
-    var = {(m, t): [] for m in METHODS for t in "ag"}  # type: dict[tuple[str, str], list[np.ndarray]]
-    nees = {(m, t): [] for m in METHODS for t in "ag"}  # type: dict[tuple[str, str], list[float]]
+    err = {(m, t): [] for m in methods for t in "ag"}  # type: dict[tuple[str, str], list[np.ndarray]]
+    var = {(m, t): [] for m in methods for t in "ag"}  # type: dict[tuple[str, str], list[np.ndarray]]
+    nees = {(m, t): [] for m in methods for t in "ag"}  # type: dict[tuple[str, str], list[float]]
+    kept = {m: {"G": [], "drift": []} for m in methods}  # type: dict[str, dict[str, list[int]]]
     for seed in range(args.start, args.start + args.runs):
         if args.plan_seed is None:
             rng = np.random.default_rng(seed)
@@ -63,9 +82,16 @@ def main() -> None:
         else:
             plan = sphere_plan_deg(40, np.random.default_rng(args.plan_seed))
             sim = simulate_multipose(plan, np.random.default_rng(1000 + seed - args.start))
-        for m in METHODS:
-            cfg = CalibrationConfig(g=sim.truth.g, method=m, gyro_ends=args.gyro_ends)
+        for m in methods:
+            if m in METHODS:
+                cfg = CalibrationConfig(g=sim.truth.g, method=m, gyro_ends=args.gyro_ends)
+            else:
+                cfg = CalibrationConfig(g=sim.truth.g, gyro_ends=args.gyro_ends, **VARIANTS[m])  # type: ignore[arg-type]
             c = calibrate(sim.log, cfg).calibration
+            if c.gyro_g_sensitivity is not None:
+                kept[m]["G"].append(seed)
+            if "accel_bias_drift_per_s" in c.notes:
+                kept[m]["drift"].append(seed)
             assert c.cov_accel is not None and c.cov_gyro is not None
             for t, e, P in (
                 ("a", c.accel_params - TRUTH.accel_params, c.cov_accel),
@@ -83,40 +109,43 @@ def main() -> None:
         else f"plan of seed {args.plan_seed}, noise seeds 1000-{1000 + R - 1}"
     )
     table = Table(title=f"joint (gyro ends: {args.gyro_ends}) vs tedaldi, {what} ({R} runs)")
-    for col in ("triad", "NEES tedaldi", "NEES joint", f"band 9 +- {band:.2f}",
+    for col in ("method", "triad", "NEES tedaldi", "NEES joint", f"band 9 +- {band:.2f}",
                 "MSE ratio joint / tedaldi", "95 % bootstrap interval", "predicted by the covariances",
-                "ratio without the 2 worst runs"):  # fmt: skip
+                "ratio without the 2 worst runs", "G kept", "drift kept"):  # fmt: skip
         table.add_column(col, justify="right")
-    for t, name in (("a", "accelerometer"), ("g", "gyroscope")):
-        ej, et = np.asarray(err["joint", t]), np.asarray(err["tedaldi", t])
-        boots = []
-        for _ in range(2000):
-            i = rng.integers(0, R, R)
-            boots.append(mse_ratio(ej[i], et[i]))
-        lo, hi = np.percentile(boots, [2.5, 97.5])
-        pred = mse_ratio(
-            np.sqrt(np.asarray(var["joint", t])), np.sqrt(np.asarray(var["tedaldi", t]))
-        )
-        worst = np.argsort(-(np.sum(ej**2, axis=1) + np.sum(et**2, axis=1)))[:2]
-        keep = np.setdiff1d(np.arange(R), worst)
-        ok_t = abs(np.mean(nees["tedaldi", t]) - 9) < band
-        ok_j = abs(np.mean(nees["joint", t]) - 9) < band
-        table.add_row(
-            name,
-            f"{np.mean(nees['tedaldi', t]):.2f}",
-            f"{np.mean(nees['joint', t]):.2f}",
-            f"{'in' if ok_t else 'OUT'} / {'in' if ok_j else 'OUT'}",
-            f"{mse_ratio(ej, et):.3f}",
-            f"[{lo:.2f}, {hi:.2f}]",
-            f"{pred:.3f}",
-            f"{mse_ratio(ej[keep], et[keep]):.3f} (seeds {', '.join(str(args.start + w) for w in worst)})",
-        )
-    Console(width=200).print(table)
+    for m in methods[1:]:
+        for t, name in (("a", "accelerometer"), ("g", "gyroscope")):
+            ej, et = np.asarray(err[m, t]), np.asarray(err["tedaldi", t])
+            boots = []
+            for _ in range(2000):
+                i = rng.integers(0, R, R)
+                boots.append(mse_ratio(ej[i], et[i]))
+            lo, hi = np.percentile(boots, [2.5, 97.5])
+            pred = mse_ratio(np.sqrt(np.asarray(var[m, t])), np.sqrt(np.asarray(var["tedaldi", t])))
+            worst = np.argsort(-(np.sum(ej**2, axis=1) + np.sum(et**2, axis=1)))[:2]
+            keep = np.setdiff1d(np.arange(R), worst)
+            ok_t = abs(np.mean(nees["tedaldi", t]) - 9) < band
+            ok_j = abs(np.mean(nees[m, t]) - 9) < band
+            seeds = ", ".join(str(args.start + w) for w in worst)
+            table.add_row(
+                m,
+                name,
+                f"{np.mean(nees['tedaldi', t]):.2f}",
+                f"{np.mean(nees[m, t]):.2f}",
+                f"{'in' if ok_t else 'OUT'} / {'in' if ok_j else 'OUT'}",
+                f"{mse_ratio(ej, et):.3f}",
+                f"[{lo:.2f}, {hi:.2f}]",
+                f"{pred:.3f}",
+                f"{mse_ratio(ej[keep], et[keep]):.3f} (seeds {seeds})",
+                f"{len(kept[m]['G'])} {kept[m]['G'][:8]}" if t == "a" else "",
+                f"{len(kept[m]['drift'])} {kept[m]['drift'][:8]}" if t == "a" else "",
+            )
+    Console(width=260).print(table)
     bias = Table(title="gyro: mean error over the runs / its standard error (t)")
     bias.add_column("method")
     for name in GYRO_PARAM_NAMES:
         bias.add_column(name, justify="right")
-    for m in METHODS:
+    for m in methods:
         e = np.asarray(err[m, "g"])
         t = e.mean(axis=0) / (e.std(axis=0, ddof=1) / np.sqrt(R))
         bias.add_row(m, *(f"{v:+.1f}" for v in t))

@@ -12,7 +12,7 @@ residual only says how well it explains those it did.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,6 +50,8 @@ class CrossValidation:
     # where no drift was kept. A calibration file keeps only the bias at the reference time, so this is
     # not what the calibration delivers on a later log.
     norm_error_in_session: FloatArray | None = None
+    # each fold's refitted calibration (fold f's at index f)
+    fold_calibrations: list[ImuCalibration] = field(default_factory=list)
 
     @property
     def norm_rms_in_session(self) -> float:
@@ -111,12 +113,14 @@ def cross_validate(
     t_pose = log.t_s[(poses[:, 0] + poses[:, 1]) // 2]
     dirs: list[FloatArray] = []
     pair_ids: list[IntArray] = []
+    fold_cals: list[ImuCalibration] = []
     iv = np.asarray(intervals, dtype=np.int64)
     for f in range(k_folds):
         out = _overlaps(iv, poses[fold == f])
         kept = np.flatnonzero(~out)
         pair_ok = np.diff(kept) == 1  # consecutive in the full set: no held-out pose between them
         res = calibrate(log, config, intervals=iv[kept], pair_ok=pair_ok)
+        fold_cals.append(res.calibration)
         pe = pose_errors(log, res.calibration, poses, config.g)
         norm[fold == f] = pe.norm_error[fold == f]
         norm_sess[fold == f] = pe.norm_error[fold == f]
@@ -144,4 +148,5 @@ def cross_validate(
         rms(fit.norm_error) if fit is not None else float("nan"),
         rms(fit.direction_error_deg) if fit is not None else float("nan"),
         norm_sess,
+        fold_cals,
     )
