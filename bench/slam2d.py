@@ -11,7 +11,7 @@ loop closure and after; a closed loop agrees.
     python bench/slam2d.py                 # all logs (several minutes on 2 cores)
     python bench/slam2d.py --logs intel    # the speed criterion: the full Intel log
     python bench/slam2d.py --maps DIR      # also write DIR/<log>.png (map + trajectory)
-    python bench/slam2d.py --logs exp1 exp2
+    python bench/slam2d.py --logs exp1 exp2   # + each returning scan with 19 scans of context (--context)
     python bench/slam2d.py --floor         # how well the corrected poses agree with their own scans
 """
 
@@ -76,18 +76,27 @@ def save_map(log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig, path: Path, t
     save_figure(map_figure(render_map(log_, res.pose_xy_yaw, cfg), res, title), path)
 
 
-def revisit_summary(log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig) -> dict[str, float]:
+def revisit_summary(
+    log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig, context_scans: int = 1
+) -> dict[str, float]:
     """The scans that come back to the start matched against the map of the first 10 % of the log
     (``slam2d.revisit``): a match counts when its peak is distinct (it scores at least 0.8x the run's
     median local score and 0.05 more than any pose 0.5 m / 10 deg away from it); over those, the median
-    disagreement of the trajectory's pose with the match before loop closure (local SLAM) and after."""
+    disagreement of the trajectory's pose with the match before loop closure (local SLAM) and after.
+    ``context_scans`` > 1: each returning scan matched with the scans before it at their local-SLAM poses
+    (a multi-scan cloud); ``observed``: the median share of the matched points in cells the start map
+    observed (all checks)."""
     from imuslam.slam2d.revisit import check_revisits
 
-    rep = check_revisits(log_, res, cfg)
+    rep = check_revisits(log_, res, cfg, context_scans=context_scans)
     ok = [c for c in rep.checks
           if c.score >= 0.8 * rep.median_local_score and c.score - c.second_peak >= 0.05]  # fmt: skip
     out: dict[str, float] = {"checked": len(rep.checks), "distinct": len(ok),
-                             "median_local": rep.median_local_score}  # fmt: skip
+                             "median_local": rep.median_local_score,
+                             "observed": float(np.median([c.observed_share for c in rep.checks]))
+                             if rep.checks else float("nan"),
+                             "best_margin": max((c.score - c.second_peak for c in rep.checks),
+                                                default=float("nan"))}  # fmt: skip
     if ok:
         out.update({
             "score": float(np.median([c.score for c in ok])),
@@ -157,6 +166,10 @@ def main() -> None:
     ap.add_argument("--maps", default="")
     ap.add_argument("--floor", action="store_true", help="only the reference's own agreement table")
     ap.add_argument(
+        "--context", nargs="*", type=int, default=[20], metavar="N",
+        help="BreezySLAM logs: also match each returning scan with the N - 1 scans before it",
+    )  # fmt: skip
+    ap.add_argument(
         "--set", nargs="*", default=[], metavar="KEY=VALUE",
         help="override the config of every log, e.g. matcher.interpolation=bicubic loop.consistent_min=1",
     )  # fmt: skip
@@ -217,6 +230,10 @@ def main() -> None:
             res, wall, cpu = run(log_, cfg_b)
             rows.append((name, len(log_), log_.duration_s, wall, cpu, f"{len(res.loops)} | {_rejected(res)}",
                          revisit_summary(log_, res, cfg_b)))  # fmt: skip
+            for nc in args.context:
+                rows.append((f"{name}, {nc}-scan context", len(log_), log_.duration_s, wall, cpu,
+                             f"{len(res.loops)} | {_rejected(res)}",
+                             revisit_summary(log_, res, cfg_b, nc)))  # fmt: skip
         if maps:
             save_map(log_, res, cfg, maps / f"{name}.png", name)
     if published:
@@ -224,13 +241,14 @@ def main() -> None:
         print("|---|---|---|---|---|")
         print("\n".join(published))
     if rows:
-        print("\n| log | scans | duration [s] | wall [s] | CPU [s] | loop constraints | loop matches: ambiguous / inconsistent | returning scans matched against the start map | with a distinct peak | their median score (run's median local score) | best pose >= 0.5 m / 10 deg away | trajectory vs match before loop closure [m, deg] | after [m, deg] |")  # fmt: skip
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        print("\n| log | scans | duration [s] | wall [s] | CPU [s] | loop constraints | loop matches: ambiguous / inconsistent | returning scans matched against the start map | with a distinct peak | their median score (run's median local score) | best pose >= 0.5 m / 10 deg away | trajectory vs match before loop closure [m, deg] | after [m, deg] | largest score - second peak | points in cells the start map observed (median) |")  # fmt: skip
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             cc: dict[str, float] = r[6]
             tail = f"{cc['checked']:.0f} | {cc['distinct']:.0f} | "
             tail += (f"{cc['score']:.2f} ({cc['median_local']:.2f}) | {cc['second']:.2f} | {cc['before_m']:.3f}, {cc['before_deg']:.2f} | "
                      f"{cc['after_m']:.3f}, {cc['after_deg']:.2f}") if cc["distinct"] else f"- ({cc['median_local']:.2f}) | - | - | -"  # fmt: skip
+            tail += f" | {cc['best_margin']:.2f} | {cc['observed']:.2f}"
             print(
                 f"| {r[0]} | {r[1]} | {r[2]:.0f} | {r[3]:.1f} | {r[4]:.1f} | {r[5]} | {tail} |",
                 flush=True,
