@@ -100,7 +100,7 @@ def check_revisits(
     for k in cand:
         pts = np.concatenate(
             [pose2.act(pose2.between(L[k], L[j]), unwarped(j))
-             for j in range(max(0, k - context_scans + 1), k + 1)]
+             for j in range(max(0, int(k) - context_scans + 1), int(k) + 1)]
         )  # fmt: skip
         if context_scans > 1 and len(pts) > 1:
             key = np.floor(pts / r).astype(np.int64)  # one point per cell of the matched grid
