@@ -77,7 +77,7 @@ def check_revisits(
     start = render_map(
         log_.slice(0, n0), P[:n0], cfg.model_copy(update={"map_resolution": cfg.resolution})
     )
-    prob, x0, y0 = start.cropped()
+    prob, known, x0, y0 = start.cropped_known()
     d = np.min(np.hypot(P[:, None, 0] - P[None, :n0, 0], P[:, None, 1] - P[None, :n0, 1]), axis=1)
     cand = np.flatnonzero((np.arange(n) >= max(n0, int(n * min_gap_fraction))) & (d < radius))
     if len(cand) > max_checks:
@@ -131,7 +131,7 @@ def check_revisits(
         cy = np.floor((pose2.act(m, pts)[:, 1] - y0) / r).astype(np.int64)
         inside = (cx >= 0) & (cy >= 0) & (cx < prob.shape[1]) & (cy < prob.shape[0])
         seen = np.zeros(len(pts), bool)
-        seen[inside] = prob[cy[inside], cx[inside]] != np.float32(start.params.p_unknown)
+        seen[inside] = known[cy[inside], cx[inside]]
         db = pose2.between(m, res.local_xy_yaw[k])
         da = pose2.between(m, P[k])
         checks.append(
