@@ -10,7 +10,7 @@ loop closure and after; a closed loop agrees.
 
     python bench/slam2d.py                 # all logs (several minutes on 2 cores)
     python bench/slam2d.py --logs intel    # the speed criterion: the full Intel log
-    python bench/slam2d.py --maps DIR      # also write DIR/<log>.png (map + trajectory)
+    python bench/slam2d.py --maps DIR      # also write DIR/<log>.png (map + trajectory), DIR/exp*_overlay.png
     python bench/slam2d.py --logs exp1 exp2   # + each returning scan with 19 scans of context (--context)
     python bench/slam2d.py --floor         # how well the corrected poses agree with their own scans
 """
@@ -74,6 +74,44 @@ def save_map(log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig, path: Path, t
     from imuslam.slam2d.output import map_figure
 
     save_figure(map_figure(render_map(log_, res.pose_xy_yaw, cfg), res, title), path)
+
+
+def save_overlay(
+    log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig, path: Path, title: str
+) -> None:
+    """The scans of the start (first 10 %) and of the later passes within 1.5 m of it (after a quarter
+    of the log), each at its local-SLAM pose, in two colours: where the passes see the same walls they
+    overlap; a wall of one across the other's path is an open loop (or another place)."""
+    from matplotlib.figure import Figure
+
+    from imuslam.io.figures import save_figure
+
+    n = len(log_)
+    n0 = max(20, n // 10)
+    L = res.local_xy_yaw
+    d = np.min(np.hypot(L[:, None, 0] - L[None, :n0, 0], L[:, None, 1] - L[None, :n0, 1]), axis=1)
+    back = np.flatnonzero((np.arange(n) >= n // 4) & (d < 1.5))
+    pts = scan_points(log_, cfg)
+    fig = Figure(figsize=(9, 8))
+    ax = fig.add_subplot(111)
+    for scans, col, lab in [(np.arange(n0), "k", f"scans 0-{n0 - 1}"),
+                            (back, "tab:red", f"{len(back)} later scans within 1.5 m of them")]:  # fmt: skip
+        if len(scans):
+            w = np.concatenate([pose2.act(L[k], pts[k]) for k in scans])
+            ax.plot(w[:, 0], w[:, 1], ".", ms=1, color=col, label=lab)
+    ax.plot(L[:n0, 0], L[:n0, 1], "-", color="k", lw=2)
+    ax.plot(L[n0:, 0], L[n0:, 1], "-", color="tab:red", lw=0.6, alpha=0.6)
+    for k in range(0, n, 40):
+        ax.annotate(str(k), (float(L[k, 0]), float(L[k, 1])), fontsize=7)
+    ax.set(
+        aspect="equal",
+        xlabel="x, m",
+        ylabel="y, m",
+        title=f"{title}: start vs returning scans (local SLAM)",
+    )
+    ax.legend(markerscale=8, fontsize=8)
+    ax.grid(alpha=0.3)
+    save_figure(fig, path)
 
 
 def revisit_summary(
@@ -236,6 +274,8 @@ def main() -> None:
                              revisit_summary(log_, res, cfg_b, nc)))  # fmt: skip
         if maps:
             save_map(log_, res, cfg, maps / f"{name}.png", name)
+            if name not in RADISH:
+                save_overlay(log_, res, cfg_b, maps / f"{name}_overlay.png", name)
     if published:
         print("\n| log | ours (vs corrected poses) [m], [deg] | raw odometry (same) | Cartographer, Hess 2016 Table II (vs hand-checked relations) | graph mapping, Kümmerle 2009 (same) |")  # fmt: skip
         print("|---|---|---|---|---|")
