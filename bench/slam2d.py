@@ -10,8 +10,8 @@ loop closure and after; a closed loop agrees.
 
     python bench/slam2d.py                 # all logs (several minutes on 2 cores)
     python bench/slam2d.py --logs intel    # the speed criterion: the full Intel log
-    python bench/slam2d.py --maps DIR      # also write DIR/<log>.png (map + trajectory)
-    python bench/slam2d.py --logs exp1 exp2
+    python bench/slam2d.py --maps DIR      # also write DIR/<log>.png (map + trajectory), DIR/exp*_overlay.png
+    python bench/slam2d.py --logs exp1 exp2   # + each returning scan with 19 scans of context (--context)
     python bench/slam2d.py --floor         # how well the corrected poses agree with their own scans
 """
 
@@ -76,18 +76,65 @@ def save_map(log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig, path: Path, t
     save_figure(map_figure(render_map(log_, res.pose_xy_yaw, cfg), res, title), path)
 
 
-def revisit_summary(log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig) -> dict[str, float]:
+def save_overlay(
+    log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig, path: Path, title: str
+) -> None:
+    """The scans of the start (first 10 %) and of the later passes within 1.5 m of it (after a quarter
+    of the log), each at its local-SLAM pose, in two colours: where the passes see the same walls they
+    overlap; a wall of one across the other's path is an open loop (or another place)."""
+    from matplotlib.figure import Figure
+
+    from imuslam.io.figures import save_figure
+
+    n = len(log_)
+    n0 = max(20, n // 10)
+    L = res.local_xy_yaw
+    d = np.min(np.hypot(L[:, None, 0] - L[None, :n0, 0], L[:, None, 1] - L[None, :n0, 1]), axis=1)
+    back = np.flatnonzero((np.arange(n) >= n // 4) & (d < 1.5))
+    pts = scan_points(log_, cfg)
+    fig = Figure(figsize=(9, 8))
+    ax = fig.add_subplot(111)
+    for scans, col, lab in [(np.arange(n0), "k", f"scans 0-{n0 - 1}"),
+                            (back, "tab:red", f"{len(back)} later scans within 1.5 m of them")]:  # fmt: skip
+        if len(scans):
+            w = np.concatenate([pose2.act(L[k], pts[k]) for k in scans])
+            ax.plot(w[:, 0], w[:, 1], ".", ms=1, color=col, label=lab)
+    ax.plot(L[:n0, 0], L[:n0, 1], "-", color="k", lw=2)
+    ax.plot(L[n0:, 0], L[n0:, 1], "-", color="tab:red", lw=0.6, alpha=0.6)
+    for k in range(0, n, 40):
+        ax.annotate(str(k), (float(L[k, 0]), float(L[k, 1])), fontsize=7)
+    ax.set(
+        aspect="equal",
+        xlabel="x, m",
+        ylabel="y, m",
+        title=f"{title}: start vs returning scans (local SLAM)",
+    )
+    ax.legend(markerscale=8, fontsize=8)
+    ax.grid(alpha=0.3)
+    save_figure(fig, path)
+
+
+def revisit_summary(
+    log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig, context_scans: int = 1
+) -> dict[str, float]:
     """The scans that come back to the start matched against the map of the first 10 % of the log
     (``slam2d.revisit``): a match counts when its peak is distinct (it scores at least 0.8x the run's
     median local score and 0.05 more than any pose 0.5 m / 10 deg away from it); over those, the median
-    disagreement of the trajectory's pose with the match before loop closure (local SLAM) and after."""
+    disagreement of the trajectory's pose with the match before loop closure (local SLAM) and after.
+    ``context_scans`` > 1: each returning scan matched with the scans before it at their local-SLAM poses
+    (a multi-scan cloud); ``observed``: the median share of the matched points in cells the start map
+    observed (all checks)."""
     from imuslam.slam2d.revisit import check_revisits
 
-    rep = check_revisits(log_, res, cfg)
+    rep = check_revisits(log_, res, cfg, context_scans=context_scans)
     ok = [c for c in rep.checks
           if c.score >= 0.8 * rep.median_local_score and c.score - c.second_peak >= 0.05]  # fmt: skip
     out: dict[str, float] = {"checked": len(rep.checks), "distinct": len(ok),
-                             "median_local": rep.median_local_score}  # fmt: skip
+                             "median_local": rep.median_local_score,
+                             "observed": float(np.median([c.observed_share for c in rep.checks]))
+                             if rep.checks else float("nan"),
+                             "best_margin": max((c.score - c.second_peak for c in rep.checks),
+                                                default=float("nan"))}  # fmt: skip
     if ok:
         out.update({
             "score": float(np.median([c.score for c in ok])),
@@ -157,6 +204,10 @@ def main() -> None:
     ap.add_argument("--maps", default="")
     ap.add_argument("--floor", action="store_true", help="only the reference's own agreement table")
     ap.add_argument(
+        "--context", nargs="*", type=int, default=[20], metavar="N",
+        help="BreezySLAM logs: also match each returning scan with the N - 1 scans before it",
+    )  # fmt: skip
+    ap.add_argument(
         "--set", nargs="*", default=[], metavar="KEY=VALUE",
         help="override the config of every log, e.g. matcher.interpolation=bicubic loop.consistent_min=1",
     )  # fmt: skip
@@ -186,6 +237,14 @@ def main() -> None:
     # their submaps are weak (matches score 0.5-0.6): exp2's true closing matches beat the best pose
     # 0.5 m / 10 deg away by 0.03-0.06 only (the default distinct margin 0.05 loses the loop)
     cfg_b.loop.distinct_margin = 0.03
+    # no wide search: on exp1 it re-localised scan ~472 (scores 0.17-0.31 for 18 scans at the south
+    # end) with a -89 deg turn the wheel odometry does not have (its ticks turn -29 deg over scans
+    # 440-520, the local SLAM then -130 deg); the rest of the drive was mapped folded back over the
+    # south corridor; on exp2 it re-localised 2 scans and left 12 out, and the end of the drive was
+    # mapped 8 m from where it is without it. Without it both logs give the same building (the north
+    # room, then the south room clockwise) with straight, single long walls. Its reason to be, an
+    # odometry jump replaced by no motion (ACES), does not occur in these logs (no jumps counted).
+    cfg_b.matcher.recovery_score_ratio = 0.0
     for kv in args.set:
         cfg_b = _override(cfg_b, kv)
     rows = []
@@ -217,20 +276,27 @@ def main() -> None:
             res, wall, cpu = run(log_, cfg_b)
             rows.append((name, len(log_), log_.duration_s, wall, cpu, f"{len(res.loops)} | {_rejected(res)}",
                          revisit_summary(log_, res, cfg_b)))  # fmt: skip
+            for nc in args.context:
+                rows.append((f"{name}, {nc}-scan context", len(log_), log_.duration_s, wall, cpu,
+                             f"{len(res.loops)} | {_rejected(res)}",
+                             revisit_summary(log_, res, cfg_b, nc)))  # fmt: skip
         if maps:
             save_map(log_, res, cfg, maps / f"{name}.png", name)
+            if name not in RADISH:
+                save_overlay(log_, res, cfg_b, maps / f"{name}_overlay.png", name)
     if published:
         print("\n| log | ours (vs corrected poses) [m], [deg] | raw odometry (same) | Cartographer, Hess 2016 Table II (vs hand-checked relations) | graph mapping, Kümmerle 2009 (same) |")  # fmt: skip
         print("|---|---|---|---|---|")
         print("\n".join(published))
     if rows:
-        print("\n| log | scans | duration [s] | wall [s] | CPU [s] | loop constraints | loop matches: ambiguous / inconsistent | returning scans matched against the start map | with a distinct peak | their median score (run's median local score) | best pose >= 0.5 m / 10 deg away | trajectory vs match before loop closure [m, deg] | after [m, deg] |")  # fmt: skip
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        print("\n| log | scans | duration [s] | wall [s] | CPU [s] | loop constraints | loop matches: ambiguous / inconsistent | returning scans matched against the start map | with a distinct peak | their median score (run's median local score) | best pose >= 0.5 m / 10 deg away | trajectory vs match before loop closure [m, deg] | after [m, deg] | largest score - second peak | points in cells the start map observed (median) |")  # fmt: skip
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             cc: dict[str, float] = r[6]
             tail = f"{cc['checked']:.0f} | {cc['distinct']:.0f} | "
             tail += (f"{cc['score']:.2f} ({cc['median_local']:.2f}) | {cc['second']:.2f} | {cc['before_m']:.3f}, {cc['before_deg']:.2f} | "
                      f"{cc['after_m']:.3f}, {cc['after_deg']:.2f}") if cc["distinct"] else f"- ({cc['median_local']:.2f}) | - | - | -"  # fmt: skip
+            tail += f" | {cc['best_margin']:.2f} | {cc['observed']:.2f}"
             print(
                 f"| {r[0]} | {r[1]} | {r[2]:.0f} | {r[3]:.1f} | {r[4]:.1f} | {r[5]} | {tail} |",
                 flush=True,

@@ -547,8 +547,11 @@ def test_wide_search_bridges_an_odometry_yaw_jump() -> None:
     assert final_yaw_error_deg(off) > 10.0
 
 
-def test_revisit_check_measures_a_known_loop_error() -> None:
-    """Seed 000's drive comes back to its start after 57 s. With the true poses as the optimised
+@pytest.mark.parametrize("context_scans", [1, 10])
+def test_revisit_check_measures_a_known_loop_error(context_scans: int) -> None:
+    """Seed 000's drive comes back to its start after 57 s. (With ``context_scans`` 10 each returning scan
+    is matched with the 9 before it at their local-SLAM poses: the same answer, and every point in cells
+    the start map observed: it was made in the same room.) With the true poses as the optimised
     trajectory and the true poses moved by a known rigid error after the first half as the local SLAM's,
     the scans that return to the start match the start map at their true pose: the check finds no
     disagreement after and the injected one before, with a distinct peak. Tolerances: a cell, and the
@@ -570,7 +573,7 @@ def test_revisit_check_measures_a_known_loop_error() -> None:
         sim.log.t_ns, truth, local, None, np.arange(n), 0, [], 0, {}, {}, 0.6, cfg,
         match_score=np.full(n, 0.6),
     )  # fmt: skip
-    rep = check_revisits(sim.log, res, cfg)
+    rep = check_revisits(sim.log, res, cfg, context_scans=context_scans)
     assert len(rep.checks) >= 5
     for c in rep.checks:
         d = pose2.between(truth[c.scan], local[c.scan])
@@ -578,6 +581,7 @@ def test_revisit_check_measures_a_known_loop_error() -> None:
         assert abs(c.before_deg - np.rad2deg(abs(d[2]))) < 0.5
         assert c.after_m < RES and c.after_deg < 0.5
         assert c.score > c.second_peak + 0.05
+        assert c.observed_share > 0.95
 
 
 def test_distinct_peak_search_equals_masked_exhaustive_search(room_grid: ProbabilityGrid) -> None:

@@ -9,6 +9,11 @@ with it by the loop's remaining error. The score means something when it is (1) 
 local match score (the scan fits the start map as well as consecutive scans fit each other) and (2)
 above every pose of the window farther than ``peak_radius`` / ``peak_angle_deg`` from the match (the
 peak is unique, not one of a corridor's many equally good places).
+
+With ``context_scans`` > 1 each returning scan is matched with the ``context_scans`` - 1 scans before it,
+rendered at their local-SLAM poses relative to it (a short stretch of local SLAM drifts little), as
+Cartographer matches a node against a submap: more of the place than one scan's 240 deg / 4 m sees. The
+share of its points that land in cells the start map observed says whether the two overlap at all.
 """
 
 from __future__ import annotations
@@ -39,6 +44,8 @@ class RevisitCheck:
     before_deg: float
     after_m: float  # optimised pose against the match
     after_deg: float
+    points: int = 0  # points matched (one scan's, or the context's, thinned)
+    observed_share: float = 0.0  # of them at the match, in cells the start map observed
 
 
 @dataclass
@@ -60,6 +67,7 @@ def check_revisits(
     peak_radius: float = 0.5,
     peak_angle_deg: float = 10.0,
     max_checks: int = 10,
+    context_scans: int = 1,
 ) -> RevisitReport:
     """Match up to ``max_checks`` returning scans (evenly spread over those that qualify) against the map
     of the first ``start_fraction`` of the scans, rendered at their optimised poses."""
@@ -69,7 +77,7 @@ def check_revisits(
     start = render_map(
         log_.slice(0, n0), P[:n0], cfg.model_copy(update={"map_resolution": cfg.resolution})
     )
-    prob, x0, y0 = start.cropped()
+    prob, known, x0, y0 = start.cropped_known()
     d = np.min(np.hypot(P[:, None, 0] - P[None, :n0, 0], P[:, None, 1] - P[None, :n0, 1]), axis=1)
     cand = np.flatnonzero((np.arange(n) >= max(n0, int(n * min_gap_fraction))) & (d < radius))
     if len(cand) > max_checks:
@@ -78,15 +86,28 @@ def check_revisits(
     r = cfg.resolution
     lin = int(round(window / r))
     checks = []
+    L = res.local_xy_yaw
+
+    def unwarped(j: int) -> FloatArray:
+        q = pts_all[j][:, :2]
+        if log_.time_increment > 0 and j > 0:
+            # unwarped with the local SLAM's motion over the scan, as the SLAM and render_map do
+            dt = max(float(log_.t_ns[j] - log_.t_ns[j - 1]) * 1e-9, 1e-3)
+            step_j = pose2.between(L[j - 1], L[j])
+            q = pose2.act_each(step_j[None] * (pts_all[j][:, 2] / dt)[:, None], q)
+        return q
+
     for k in cand:
-        pts = pts_all[k][:, :2]
+        pts = np.concatenate(
+            [pose2.act(pose2.between(L[k], L[j]), unwarped(j))
+             for j in range(max(0, int(k) - context_scans + 1), int(k) + 1)]
+        )  # fmt: skip
+        if context_scans > 1 and len(pts) > 1:
+            key = np.floor(pts / r).astype(np.int64)  # one point per cell of the matched grid
+            _, first = np.unique(key[:, 0] * 1_000_003 + key[:, 1], return_index=True)
+            pts = pts[np.sort(first)]
         if len(pts) < 10:
             continue
-        if log_.time_increment > 0 and k > 0:
-            # unwarped with the local SLAM's motion over the scan, as the SLAM and render_map do
-            dt = max(float(log_.t_ns[k] - log_.t_ns[k - 1]) * 1e-9, 1e-3)
-            step_k = pose2.between(res.local_xy_yaw[k - 1], res.local_xy_yaw[k])
-            pts = pose2.act_each(step_k[None] * (pts_all[k][:, 2] / dt)[:, None], pts)
         step = angular_step(
             r, min(float(np.max(np.hypot(pts[:, 0], pts[:, 1]))), cfg.loop.step_range)
         )
@@ -106,6 +127,11 @@ def check_revisits(
         m, score = refine_pose(
             prob, x0, y0, r, pts, lattice, lattice, 1.0, 0.0, 0.0, start.params.p_unknown, 30
         )
+        cx = np.floor((pose2.act(m, pts)[:, 0] - x0) / r).astype(np.int64)
+        cy = np.floor((pose2.act(m, pts)[:, 1] - y0) / r).astype(np.int64)
+        inside = (cx >= 0) & (cy >= 0) & (cx < prob.shape[1]) & (cy < prob.shape[0])
+        seen = np.zeros(len(pts), bool)
+        seen[inside] = known[cy[inside], cx[inside]]
         db = pose2.between(m, res.local_xy_yaw[k])
         da = pose2.between(m, P[k])
         checks.append(
@@ -119,6 +145,8 @@ def check_revisits(
                 float(np.rad2deg(abs(pose2.wrap(db[2])))),
                 float(np.hypot(da[0], da[1])),
                 float(np.rad2deg(abs(pose2.wrap(da[2])))),
+                len(pts),
+                float(seen.mean()),
             )  # fmt: skip
         )
     return RevisitReport(n0, float(np.nanmedian(res.match_score)), checks)
