@@ -237,14 +237,9 @@ def main() -> None:
     # their submaps are weak (matches score 0.5-0.6): exp2's true closing matches beat the best pose
     # 0.5 m / 10 deg away by 0.03-0.06 only (the default distinct margin 0.05 loses the loop)
     cfg_b.loop.distinct_margin = 0.03
-    # no wide search: on exp1 it re-localised scan ~472 (scores 0.17-0.31 for 18 scans at the south
-    # end) with a -89 deg turn the wheel odometry does not have (its ticks turn -29 deg over scans
-    # 440-520, the local SLAM then -130 deg); the rest of the drive was mapped folded back over the
-    # south corridor; on exp2 it re-localised 2 scans and left 12 out, and the end of the drive was
-    # mapped 8 m from where it is without it. Without it both logs give the same building (the north
-    # room, then the south room clockwise) with straight, single long walls. Its reason to be, an
-    # odometry jump replaced by no motion (ACES), does not occur in these logs (no jumps counted).
-    cfg_b.matcher.recovery_score_ratio = 0.0
+    # the wide search stays off here by the default rule (no odometry jump, no gap in these logs); when it
+    # ran at every poor match it re-localised exp1's scan ~472 with a -89 deg turn the wheels do not have
+    # and folded the rest of the drive over the south corridor (`--set matcher.recovery_when=always`)
     for kv in args.set:
         cfg_b = _override(cfg_b, kv)
     rows = []

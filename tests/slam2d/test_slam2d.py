@@ -532,6 +532,9 @@ def test_wide_search_bridges_an_odometry_yaw_jump() -> None:
     # every later odometry pose turned about the pose at k by the error: one wrong step, then right
     odo[k:] = pose2.compose(pose2.compose(odo[k], np.array([0.0, 0.0, np.deg2rad(-60.0)])),
                             pose2.between(odo[k], odo[k:]))  # fmt: skip
+    # the reader marks the scan whose incoming odometry step it found wrong (a jump)
+    sim.log.odom_jumped = np.zeros(len(odo), bool)
+    sim.log.odom_jumped[k] = True
     cfg = Slam2dConfig(use_imu=False)
     cfg.loop.enabled = False
 
@@ -545,6 +548,13 @@ def test_wide_search_bridges_an_odometry_yaw_jump() -> None:
     off = cfg.model_copy(deep=True)
     off.matcher.recovery_score_ratio = 0.0
     assert final_yaw_error_deg(off) > 10.0
+    # where the odometry is not suspect (no jump marked, no gap in the scans) the wide search keeps to
+    # +-30 deg by default, which a 60 deg error is beyond; recovery_when "always" searches +-90 deg anywhere
+    sim.log.odom_jumped = None
+    assert final_yaw_error_deg(cfg) > 10.0
+    always = cfg.model_copy(deep=True)
+    always.matcher.recovery_when = "always"
+    assert final_yaw_error_deg(always) < 1.0
 
 
 @pytest.mark.parametrize("context_scans", [1, 10])

@@ -151,10 +151,10 @@ def read_carmen(path: str | Path, range_max: float = CARMEN_RANGE_MAX) -> Carmen
     warnings: dict[str, int] = {}
     check_time_order(t_ns, str(p), warnings)
     r = clean_ranges(np.array(ranges), 0.01, range_max, warnings)
-    odo = odometry_jumps(np.array(odom), t_ns, MAX_ODOM_SPEED, MAX_ODOM_YAW_RATE, warnings)
+    odo, jumped = odometry_jumps(np.array(odom), t_ns, MAX_ODOM_SPEED, MAX_ODOM_YAW_RATE, warnings)
     laser = LaserLog(
         t_ns, r, angle_min, angle_inc, 0.01, range_max, odo, np.array([x_offset, 0.0, 0.0]),
-        None, str(p), warnings,
+        None, str(p), warnings, odom_jumped=jumped,
     )  # fmt: skip
     return CarmenLog(laser, np.array(pose))
 
@@ -210,9 +210,9 @@ def read_breezyslam(path: str | Path) -> LaserLog:
     # first reading at -120 degrees (right), counter-clockwise: with this order the scan matcher's
     # heading follows the wheel odometry's turns (the reverse order turns the other way)
     r = clean_ranges(a[:, 24:] * 1e-3, 0.02, BREEZY_RANGE_MAX, warnings)
-    odo = odometry_jumps(odo, t_ns, MAX_ODOM_SPEED, MAX_ODOM_YAW_RATE, warnings)
+    odo, jumped = odometry_jumps(odo, t_ns, MAX_ODOM_SPEED, MAX_ODOM_YAW_RATE, warnings)
     inc = np.deg2rad(BREEZY_FOV_DEG) / (BREEZY_BEAMS - 1)
     return LaserLog(
         t_ns, r, -np.deg2rad(BREEZY_FOV_DEG) / 2, inc, 0.02, BREEZY_RANGE_MAX, odo,
-        np.array([BREEZY_LASER_X, 0.0, 0.0]), None, str(p), warnings,
+        np.array([BREEZY_LASER_X, 0.0, 0.0]), None, str(p), warnings, odom_jumped=jumped,
     )  # fmt: skip

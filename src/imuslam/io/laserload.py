@@ -59,19 +59,21 @@ def read_sim_room(path: str | Path, with_imu: bool = True) -> LaserLog:
     check_time_order(t_ns, str(f), warnings)
     r = clean_ranges(ranges, 0.2, 12.0, warnings)
     odo = None
+    jumped = None
     if "wheel_t_ns" in d:
         wt = d["wheel_t_ns"].astype(float)
         wo = d["wheel_odom_xy_yaw"]
         ts = t_ns.astype(float)
         odo = np.column_stack([np.interp(ts, wt, wo[:, 0]), np.interp(ts, wt, wo[:, 1]),
                                np.interp(ts, wt, np.unwrap(wo[:, 2]))])  # fmt: skip
-        odo = odometry_jumps(odo, t_ns, 3.0, 6.0, warnings)
+        odo, jumped = odometry_jumps(odo, t_ns, 3.0, 6.0, warnings)
     imu = None
     if with_imu and "imu_t_ns" in d:
         imu = ImuLog(d["imu_t_ns"], d["imu_accel"], d["imu_gyro"], source=f"{f}:imu")
     return LaserLog(
         t_ns, r, float(d["scan_angle_min"]), float(d["scan_angle_increment"]), 0.2, 12.0, odo,
         np.zeros(3), imu, str(f), warnings, 0.1 / ranges.shape[1],  # the simulator's scanner turns at 10 Hz
+        jumped,
     )  # fmt: skip
 
 
@@ -112,16 +114,17 @@ def read_bag_laser(
     r_max = float(max(sc.range_max for sc in scans))
     ranges = clean_ranges(np.array([sc.ranges for sc in scans]), max(r_min, 1e-3), r_max, warnings)
     odo = None
+    jumped = None
     if odo_traj is not None:
         yaw = np.unwrap(np.arctan2(odo_traj.R_w_b[:, 1, 0], odo_traj.R_w_b[:, 0, 0]))
         ot = odo_traj.t_ns.astype(float)
         ts = t_ns.astype(float)
         odo = np.column_stack([np.interp(ts, ot, odo_traj.p_w[:, 0]), np.interp(ts, ot, odo_traj.p_w[:, 1]),
                                np.interp(ts, ot, yaw)])  # fmt: skip
-        odo = odometry_jumps(odo, t_ns, 3.0, 6.0, warnings)
+        odo, jumped = odometry_jumps(odo, t_ns, 3.0, 6.0, warnings)
     s0 = scans[0]
     return LaserLog(t_ns, ranges, s0.angle_min, s0.angle_increment, max(r_min, 1e-3), r_max, odo, np.zeros(3),
-                    imu, src, warnings, max(float(s0.time_increment), 0.0))  # fmt: skip
+                    imu, src, warnings, max(float(s0.time_increment), 0.0), jumped)  # fmt: skip
 
 
 def load_laser_log(

@@ -31,6 +31,8 @@ class LaserLog:
     imu: an IMU log over the same time (body frame = IMU frame), or None.
     warnings: counted repairs, e.g. ``{"dropped readings (inf/NaN/out of range)": 1234}``.
     time_increment: s between beams (beam b fired at ``t_ns + b * time_increment``; 0 = all at once).
+    odom_jumped: (N,) bool, True where the odometry step into the scan was a jump replaced by no motion
+    (:func:`odometry_jumps`), or None (none found, or no odometry).
     """
 
     t_ns: NDArray[np.int64]
@@ -45,6 +47,7 @@ class LaserLog:
     source: str = "<memory>"
     warnings: dict[str, int] = field(default_factory=dict)
     time_increment: float = 0.0
+    odom_jumped: NDArray[np.bool_] | None = None
 
     def __post_init__(self) -> None:
         self.t_ns = np.asarray(self.t_ns, dtype=np.int64)
@@ -134,9 +137,10 @@ def odometry_jumps(
     max_speed: float,
     max_yaw_rate: float,
     warnings: dict[str, int],
-) -> FloatArray:
+) -> tuple[FloatArray, NDArray[np.bool_] | None]:
     """Odometry steps faster than ``max_speed`` m/s or ``max_yaw_rate`` rad/s are jumps (a reset, a glitch):
-    the step is replaced by no motion (the scan matcher bridges it) and counted. Returns the repaired poses."""
+    the step is replaced by no motion (the scan matcher bridges it) and counted. Returns the repaired poses
+    and (N,) True at the scans whose incoming step was replaced (None when there was no jump)."""
     d = np.diff(odom_xy_yaw, axis=0)
     dt = np.diff(t_ns).astype(float) * 1e-9
     dt = np.maximum(
@@ -145,7 +149,7 @@ def odometry_jumps(
     dyaw = np.angle(np.exp(1j * d[:, 2]))
     jump = (np.hypot(d[:, 0], d[:, 1]) > max_speed * dt) | (np.abs(dyaw) > max_yaw_rate * dt)
     if not jump.any():
-        return odom_xy_yaw
+        return odom_xy_yaw, None
     warnings["odometry jumps (step replaced by no motion)"] = int(jump.sum())
     # rebuild the path from the relative steps expressed in the previous pose's frame
     c, s = np.cos(odom_xy_yaw[:-1, 2]), np.sin(odom_xy_yaw[:-1, 2])
@@ -160,7 +164,7 @@ def odometry_jumps(
     out[1:, 0] = odom_xy_yaw[0, 0] + np.cumsum(cy * lx - sy * ly)
     out[1:, 1] = odom_xy_yaw[0, 1] + np.cumsum(sy * lx + cy * ly)
     out[:, 2] = yaw
-    return out
+    return out, np.concatenate([[False], jump])
 
 
 def check_time_order(

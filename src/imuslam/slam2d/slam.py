@@ -78,6 +78,30 @@ class MatcherConfig(BaseModel):
     recovery_score_ratio: float = Field(
         0.6, ge=0, lt=1, description="wide search when the score < ratio x the running median"
     )
+    # Where the wheel odometry is trusted, its prior cannot be off by a quarter turn: on the BreezySLAM
+    # logs the +-90 deg search at a poorly matching corner turned the drive by -89 deg (exp1; exp2 twice
+    # +89 deg, each at the window's edge, scoring 0.38-0.43 against a run median of 0.63) where the
+    # wheels turned a few degrees, and the rest of the map folded over itself; the true re-localisations
+    # of fr079 and MIT-CSAIL are 0-20 deg from the prior. So with odometry the full angular window is
+    # searched only where the prior is suspect (``recovery_when: suspect``): within
+    # ``recovery_suspect_scans`` scans after an odometry jump the reader replaced by no motion, or after a
+    # pause of ``recovery_gap_s`` in the scans (ACES's 61 deg turn in 0.16 s follows a 3 s pause);
+    # elsewhere +-``recovery_trusted_window_deg``. Without odometry, or ``always``, the full window.
+    recovery_when: Literal["suspect", "always"] = Field(
+        "suspect", description="the full angular window only where the odometry prior is suspect"
+    )
+    recovery_suspect_scans: int = Field(
+        50, ge=1, description="scans after an odometry jump or a scan gap that get the full window"
+    )
+    recovery_gap_s: float = Field(
+        1.0, gt=0, description="a pause in the scans this long is a gap, s"
+    )
+    recovery_trusted_window_deg: float = Field(
+        30.0,
+        gt=0,
+        le=180.0,
+        description="wide search half-window where the odometry is trusted, deg",
+    )
     recovery_linear_window: float = Field(1.0, gt=0, description="wide search half-window, m")
     # +-90 deg: a corridor scores almost as well turned by 180 deg (MIT-CSAIL with +-180: a scan flipped
     # at 0.44 against a run median of 0.68, and the map broke)
@@ -350,18 +374,29 @@ class Slam2d:
         return pose, float(score)
 
     def relocalise(
-        self, pts: FloatArray, prior: FloatArray, score: float, median: float
+        self,
+        pts: FloatArray,
+        prior: FloatArray,
+        score: float,
+        median: float,
+        full_window: bool = True,
     ) -> tuple[FloatArray, float] | None:
         """Branch and bound of a scan against the oldest active submap over the recovery window around
-        ``prior``, refined; the pose and score when it beats ``score`` by the recovery gain and is no longer
-        poor against the run's ``median`` score, else None."""
+        ``prior`` (the trusted-odometry angular window unless ``full_window``), refined; the pose and score
+        when it beats ``score`` by the recovery gain and is no longer poor against the run's ``median``
+        score, else None."""
         m = self.cfg.matcher
+        window_deg = (
+            m.recovery_angular_window_deg
+            if full_window
+            else min(m.recovery_trusted_window_deg, m.recovery_angular_window_deg)
+        )
         need = max(score + m.recovery_min_gain, m.recovery_score_ratio * median)
         g = self.submaps[self.active[0]].grid
         prob, x0, y0 = g.cropped()
         idx = make_index(prob, x0, y0, self.params.resolution, self.cfg.loop.depth)
         pose, sc = bnb_match(
-            idx, pts, prior, m.recovery_linear_window, np.deg2rad(m.recovery_angular_window_deg),
+            idx, pts, prior, m.recovery_linear_window, np.deg2rad(window_deg),
             need, self.cfg.loop.step_range,
         )  # fmt: skip
         if sc < 0:
@@ -718,6 +753,25 @@ def run_slam2d(
         slam.close()
 
 
+def _wide_search_scans(log_: LaserLog, cfg: Slam2dConfig, odometry: bool) -> NDArray[np.bool_]:
+    """(N,) True at the scans whose wide search gets the full angular window (``MatcherConfig.recovery_when``)."""
+    n = len(log_)
+    m = cfg.matcher
+    if m.recovery_when == "always" or not odometry:
+        return np.ones(n, bool)
+    start = np.zeros(n, bool)
+    if log_.odom_jumped is not None:
+        start |= log_.odom_jumped
+    gap = np.diff(log_.t_ns).astype(float) * 1e-9 >= m.recovery_gap_s
+    start[1:] |= gap
+    # each suspect scan opens a window of recovery_suspect_scans scans (itself included)
+    opened = np.cumsum(start)
+    closed = np.concatenate(
+        [np.zeros(m.recovery_suspect_scans, np.int64), opened[: -m.recovery_suspect_scans]]
+    )
+    return (opened - closed[:n]) > 0
+
+
 def _run_slam2d(
     log_: LaserLog, cfg: Slam2dConfig, slam: Slam2d, progress: Callable[[int], None] | None
 ) -> Slam2dResult:
@@ -738,6 +792,7 @@ def _run_slam2d(
     empty = 0
     pose = np.zeros(3)
     vel = np.zeros(3)  # last local step (constant-velocity model without odometry)
+    wide_ok = _wide_search_scans(log_, cfg, odo is not None)
     t0 = time.perf_counter()
     for k in range(n):
         if k > 0:
@@ -768,7 +823,7 @@ def _run_slam2d(
             if k > 0 and slam.active and len(recent) >= 20:
                 med = float(np.median(recent))
                 if score < cfg.matcher.recovery_score_ratio * med:
-                    found = slam.relocalise(pts, prior, score, med)
+                    found = slam.relocalise(pts, prior, score, med, full_window=bool(wide_ok[k]))
                     if found is not None:
                         est, score = found
                         recovered += 1
