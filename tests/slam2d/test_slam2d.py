@@ -474,6 +474,29 @@ def test_map2d_cli_counts_bad_readings_and_odometry_jumps(tmp_path: Path) -> Non
     assert np.abs(traj[:, 1:3] - traj[0, 1:3]).max() < 0.05
 
 
+def test_reader_marks_the_odometry_jump_and_a_slice_keeps_it(tmp_path: Path) -> None:
+    """The same 5 m jump in 0.1 s between scans 19 and 20 as above: the CARMEN reader marks scan 20 (and
+    only it) in ``odom_jumped``, which ``slice`` keeps aligned with its scans; a mask of the wrong length
+    is a clear error."""
+    from imuslam.errors import InputError
+    from imuslam.io.carmen import read_carmen
+    from imuslam.io.laserlog import LaserLog
+
+    lines = [_flaser(100.0 + 0.1 * k, ["3.000"] * 180, (5.0, 0.0, 0.0) if k >= 20 else (0.0, 0.0, 0.0))
+             for k in range(40)]  # fmt: skip
+    f = tmp_path / "log.clf"
+    f.write_text("".join(lines))
+    log_ = read_carmen(f).laser
+    assert log_.odom_jumped is not None
+    assert np.flatnonzero(log_.odom_jumped).tolist() == [20]
+    part = log_.slice(15, 30)
+    assert part.odom_jumped is not None
+    assert np.flatnonzero(part.odom_jumped).tolist() == [5]
+    with pytest.raises(InputError, match="odom_jumped"):
+        LaserLog(log_.t_ns, log_.ranges, log_.angle_min, log_.angle_increment, log_.range_min,
+                 log_.range_max, odom_jumped=np.zeros(3, bool))  # fmt: skip
+
+
 @pytest.mark.slow
 def test_background_loop_search_equals_inline(shared_data: Path) -> None:
     """The loop search on the worker thread against the same search inline, on the first 3,000 Intel

@@ -59,6 +59,12 @@ class LaserLog:
             raise InputError(
                 f"{self.source}: expected ranges (N, B) for {n} scans, got {self.ranges.shape}"
             )
+        if self.odom_jumped is not None:
+            self.odom_jumped = np.asarray(self.odom_jumped, dtype=bool)
+            if self.odom_jumped.shape != (n,):
+                raise InputError(
+                    f"{self.source}: expected odom_jumped (N,) for {n} scans, got {self.odom_jumped.shape}"
+                )
         if self.odom_xy_yaw is not None:
             self.odom_xy_yaw = np.asarray(self.odom_xy_yaw, dtype=float)
             if self.odom_xy_yaw.shape != (n, 3):
@@ -95,10 +101,11 @@ class LaserLog:
     def slice(self, start: int, stop: int) -> LaserLog:
         """Scans ``start:stop`` (the IMU is kept whole)."""
         odo = None if self.odom_xy_yaw is None else self.odom_xy_yaw[start:stop]
+        jumped = None if self.odom_jumped is None else self.odom_jumped[start:stop]
         return LaserLog(
             self.t_ns[start:stop], self.ranges[start:stop], self.angle_min, self.angle_increment,
             self.range_min, self.range_max, odo, self.T_b_l, self.imu, self.source, dict(self.warnings),
-            self.time_increment,
+            self.time_increment, jumped,
         )  # fmt: skip
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -742,8 +742,7 @@ def run_vio(
             continue
         if cfg.vo_bias is not None:  # the learnt steady VO error, before any use of the measurement
             b = np.asarray(cfg.vo_bias, dtype=float)
-            m = VoMeasurement(m.t0_ns, m.t1_ns, m.omega_b - b[:3], m.vel_b - b[3:], m.cov, m.T_b0_b1,
-                              m.n_inliers, m.cov_fit, m.var_factor)  # fmt: skip
+            m = replace(m, omega_b=m.omega_b - b[:3], vel_b=m.vel_b - b[3:])
         if filt is None:
             # initial state at the first pair's mid-time: roll and pitch from the mean specific force,
             # yaw zero, velocity from the first VO velocity, the gyro bias from the first VO rate
