@@ -775,3 +775,56 @@ def test_loop_candidates_accepted_only_when_consistent() -> None:
     slam.vet_candidates(final=True)
     assert slam.loops == []
     assert slam.loop_stats["inconsistent"] == 6
+
+
+def test_relation_sets_by_separation_and_loops() -> None:
+    """On a known path (a 10 m x 10 m square driven twice at 1 m/s, a pose every 0.5 m): the pairs 10 m
+    apart along the path are (i, i + 20), and the loop pairs (within 2 m, more than 60 s apart) are only
+    the second lap's poses near the first lap's, 40 s per lap being below 60 s for one lap."""
+    from imuslam.eval.relations import loop_relations, separation_relations
+
+    s = np.arange(0.0, 80.0, 0.5)  # two laps of a 40 m square
+    u = s % 40.0
+    side, f = np.floor(u / 10.0), u % 10.0
+    x = np.select([side == 0, side == 1, side == 2], [f, 10.0, 10.0 - f], 0.0)
+    y = np.select([side == 0, side == 1, side == 2], [0.0, f, 10.0], 10.0 - f)
+    P = np.column_stack([x, y, np.zeros_like(x)])
+    i, j = separation_relations(P, 10.0)
+    np.testing.assert_array_equal(j, i + 20)
+    assert len(i) == len(s) - 20
+    t = s.copy()  # 1 m/s
+    i, j = loop_relations(P, t, 2.0, 60.0)
+    d = np.hypot(*(P[i, :2] - P[j, :2]).T)
+    assert len(i) > 0 and np.all(d < 2.0) and np.all(t[j] - t[i] > 60.0)
+    # every pair of the two laps at the same place (same u, 40 s apart) is below 60 s: not a loop pair;
+    # the pairs found join the end of lap 2 to the start of lap 1 (up to 80 s apart) and are all of them
+    brute = [(a, b) for a in range(len(s)) for b in range(a + 1, len(s))
+             if np.hypot(*(P[a, :2] - P[b, :2])) < 2.0 and t[b] - t[a] > 60.0]  # fmt: skip
+    assert list(zip(i.tolist(), j.tolist(), strict=True)) == brute
+
+
+@pytest.mark.slow
+def test_intel_long_and_loop_relations_beat_odometry_by_far(shared_data: Path) -> None:
+    """The first 3000 scans of the Intel lab (10 min): Kümmerle 2009's metric on relations 10 m and 50 m
+    apart along the corrected path and on loop relations (corrected poses within 2 m, more than 60 s
+    apart). "By far": the odometry's mean error lies beyond the SLAM's mean + 2 std (the factor
+    1 + 2 std / mean comes from the SLAM's own spread), in translation and in rotation, on every set."""
+    from imuslam.eval.slam2d_gt import relations_against_corrected
+    from imuslam.io.carmen import read_carmen
+    from imuslam.slam2d.slam import Slam2dConfig, run_slam2d
+
+    raw = read_carmen(shared_data / "radish_freiburg_benchmark" / "intel.clf.bz2").laser.slice(
+        0, 3000
+    )
+    res = run_slam2d(raw, Slam2dConfig())
+    assert raw.odom_xy_yaw is not None
+    m = relations_against_corrected(
+        shared_data / "carmen_radish_corrected_ple" / "intel-corrected.log.gz", raw,
+        {"slam": res.pose_xy_yaw, "odometry": raw.odom_xy_yaw}, relation_sets=True,
+    )  # fmt: skip
+    assert set(m["sets"]) == {"10m", "50m", "loop"}
+    for key in ("10m", "50m", "loop"):
+        s, o = m["sets"][key]["slam"], m["sets"][key]["odometry"]
+        assert s["n"] >= 30, key
+        assert o["trans_mean"] > s["trans_mean"] + 2 * s["trans_std"], key
+        assert o["rot_mean_deg"] > s["rot_mean_deg"] + 2 * s["rot_std_deg"], key

@@ -95,3 +95,33 @@ def consecutive_relations(n: int, step: int = 1) -> tuple[IntArray, IntArray]:
     """Pairs (k, k + step) of the associated poses."""
     k = np.arange(0, n - step, dtype=np.int64)
     return k, k + step
+
+
+def separation_relations(ref_xy_yaw: FloatArray, separation_m: float) -> tuple[IntArray, IntArray]:
+    """Pairs (i, j): for every reference pose i, the first later pose j at least ``separation_m`` from it
+    along the reference path (the path length of the reference poses between them). Kümmerle et al. 2009
+    define the metric for any set of relations; theirs mix short relations with long ones (section 5);
+    a longer separation lets an estimator's drift between the two poses show."""
+    step = np.hypot(*np.diff(ref_xy_yaw[:, :2], axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(step)])
+    j = np.searchsorted(s, s + separation_m, side="left")
+    i = np.flatnonzero(j < len(s)).astype(np.int64)
+    return i, j[i].astype(np.int64)
+
+
+def loop_relations(
+    ref_xy_yaw: FloatArray, t_s: FloatArray, radius_m: float = 2.0, min_dt_s: float = 60.0
+) -> tuple[IntArray, IntArray]:
+    """Pairs (i, j), i < j, of reference poses within ``radius_m`` of each other and more than
+    ``min_dt_s`` apart in time (``t_s`` of each pose): the same place seen again after a loop, the
+    relations that only a consistent map gets right (Kümmerle 2009's relations span loops as well)."""
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(ref_xy_yaw[:, :2]).query_pairs(radius_m, output_type="ndarray")
+    if len(pairs) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    i, j = np.minimum(pairs[:, 0], pairs[:, 1]), np.maximum(pairs[:, 0], pairs[:, 1])
+    d = np.hypot(*(ref_xy_yaw[i, :2] - ref_xy_yaw[j, :2]).T)
+    keep = (np.abs(t_s[j] - t_s[i]) > min_dt_s) & (d < radius_m)
+    order = np.lexsort((j[keep], i[keep]))
+    return i[keep][order].astype(np.int64), j[keep][order].astype(np.int64)

@@ -14,7 +14,13 @@ from numpy.typing import NDArray
 from imuslam.errors import InputError
 from imuslam.eval.mapquality import align_se2, transform
 from imuslam.eval.metrics import evaluate
-from imuslam.eval.relations import associate_by_ranges, consecutive_relations, relation_error
+from imuslam.eval.relations import (
+    associate_by_ranges,
+    consecutive_relations,
+    loop_relations,
+    relation_error,
+    separation_relations,
+)
 from imuslam.io.laserlog import LaserLog
 from imuslam.io.trajectory import Trajectory, read_trajectory
 
@@ -36,12 +42,23 @@ def is_carmen(path: Path) -> bool:
     )
 
 
+# relation sets at several scales (Kümmerle 2009's metric holds for any set of relations), chosen before
+# any result was seen: by separation along the reference path (1 m is the consecutive corrected scans)
+# and loop relations (poses within 2 m of each other, more than 60 s apart)
+SEPARATIONS_M = (10.0, 50.0)
+LOOP_RADIUS_M = 2.0
+LOOP_MIN_DT_S = 60.0
+
+
 def relations_against_corrected(
-    gt: str | Path, log_: LaserLog, estimates: dict[str, FloatArray]
+    gt: str | Path, log_: LaserLog, estimates: dict[str, FloatArray], relation_sets: bool = False
 ) -> dict[str, Any]:
     """Kümmerle 2009 relation errors of each estimate (N, 3) against a corrected CARMEN log, and its
     global consistency: the ATE (RMSE and largest, m) of the associated poses after the SE(2) alignment
-    that fits them best (a loop left open shows here, not in the local relations)."""
+    that fits them best (a loop left open shows here, not in the local relations). With
+    ``relation_sets``: ``out["sets"][set][estimate]``, the relation errors of the sets ``"10m"``,
+    ``"50m"`` (:data:`SEPARATIONS_M` along the reference path) and ``"loop"`` (within
+    :data:`LOOP_RADIUS_M`, more than :data:`LOOP_MIN_DT_S` apart); a set with no relation is left out."""
     from imuslam.io.carmen import read_carmen
 
     ref = read_carmen(gt)
@@ -63,6 +80,19 @@ def relations_against_corrected(
         d = np.hypot(*(transform(T, est[ei])[:, :2] - refp[:, :2]).T)
         out[name]["ate_rmse_m"] = float(np.sqrt(np.mean(d**2)))
         out[name]["ate_max_m"] = float(d.max())
+    if relation_sets:
+        sets: dict[str, tuple[NDArray[np.int64], NDArray[np.int64]]] = {
+            f"{d:.0f}m": separation_relations(refp, d) for d in SEPARATIONS_M
+        }
+        t_s = (log_.t_ns[ei] - log_.t_ns[0]) * 1e-9
+        sets["loop"] = loop_relations(refp, t_s, LOOP_RADIUS_M, LOOP_MIN_DT_S)
+        out["sets"] = {
+            k: {
+                name: asdict(relation_error(est[ei], refp, a, b)) for name, est in estimates.items()
+            }
+            for k, (a, b) in sets.items()
+            if len(a)
+        }
     return out
 
 
