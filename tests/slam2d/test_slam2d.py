@@ -828,3 +828,111 @@ def test_intel_long_and_loop_relations_beat_odometry_by_far(shared_data: Path) -
         assert s["n"] >= 30, key
         assert o["trans_mean"] > s["trans_mean"] + 2 * s["trans_std"], key
         assert o["rot_mean_deg"] > s["rot_mean_deg"] + 2 * s["rot_std_deg"], key
+
+
+def test_peaks_search_equals_greedy_exhaustive_search(room_grid: ProbabilityGrid) -> None:
+    """``bnb_match_peaks`` returns, best first, the peaks an exhaustive search of the same lattice finds by
+    taking the best pose, masking every pose within the peak radius and angle of it, and again (peaks on
+    the window's edge masked but not returned)."""
+    from imuslam.slam2d.matching import bnb_match_peaks
+
+    rng = np.random.default_rng(15)
+    true = np.array([0.5, -0.6, 1.0])
+    pts = _scan_at(true, rng)[::3]
+    prob, x0, y0 = room_grid.cropped()
+    idx = make_index(prob, x0, y0, RES, 4)
+    start = true + np.array([0.2, -0.15, np.deg2rad(4.0)])
+    radius, ang = 0.2, np.deg2rad(3.0)
+    peaks = bnb_match_peaks(idx, pts, start, 0.5, np.deg2rad(10.0), 0.2, np.inf, radius, ang, 3)
+    step = angular_step(RES, float(np.max(np.hypot(pts[:, 0], pts[:, 1]))))
+    n_ang = int(np.ceil(np.deg2rad(10.0) / step))
+    lv = idx.levels[0]
+    vol = np.zeros((2 * n_ang + 1, 21, 21))
+    for a in range(-n_ang, n_ang + 1):
+        w = pose2.act(np.array([start[0], start[1], start[2] + a * step]), pts)
+        cx = np.floor((w[:, 0] - x0) / RES).astype(int) + idx.pad
+        cy = np.floor((w[:, 1] - y0) / RES).astype(int) + idx.pad
+        for dx in range(-10, 11):
+            for dy in range(-10, 11):
+                xx, yy = cx + dx, cy + dy
+                ok = (xx >= 0) & (xx < lv.shape[1]) & (yy >= 0) & (yy < lv.shape[0])
+                vol[a + n_ang, dy + 10, dx + 10] = lv[yy[ok], xx[ok]].astype(float).sum() / (
+                    255.0 * len(pts)
+                )
+    A, Y, X = np.meshgrid(np.arange(vol.shape[0]), np.arange(21), np.arange(21), indexing="ij")
+    v = vol.copy()
+    expected = []
+    while len(expected) < 3 and v.max() >= 0.2:
+        a0, iy, ix = np.unravel_index(int(np.argmax(v)), v.shape)
+        score = v[a0, iy, ix]
+        v[
+            (np.hypot(X - ix, Y - iy) <= radius / RES) & (np.abs(A - a0) <= np.floor(ang / step))
+        ] = -1
+        if max(abs(ix - 10), abs(iy - 10)) >= 10 or a0 in (0, vol.shape[0] - 1):
+            continue
+        expected.append((score, ix - 10, iy - 10, a0 - n_ang))
+    assert len(peaks) == len(expected) == 3
+    for (pose, score), (s_ex, dx, dy, a) in zip(peaks, expected, strict=True):
+        assert score == pytest.approx(s_ex, abs=1e-12)
+        np.testing.assert_allclose(
+            pose, [start[0] + dx * RES, start[1] + dy * RES, start[2] + a * step], atol=1e-9
+        )
+    assert np.hypot(*(peaks[0][0][:2] - true[:2])) < 1.5 * RES
+
+
+def test_loop_peaks_accepted_by_consistency_over_time() -> None:
+    """Ten consecutive nodes come back to a submap through a drifted local SLAM (0.3 m, 4 deg); none has
+    a distinct match, each has 3 peaks: the true one at a random rank and two wrong ones scattered
+    (+-1.5 m, +-20 deg). The true peak of every node is accepted, no wrong one. With the true peak in
+    only 4 of the 10, nothing is accepted (no majority). Ten nodes agreeing on a correction larger than
+    the drift the path since the submap allows are rejected by the gate."""
+    from types import SimpleNamespace
+
+    from imuslam.slam2d.slam import LoopConstraint, Slam2d, Slam2dConfig
+
+    rng = np.random.default_rng(16)
+    n = 60
+    th = np.linspace(0, 1.0, n)
+    truth = np.column_stack([5 * np.sin(th), 5 * (1 - np.cos(th)), th])  # 5 m of path
+    drift = np.array([0.3, -0.2, np.deg2rad(4.0)])
+    cfg = Slam2dConfig()
+    cfg.loop.background = False
+
+    def run(true_nodes: set[int], offset: np.ndarray) -> tuple[list[int], list[int]]:
+        slam = Slam2d(cfg)
+        slam.node_local = [pose2.compose(drift, p) for p in truth]
+        slam.node_global = [p.copy() for p in slam.node_local]
+        slam.submaps = [SimpleNamespace(anchor_node=0)]  # type: ignore[list-item]
+        nodes = list(range(40, 50))
+        slam._searched_against = {0: nodes}
+        slam._searched_upto = n
+        cands, good = [], []
+        for k in nodes:
+            wrong = [
+                pose2.compose(
+                    truth[k], np.array([*rng.uniform(-1.5, 1.5, 2), rng.uniform(-0.35, 0.35)])
+                )
+                for _ in range(2)
+            ]
+            target = pose2.compose(offset, truth[k])
+            peaks = [target, *wrong] if k in true_nodes else [*wrong, wrong[0] + [0.7, 0.0, 0.2]]
+            order = rng.permutation(3)
+            for rank, q in enumerate(order):
+                c = LoopConstraint(k, 0, peaks[q], 0.5, 0, peaks[q], rank + 1)
+                cands.append(c)
+                if k in true_nodes and q == 0:
+                    good.append(id(c))
+        slam.add_candidates(cands)
+        slam.vet_peaks(final=True)
+        ok = [c.node for c in slam.loops if id(c) in good]
+        bad = [c.node for c in slam.loops if id(c) not in good]
+        return ok, bad
+
+    ok, bad = run(set(range(40, 50)), np.zeros(3))
+    assert sorted(ok) == list(range(40, 50)) and bad == []
+    ok, bad = run({40, 43, 46, 49}, np.zeros(3))
+    assert ok == [] and bad == []
+    # 1.5 m / 10 deg against the ~2 m of path from the submap's first node: beyond 0.1 + 0.05 x path
+    # (and 2 + 0.5 x path deg)
+    ok, bad = run(set(range(40, 50)), np.array([1.5, 0.0, np.deg2rad(10.0)]))
+    assert ok == [] and bad == []

@@ -392,16 +392,19 @@ def _score(
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _excluded(
-    h: int, a: int, x: int, y: int, ex_a: int, ex_x: int, ex_y: int, ex_r: float, ex_ang: int
+    h: int, a: int, x: int, y: int, ex: NDArray[np.int64], ex_r: float, ex_ang: int
 ) -> bool:  # pragma: no cover - compiled
     """Whether every pose of the node (angle a, cells [x, x + 2^h) x [y, y + 2^h)) lies within ``ex_r``
-    cells and ``ex_ang`` angle steps of the excluded peak (ex_a, ex_x, ex_y); never when ex_r < 0."""
-    if ex_r < 0 or abs(a - ex_a) > ex_ang:
-        return False
+    cells and ``ex_ang`` angle steps of one excluded peak (rows (angle, x, y) of ``ex``)."""
     e = (1 << h) - 1
-    fx = max(abs(x - ex_x), abs(x + e - ex_x))
-    fy = max(abs(y - ex_y), abs(y + e - ex_y))
-    return fx * fx + fy * fy <= ex_r * ex_r
+    for q in range(ex.shape[0]):
+        if abs(a - ex[q, 0]) > ex_ang:
+            continue
+        fx = max(abs(x - ex[q, 1]), abs(x + e - ex[q, 1]))
+        fy = max(abs(y - ex[q, 2]), abs(y + e - ex[q, 2]))
+        if fx * fx + fy * fy <= ex_r * ex_r:
+            return True
+    return False
 
 
 @numba.njit(cache=True, nogil=True)
@@ -410,17 +413,16 @@ def branch_and_bound(
     cells: NDArray[np.int64],
     lin_cells: int,
     min_score: float,
-    ex_a: int = 0,
-    ex_x: int = 0,
-    ex_y: int = 0,
-    ex_r: float = -1.0,
-    ex_ang: int = 0,
+    ex: NDArray[np.int64],
+    ex_r: float,
+    ex_ang: int,
 ) -> tuple[int, int, int, float]:  # pragma: no cover - compiled
     """Best (angle index, dx, dy) cells over the window [-lin_cells, lin_cells]^2 of every discretised
     rotation ``cells`` (A, P, 2) (padded level-0 cell indices at zero offset); returns score -1 if none
-    reaches ``min_score``. With ``ex_r >= 0`` the poses within ``ex_r`` cells and ``ex_ang`` angle steps
-    of (ex_a, ex_x, ex_y) are left out: the best pose clearly away from a peak found before (nodes
-    wholly inside that neighbourhood are pruned; their bounds stay valid for the others)."""
+    reaches ``min_score``. The poses within ``ex_r`` cells and ``ex_ang`` angle steps of a row
+    (angle, dx, dy) of ``ex`` (E, 3) are left out (E = 0: none): the best pose clearly away from peaks
+    found before (nodes wholly inside one neighbourhood are pruned; their bounds stay valid for the
+    others)."""
     depth = levels.shape[0] - 1
     A = cells.shape[0]
     step = 1 << depth
@@ -449,7 +451,7 @@ def branch_and_bound(
     order = np.argsort(rs[:nroot])
     top = 0
     for q in order:
-        if _excluded(depth, ra[q], rx[q], ry[q], ex_a, ex_x, ex_y, ex_r, ex_ang):
+        if _excluded(depth, ra[q], rx[q], ry[q], ex, ex_r, ex_ang):
             continue
         if rs[q] > min_score and top < cap:
             st_h[top] = depth
@@ -480,7 +482,7 @@ def branch_and_bound(
                 nx, ny = x + ddx, y + ddy
                 if nx > lin_cells or ny > lin_cells:
                     continue
-                if _excluded(hh, a, nx, ny, ex_a, ex_x, ex_y, ex_r, ex_ang):
+                if _excluded(hh, a, nx, ny, ex, ex_r, ex_ang):
                     continue
                 cs[n] = _score(levels, hh, cells, a, nx, ny)
                 cx[n] = nx
@@ -507,6 +509,9 @@ class SubmapIndex:
     y0: float
     res: float
     pad: int
+
+
+NO_EX = np.zeros((0, 3), np.int64)  # branch and bound without excluded peaks
 
 
 def make_index(prob: F32, x0: float, y0: float, res: float, depth: int) -> SubmapIndex:
@@ -546,7 +551,7 @@ def bnb_match(
     step moves a point at ``min(step_range, farthest point)`` by one cell."""
     th, cells = _rotated_cells(index, pts_b, pose0, ang_window, step_range)
     lin_cells = int(np.ceil(lin_window / index.res))
-    a, dx, dy, score = branch_and_bound(index.levels, cells, lin_cells, min_score)
+    a, dx, dy, score = branch_and_bound(index.levels, cells, lin_cells, min_score, NO_EX, -1.0, 0)
     if a < 0:
         return pose0.copy(), -1.0
     return np.array([pose0[0] + dx * index.res, pose0[1] + dy * index.res, th[a]]), float(score)
@@ -573,7 +578,7 @@ def bnb_match_distinct(
     reaches ``score - margin``: distinct; the score itself when the best pose is on the window's edge)."""
     th, cells = _rotated_cells(index, pts_b, pose0, ang_window, step_range)
     lin_cells = int(np.ceil(lin_window / index.res))
-    a, dx, dy, score = branch_and_bound(index.levels, cells, lin_cells, min_score)
+    a, dx, dy, score = branch_and_bound(index.levels, cells, lin_cells, min_score, NO_EX, -1.0, 0)
     if a < 0:
         return pose0.copy(), -1.0, -1.0
     pose = np.array([pose0[0] + dx * index.res, pose0[1] + dy * index.res, th[a]])
@@ -583,10 +588,49 @@ def bnb_match_distinct(
     step = float(th[1] - th[0]) if len(th) > 1 else np.inf
     ex_ang = int(np.floor(peak_angle / step)) if np.isfinite(step) else 0
     a2, _, _, second = branch_and_bound(
-        index.levels, cells, lin_cells, max(score - margin, 0.0), a, dx, dy,
+        index.levels, cells, lin_cells, max(score - margin, 0.0), np.array([[a, dx, dy]], np.int64),
         peak_radius / index.res, ex_ang,
     )  # fmt: skip
     return pose, float(score), float(second) if a2 >= 0 else -1.0
+
+
+def bnb_match_peaks(
+    index: SubmapIndex,
+    pts_b: FloatArray,
+    pose0: FloatArray,
+    lin_window: float,
+    ang_window: float,
+    min_score: float,
+    step_range: float,
+    peak_radius: float,
+    peak_angle: float,
+    n_peaks: int,
+) -> list[tuple[FloatArray, float]]:
+    """The best ``n_peaks`` peaks of the window reaching ``min_score``, best first: branch and bound, then
+    again without the poses within ``peak_radius`` m and ``peak_angle`` rad of every peak found so far
+    (each a lattice pose and its score). A peak on the window's edge is left out but still excluded (the
+    scan may fit better outside the window). Where no single peak is distinct, the true one is often among
+    the few best, and consecutive scans agree on it while wrong ones scatter (Olson 2009's consistency of
+    several hypotheses, checked by the caller)."""
+    th, cells = _rotated_cells(index, pts_b, pose0, ang_window, step_range)
+    lin_cells = int(np.ceil(lin_window / index.res))
+    step = float(th[1] - th[0]) if len(th) > 1 else np.inf
+    ex_ang = int(np.floor(peak_angle / step)) if np.isfinite(step) else 0
+    ex = np.zeros((0, 3), np.int64)
+    out: list[tuple[FloatArray, float]] = []
+    for _ in range(n_peaks + 2):  # up to two edge peaks skipped
+        a, dx, dy, score = branch_and_bound(
+            index.levels, cells, lin_cells, min_score, ex, peak_radius / index.res, ex_ang
+        )
+        if a < 0:
+            break
+        ex = np.vstack([ex, np.array([[a, dx, dy]], np.int64)])
+        if max(abs(dx), abs(dy)) >= lin_cells or (len(th) > 1 and a in (0, len(th) - 1)):
+            continue
+        out.append((np.array([pose0[0] + dx * index.res, pose0[1] + dy * index.res, th[a]]), score))
+        if len(out) == n_peaks:
+            break
+    return out
 
 
 @numba.njit(cache=True, nogil=True)

@@ -19,6 +19,7 @@ Poses are [x, y, theta] of the body (odometry frame) in the map frame; the first
 
 from __future__ import annotations
 
+import bisect
 import logging
 import time
 from collections.abc import Callable
@@ -39,6 +40,7 @@ from imuslam.slam2d.matching import (
     angular_step,
     bnb_match,
     bnb_match_distinct,
+    bnb_match_peaks,
     correlative_search,
     make_index,
     match_information,
@@ -182,6 +184,33 @@ class LoopConfig(BaseModel):
     )
     consistency_tol_m: float = Field(0.2, gt=0, description="plus 2 % of the nodes' distance")
     consistency_tol_deg: float = Field(2.0, gt=0)
+    # 3) consistency over time for matches with no distinct peak: the best ``peaks_per_match`` peaks of
+    # each are kept, and one becomes a constraint when a majority of the ``temporal_window`` consecutive
+    # nodes searched against the same submap have a peak implying the same pose of it (each peak composed
+    # with the local SLAM's relative poses, within ``temporal_tol_m`` / ``temporal_tol_deg``): wrong peaks
+    # scatter, the true one recurs (the consistent-set acceptance of Olson 2009 and of Latif et al.'s RRR,
+    # "Robust loop closing over time for pose graph SLAM", IJRR 32(14), 2013). 0 peaks: off.
+    peaks_per_match: int = Field(
+        3, ge=0, description="peaks kept per ambiguous match for the consistency over time (0: off)"
+    )
+    temporal_window: int = Field(
+        10, ge=2, description="consecutive nodes searched against a submap that vote"
+    )
+    # 2 cells and 2 deg: the refined peaks of exp1's returning scans that agree scatter by about +-1.5 deg
+    # (with 1 cell / 1 deg only 2 of its 9 were accepted)
+    temporal_tol_m: float = Field(0.1, gt=0, description="same implied pose: within this, m ...")
+    temporal_tol_deg: float = Field(2.0, gt=0, description="... and this, deg")
+    # consecutive scans that see a repeated structure from nearly the same place alias alike, so their
+    # wrong peaks can agree too (exp2: 5 nodes agreed on a 3 m / 20 deg correction against a submap
+    # mapped 7 m of path before). The correction a peak implies is gated by the drift the local SLAM can
+    # have accumulated since the submap's first node (the individual-compatibility gate of Neira and
+    # Tardos, IEEE T-RA 17(6), 2001, with a drift that grows with the path instead of a covariance)
+    temporal_drift: float = Field(
+        0.05, gt=0, description="largest correction: tol_m + this x the path since the submap, m/m"
+    )
+    temporal_drift_deg_per_m: float = Field(
+        0.5, gt=0, description="... and tol_deg + this x the path, deg/m"
+    )
 
 
 class Slam2dConfig(BaseModel):
@@ -221,6 +250,9 @@ class LoopConstraint:
     score: float
     anchor: int
     T_anchor_node: FloatArray
+    peak: int = (
+        0  # 0: a distinct match; k >= 1: the k-th best peak of a match without a distinct one
+    )
 
 
 @dataclass
@@ -342,7 +374,14 @@ class Slam2d:
         # matched, rejected as ambiguous (on the worker), rejected as inconsistent
         self._candidates: list[LoopConstraint] = []
         self._decided: set[int] = set()  # id() of the candidates in _candidates already decided
-        self.loop_stats = {"candidates": 0, "ambiguous": 0, "inconsistent": 0}
+        self.loop_stats = {"candidates": 0, "ambiguous": 0, "inconsistent": 0, "temporal": 0}
+        # consistency over time (cfg.loop.peaks_per_match): per submap, the nodes searched against it
+        # and the peaks of their matches (distinct ones vote too); nodes already decided
+        self._searched_against: dict[int, list[int]] = {}
+        self._peaks: dict[int, dict[int, list[LoopConstraint]]] = {}
+        self._peaks_open: set[tuple[int, int]] = (
+            set()
+        )  # (submap, node) of ambiguous peaks undecided
 
     # ---------------------------------------------------------------- local SLAM
     def match(self, pts: FloatArray, prior: FloatArray) -> tuple[FloatArray, float]:
@@ -515,6 +554,13 @@ class Slam2d:
     def add_candidates(self, loops: list[LoopConstraint]) -> None:
         """Loop matches that passed the search's tests: constraints at once when the consistency check is
         off, else waiting for it (``vet_candidates``)."""
+        if self.cfg.loop.peaks_per_match > 0:
+            for c in loops:
+                self._peaks.setdefault(c.submap, {}).setdefault(c.node, []).append(c)
+                if c.peak:
+                    self._peaks_open.add((c.submap, c.node))
+            loops = [c for c in loops if c.peak == 0]
+            self.vet_peaks(final=False)
         if not loops:
             return
         self.loop_stats["candidates"] += len(loops)
@@ -622,6 +668,9 @@ class Slam2d:
         cands.sort(key=lambda c: c[0])
         jobs = [(s, T_s_n) for _, s, T_s_n in cands[: cfg.max_submaps_per_node]]
         self.loops_searched += len(jobs)
+        if cfg.peaks_per_match > 0:
+            for s, _ in jobs:
+                self._searched_against.setdefault(s, []).append(j)
         self.main_loop_time += time.perf_counter() - t0
         if jobs:
             self._run(self._match_job, j, pts, jobs, node=j)
@@ -646,6 +695,8 @@ class Slam2d:
                 if score >= 0 and second >= 0:
                     # one writer (the single worker); read after it has finished
                     self.loop_stats["ambiguous"] += 1
+                    if cfg.peaks_per_match > 0:
+                        out.extend(self._peak_candidates(j, s, pts, T_s_n))
                     continue
             else:
                 pose, score = bnb_match(
@@ -665,6 +716,95 @@ class Slam2d:
             )
             out.append(LoopConstraint(j, s, refined, float(sc2), sm.anchor_node, T_a_n))
         return out, time.perf_counter() - t0, time.thread_time() - c0
+
+    def _constraint(
+        self, j: int, s: int, pts: FloatArray, pose: FloatArray, peak: int
+    ) -> LoopConstraint:
+        """The lattice pose ``pose`` of node ``j`` in submap ``s`` refined, as a loop constraint."""
+        grid = self.submaps[s].grid
+        refined, sc2 = refine_pose(
+            grid.prob, grid.x0, grid.y0, self.params.resolution, pts, pose, pose, 1.0, 1.0, 1.0,
+            self.params.p_unknown, 20,
+        )  # fmt: skip
+        sm = self.submaps[s]
+        T_a_n = pose2.compose(
+            pose2.between(self.node_local[sm.anchor_node], sm.T_local_submap), refined
+        )
+        return LoopConstraint(j, s, refined, float(sc2), sm.anchor_node, T_a_n, peak)
+
+    def _peak_candidates(
+        self, j: int, s: int, pts: FloatArray, T_s_n: FloatArray
+    ) -> list[LoopConstraint]:
+        """The best few peaks of node ``j`` in submap ``s`` (no distinct one), each refined."""
+        cfg = self.cfg.loop
+        idx = self.submaps[s].index
+        assert idx is not None
+        peaks = bnb_match_peaks(
+            idx, pts, T_s_n, cfg.linear_window, np.deg2rad(cfg.angular_window_deg), cfg.min_score,
+            cfg.step_range, cfg.peak_radius, np.deg2rad(cfg.peak_angle_deg), cfg.peaks_per_match,
+        )  # fmt: skip
+        return [self._constraint(j, s, pts, p, k + 1) for k, (p, _) in enumerate(peaks)]
+
+    def _implied(self, c: LoopConstraint, at: int) -> FloatArray:
+        """The global pose of node ``at`` that candidate ``c`` implies (its node's pose from the match,
+        then the local SLAM's relative pose from its node to ``at``)."""
+        g = pose2.compose(self.node_global[c.anchor], c.T_anchor_node)
+        return pose2.compose(g, pose2.between(self.node_local[c.node], self.node_local[at]))
+
+    def vet_peaks(self, final: bool) -> None:
+        """Consistency over time (``cfg.loop.peaks_per_match`` > 0): a node's peak in a submap becomes a
+        constraint when, among the ``temporal_window`` nodes around it searched against that submap
+        (decided once they all have been), a majority (more than half of the window, and of the nodes
+        searched there) have a peak that implies the same pose of it, within ``temporal_tol_m`` and
+        ``temporal_tol_deg``; its best such peak is taken. Distinct matches vote but are decided by
+        ``vet_candidates``."""
+        cfg = self.cfg.loop
+        t0 = time.perf_counter()
+        K = cfg.temporal_window
+        tol_r = np.deg2rad(cfg.temporal_tol_deg)
+        for s, n in sorted(self._peaks_open):
+            by_node = self._peaks[s]
+            cands = by_node[n]
+            searched = self._searched_against.get(s, [])
+            i = bisect.bisect_left(searched, n)
+            lo = max(0, min(i - K // 2, len(searched) - K))
+            window = searched[lo : lo + K]
+            if not final and (
+                len(window) < K or i + K // 2 >= len(searched) or window[-1] > self._searched_upto
+            ):
+                continue
+            self._peaks_open.discard((s, n))
+            need = max(K // 2 + 1, len(window) // 2 + 1)
+            a = self.submaps[s].anchor_node
+            steps = np.diff(np.array(self.node_local[a : n + 1])[:, :2], axis=0)
+            path = float(np.sum(np.hypot(steps[:, 0], steps[:, 1]))) if len(steps) else 0.0
+            for c in cands:
+                g = self._implied(c, n)
+                corr = pose2.between(self.node_global[n], g)
+                if float(np.hypot(corr[0], corr[1])) > (
+                    cfg.temporal_tol_m + cfg.temporal_drift * path
+                ) or abs(pose2.wrap(corr[2])) > np.deg2rad(
+                    cfg.temporal_tol_deg + cfg.temporal_drift_deg_per_m * path
+                ):
+                    continue
+                votes = 1
+                for m in window:
+                    if m == n:
+                        continue
+                    for o in by_node.get(int(m), []):
+                        d = pose2.between(g, self._implied(o, n))
+                        if (
+                            np.hypot(d[0], d[1]) <= cfg.temporal_tol_m
+                            and abs(pose2.wrap(d[2])) <= tol_r
+                        ):
+                            votes += 1
+                            break
+                if votes >= need:
+                    self.loops.append(c)
+                    self._loops_since_opt += 1
+                    self.loop_stats["temporal"] += 1
+                    break
+        self.main_loop_time += time.perf_counter() - t0
 
     def _local_noises(self, L: FloatArray) -> list[Any]:
         """Per local edge i -> i + 1: a Gaussian noise model of node i + 1's match covariance (inverse
@@ -868,6 +1008,8 @@ def _run_slam2d(
     slam.timing["loop_wait"] = time.perf_counter() - t_wait
     if cfg.loop.enabled:
         slam.vet_candidates(final=True)
+        if cfg.loop.peaks_per_match > 0:
+            slam.vet_peaks(final=True)
     if cfg.loop.enabled and slam.loops:
         slam.optimise()
     # loop_search: the matching's own time (on the worker thread when in the background)
