@@ -145,7 +145,11 @@ def revisit_summary(
                              "observed": float(np.median([c.observed_share for c in rep.checks]))
                              if rep.checks else float("nan"),
                              "best_margin": max((c.score - c.second_peak for c in rep.checks),
-                                                default=float("nan"))}  # fmt: skip
+                                                default=float("nan")),
+                             # the best match agrees with the trajectory within 2 cells / 2 deg (the
+                             # consistency over time's tolerance), distinct or not
+                             "agree_before": sum(c.before_m <= 0.1 and c.before_deg <= 2.0 for c in rep.checks),
+                             "agree_after": sum(c.after_m <= 0.1 and c.after_deg <= 2.0 for c in rep.checks)}  # fmt: skip
     if ok:
         out.update({
             "score": float(np.median([c.score for c in ok])),
@@ -257,6 +261,7 @@ def main() -> None:
     # from 0.4 since the consistency over time (exp1's returning scans score 0.42-0.47 against the start's
     # submap, none distinctly; 10 consecutive nodes vote): with 0.5 none of them is a candidate
     cfg_b.loop.min_score = 0.4
+    cfg_b.loop.peaks_per_match = 3
     cfg_b.loop.every_n_nodes = 1
     cfg_b.loop.loop_sigma_m = 0.03
     cfg_b.loop.loop_sigma_rad = 0.005
@@ -321,14 +326,14 @@ def main() -> None:
         print("|---|---|---|---|---|---|---|")
         print("\n".join(scales))
     if rows:
-        print("\n| log | scans | duration [s] | wall [s] | CPU [s] | loop constraints (of which by consistency over time) | loop matches: ambiguous / inconsistent | returning scans matched against the start map | with a distinct peak | their median score (run's median local score) | best pose >= 0.5 m / 10 deg away | trajectory vs match before loop closure [m, deg] | after [m, deg] | largest score - second peak | points in cells the start map observed (median) |")  # fmt: skip
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        print("\n| log | scans | duration [s] | wall [s] | CPU [s] | loop constraints (of which by consistency over time) | loop matches: ambiguous / inconsistent | returning scans matched against the start map | with a distinct peak | their median score (run's median local score) | best pose >= 0.5 m / 10 deg away | trajectory vs match before loop closure [m, deg] | after [m, deg] | largest score - second peak | points in cells the start map observed (median) | returning scans whose best match is within 0.1 m / 2 deg of the trajectory: before / after loop closure |")  # fmt: skip
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             cc: dict[str, float] = r[6]
             tail = f"{cc['checked']:.0f} | {cc['distinct']:.0f} | "
             tail += (f"{cc['score']:.2f} ({cc['median_local']:.2f}) | {cc['second']:.2f} | {cc['before_m']:.3f}, {cc['before_deg']:.2f} | "
                      f"{cc['after_m']:.3f}, {cc['after_deg']:.2f}") if cc["distinct"] else f"- ({cc['median_local']:.2f}) | - | - | -"  # fmt: skip
-            tail += f" | {cc['best_margin']:.2f} | {cc['observed']:.2f}"
+            tail += f" | {cc['best_margin']:.2f} | {cc['observed']:.2f} | {cc['agree_before']:.0f} / {cc['agree_after']:.0f}"
             print(
                 f"| {r[0]} | {r[1]} | {r[2]:.0f} | {r[3]:.1f} | {r[4]:.1f} | {r[5]} | {tail} |",
                 flush=True,
