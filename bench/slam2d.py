@@ -18,6 +18,7 @@ translation and in rotation (the two error distributions hardly overlap).
     python bench/slam2d.py --logs intel    # the speed criterion: the full Intel log
     python bench/slam2d.py --maps DIR      # also write DIR/<log>.png (map + trajectory), DIR/exp*_overlay.png
     python bench/slam2d.py --logs exp1 exp2   # + each returning scan with 19 scans of context (--context)
+    python bench/slam2d.py --logs exp1 exp2 --context --checks 1000   # every returning scan checked
     python bench/slam2d.py --floor         # how well the corrected poses agree with their own scans
 """
 
@@ -126,7 +127,11 @@ def save_overlay(
 
 
 def revisit_summary(
-    log_: LaserLog, res: Slam2dResult, cfg: Slam2dConfig, context_scans: int = 1
+    log_: LaserLog,
+    res: Slam2dResult,
+    cfg: Slam2dConfig,
+    context_scans: int = 1,
+    max_checks: int = 10,
 ) -> dict[str, float]:
     """The scans that come back to the start matched against the map of the first 10 % of the log
     (``slam2d.revisit``): a match counts when its peak is distinct (it scores at least 0.8x the run's
@@ -137,7 +142,7 @@ def revisit_summary(
     observed (all checks)."""
     from imuslam.slam2d.revisit import check_revisits
 
-    rep = check_revisits(log_, res, cfg, context_scans=context_scans)
+    rep = check_revisits(log_, res, cfg, context_scans=context_scans, max_checks=max_checks)
     ok = [c for c in rep.checks
           if c.score >= 0.8 * rep.median_local_score and c.score - c.second_peak >= 0.05]  # fmt: skip
     out: dict[str, float] = {"checked": len(rep.checks), "distinct": len(ok),
@@ -236,6 +241,10 @@ def main() -> None:
         help="BreezySLAM logs: also match each returning scan with the N - 1 scans before it",
     )  # fmt: skip
     ap.add_argument(
+        "--checks", type=int, default=10, metavar="N",
+        help="BreezySLAM logs: returning scans matched against the start map (evenly spread; 1000: all)",
+    )  # fmt: skip
+    ap.add_argument(
         "--set", nargs="*", default=[], metavar="KEY=VALUE",
         help="override the config of every log, e.g. matcher.interpolation=bicubic loop.consistent_min=1",
     )  # fmt: skip
@@ -308,11 +317,11 @@ def main() -> None:
             log_ = read_breezyslam(DATA / "breezyslam_mines" / f"{name}.dat")
             res, wall, cpu = run(log_, cfg_b)
             rows.append((name, len(log_), log_.duration_s, wall, cpu, f"{_loops(res)} | {_rejected(res)}",
-                         revisit_summary(log_, res, cfg_b)))  # fmt: skip
+                         revisit_summary(log_, res, cfg_b, 1, args.checks)))  # fmt: skip
             for nc in args.context:
                 rows.append((f"{name}, {nc}-scan context", len(log_), log_.duration_s, wall, cpu,
                              f"{_loops(res)} | {_rejected(res)}",
-                             revisit_summary(log_, res, cfg_b, nc)))  # fmt: skip
+                             revisit_summary(log_, res, cfg_b, nc, args.checks)))  # fmt: skip
         if maps:
             save_map(log_, res, cfg, maps / f"{name}.png", name)
             if name not in RADISH:
