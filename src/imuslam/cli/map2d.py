@@ -113,6 +113,11 @@ def register(app: typer.Typer) -> None:
                                  f"{m['trans_mean']:.3f} ± {m['trans_std']:.3f} m, {m['rot_mean_deg']:.2f} ± {m['rot_std_deg']:.2f}", "m, deg"])  # fmt: skip
                     rows.append([f"{name}: ATE after SE(2) alignment (RMSE, largest)",
                                  f"{m['ate_rmse_m']:.3f}, {m['ate_max_m']:.3f}", "m"])  # fmt: skip
+                    for key, r in metrics.get("sets", {}).items():
+                        if name in r:
+                            q = r[name]
+                            rows.append([f"{name}: relation error, {key} relations ({q['n']})",
+                                         f"{q['trans_mean']:.3f} ± {q['trans_std']:.3f} m, {q['rot_mean_deg']:.2f} ± {q['rot_std_deg']:.2f}", "m, deg"])  # fmt: skip
                 else:
                     rows.append([f"{name}: ATE RMSE", f"{m['ate_rmse_m']:.3f}", "m"])
                     rows.append(

@@ -121,5 +121,8 @@ def score_run(
         est["odometry"] = log_.odom_xy_yaw
     p = Path(gt)
     if is_carmen(p):
-        return {"kind": "kuemmerle2009_relations", **relations_against_corrected(p, log_, est)}
+        return {
+            "kind": "kuemmerle2009_relations",
+            **relations_against_corrected(p, log_, est, relation_sets=True),
+        }
     return {"kind": "ate_rpe", **ate_rpe(p, t_ns, est)}
