@@ -21,6 +21,8 @@
     python bench/vio.py trackbias [--frames 60 --image-noise 0]
                                          # the ZNCC tracker's sub-pixel bias: exact shifts of a random
                                          # image; rendered pairs against the true feature positions
+    python bench/vio.py imgnoise         # temporal image noise of EuRoC's MT9V034 (consecutive frames of
+                                         # the excerpt, at rest) beside the renderer's, same estimator
     python bench/vio.py husky            # wheel odometry + IMU EKF against GPS (robot_localization bag)
 
 The sim study renders every stereo pair (the slow part) once, caches the VO measurements in
@@ -711,11 +713,62 @@ def track_bias(n_frames: int, image_noise: float | None) -> None:
           f"velocity b / f / 0.2 s = {co[1] / rig.fx / 0.2:+.1e} m/s")  # fmt: skip
 
 
+def _temporal_noise(frames: list[np.ndarray]) -> np.ndarray:
+    """Per consecutive pair of frames of a still camera: the std of their difference over flat,
+    unsaturated pixels (gradient of the 2-px-blurred image below 8 grey levels per px, grey 20-235),
+    divided by sqrt(2): the 1-sigma temporal noise of one frame, quantisation included (grey levels)."""
+    import cv2
+
+    out = []
+    for a, b in zip(frames[:-1], frames[1:], strict=True):
+        a, b = a.astype(float), b.astype(float)
+        g = cv2.GaussianBlur(a, (0, 0), 2)
+        grad = np.hypot(cv2.Sobel(g, cv2.CV_64F, 1, 0), cv2.Sobel(g, cv2.CV_64F, 0, 1))
+        m = (grad < 8) & (a > 20) & (a < 235)
+        out.append((b - a)[m].std() / np.sqrt(2))
+    return np.array(out)
+
+
+def image_noise() -> None:
+    """EuRoC's camera noise (the excerpt's cam0: the MAV stands on the ground, so consecutive frames
+    differ by sensor noise and a sub-pixel drift) beside the renderer's, by the same estimator on
+    rendered frames of a still camera (noise known: the estimator's check)."""
+    import cv2
+
+    from imuslam.sim.render import CameraRig, render_stereo
+    from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
+
+    files = sorted((DATA / "euroc_V1_01_micro_kimera" / "mav0" / "cam0" / "data").glob("*.png"))
+    e = _temporal_noise([cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in files])
+    rows = [(f"EuRoC V1_01 excerpt cam0 (MT9V034), {len(files)} frames", f"{np.median(e):.2f}",
+             f"{e.min():.2f}-{e.max():.2f}")]  # fmt: skip
+    run = SimStereoRun(StereoRunConfig(duration_s=1.0))
+    st = run.traj.state(np.array([10.0]))
+    R, p = st.R_w_b[0] @ run.R_b_c, st.p_w[0] + st.R_w_b[0] @ run.p_b_c
+    rng = np.random.default_rng(0)
+    for sigma in (0.0, 1.0, 1.4, 2.0):
+        rig = CameraRig(noise=sigma)
+        r = _temporal_noise([render_stereo(run.world, rig, R, p, rng)[0] for _ in range(6)])
+        rows.append((f"renderer, Gaussian noise {sigma:g} before uint8", f"{np.median(r):.2f}",
+                     f"{r.min():.2f}-{r.max():.2f}"))  # fmt: skip
+    _table(["images", "temporal noise 1-sigma, median [grey levels]", "range over pairs"], rows)
+
+
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument(
         "what",
-        choices=["speed", "sim", "nhc", "nhcsweep", "vostats", "husky", "trackbias", "nhcbias"],
+        choices=[
+            "speed",
+            "sim",
+            "nhc",
+            "nhcsweep",
+            "vostats",
+            "husky",
+            "trackbias",
+            "nhcbias",
+            "imgnoise",
+        ],
     )
     ap.add_argument("--frames", type=int, default=60, help="trackbias: rendered pairs")
     ap.add_argument("--image-noise", type=float, default=None,
@@ -752,6 +805,8 @@ def main(argv: list[str]) -> None:
         nhc_bias_removed(a.duration, a.rate, a.seeds, a.calib_duration)
     elif a.what == "trackbias":
         track_bias(a.frames, a.image_noise)
+    elif a.what == "imgnoise":
+        image_noise()
     elif a.what == "sim":
         sim(a.duration, a.rate, a.seed, a.calib_duration, a.calib_seeds, not a.no_correction)
     else:
