@@ -671,6 +671,46 @@ def track_bias(n_frames: int, image_noise: float | None) -> None:
     _table(["start fraction", "bias per shift fraction [1e-3 px]"], rows)
     print(f"max |bias| {np.max(np.abs(allb)):.4f} px, mean over the grid {np.mean(allb):+.4f} px "
           "(the mirror symmetry bias(f, s) = -bias(1 - f, 1 - s) makes it zero)")  # fmt: skip
+    # the same grid for other pre-blurs and for OpenCV's Lucas-Kanade started at the ZNCC peak (the
+    # pixel-locking remedies of Shimizu & Okutomi 2005's kind: is the S-curve the interpolation's?)
+    base8 = np.clip(np.rint(base), 0, 255).astype(np.uint8)
+    lk_crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-4)
+    summary = []
+    for name, sig, lk in (("ZNCC, blur 0 px", 0.0, False), ("ZNCC, blur 1 px (the tracker)", 1.0, False),
+                          ("ZNCC, blur 1.5 px", 1.5, False), ("ZNCC, blur 2 px", 2.0, False),
+                          ("ZNCC blur 1 px + cv2 LK 15x15 on the raw images", 1.0, True)):  # fmt: skip
+
+        def prep_s(x: np.ndarray, sig: float = sig) -> tuple[np.ndarray, np.ndarray]:
+            x = x.astype(np.float32)
+            x = cv2.GaussianBlur(x, (0, 0), sig) if sig > 0 else x
+            return x, cv2.pyrDown(x)
+
+        A0s, A1s = prep_s(base8)
+        b = []
+        for fa in (0.0, 0.25, 0.5, 0.75):
+            for s in shifts:
+                B8 = np.clip(
+                    np.rint(np.real(np.fft.ifft2(F * np.exp(-2j * np.pi * kx * s)))), 0, 255
+                )
+                B8 = B8.astype(np.uint8)
+                B0, B1 = prep_s(B8)
+                uv = np.column_stack([rng.integers(40, W - 40, 1000) + fa,
+                                      rng.integers(40, H - 40, 1000) + 0.0])  # fmt: skip
+                new, _ = track(A0s, A1s, B0, B1, uv, uv + [s, 0], c.patch_half, c.patch_half_coarse,
+                               c.search_coarse_px, c.search_fine_px, c.min_zncc)  # fmt: skip
+                if lk:
+                    ok = np.isfinite(new[:, 0])
+                    p1, _, _ = cv2.calcOpticalFlowPyrLK(
+                        base8, B8, np.ascontiguousarray(uv[ok][:, None], np.float32),
+                        np.ascontiguousarray(new[ok][:, None], np.float32),
+                        winSize=(15, 15), maxLevel=0, criteria=lk_crit, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+                    )  # fmt: skip
+                    new[ok] = p1[:, 0]
+                err = new[:, 0] - uv[:, 0] - s
+                b.append(float(np.mean(err[np.abs(err) < 0.1])))
+        summary.append((name, f"{np.max(np.abs(b)):.4f}", f"{np.sqrt(np.mean(np.square(b))):.4f}"))
+    print("the same grid (uint8 images), per matcher")
+    _table(["matcher", "max |bias| [px]", "RMS bias over the grid [px]"], summary)
     rc = StereoRunConfig(duration_s=180.0, image_hz=5.0, seed=0)
     if image_noise is not None:
         rc.rig = CameraRig(noise=image_noise)
