@@ -219,7 +219,7 @@ class LioEstimator:
         self.noise = KfNoise(fc.accel_noise, fc.gyro_noise, max(fc.accel_bias_rw, 1e-12),
                              max(fc.gyro_bias_rw, 1e-12))  # fmt: skip
         m = config.map
-        self.map = LocalMap(m.voxel, m.radius, m.max_per_voxel, m.knn)
+        self.map = LocalMap(m.voxel, m.radius, m.max_per_voxel, m.knn, m.match_params())
         self.lidar_only = LidarOdometry(config.model_copy(update={"use_imu": False}))
         self._init_scans: list[tuple[float, FloatArray]] = []
         self._t_mean0 = 0.0  # the mean point time of the first scan, s

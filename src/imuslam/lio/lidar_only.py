@@ -40,12 +40,23 @@ def gauss_newton(
     converge: float = 1e-3,
     huber: float = 0.2,
 ) -> Registration:
-    """Iteratively re-associated Gauss-Newton with Huber weights on [dp, dtheta] (right perturbation)."""
+    """Iteratively re-associated Gauss-Newton with Huber weights on [dp, dtheta] (right perturbation).
+
+    Two passes: the first associates with the map's coarse gate (``MatchParams.coarse_residual``)
+    since a constant-velocity prediction can be decimetres off; once it has converged, a second pass
+    of up to ``max_iterations`` re-associates with the tight gate (``max_residual``), which keeps the
+    points matched to another surface out of the final pose."""
     R, p = R_w_s.copy(), p_w.copy()
-    it, n = 0, 0
-    while it < max_iterations:
+    n_it, n = 0, 0
+    pr = local_map.params
+    gates = [pr.coarse_residual] * max_iterations + [pr.max_residual] * max_iterations
+    fine = len(gates) // 2
+    it = 0
+    while it < len(gates):
+        gate = gates[it]
         it += 1
-        corr = local_map.associate(surf, edge, R, p)
+        n_it += 1
+        corr = local_map.associate(surf, edge, R, p, gate)
         n = len(corr)
         if n < 6:
             break
@@ -56,8 +67,10 @@ def gauss_newton(
         p = p + dx[:3]
         R = R @ exp(dx[3:])
         if np.linalg.norm(dx) < converge:
-            break
-    return Registration(R, p, it, n)
+            if it > fine or pr.coarse_residual <= pr.max_residual:
+                break
+            it = fine  # the coarse pass has converged: on to the tight gate
+    return Registration(R, p, n_it, n)
 
 
 class LidarOdometry:
@@ -66,7 +79,7 @@ class LidarOdometry:
     def __init__(self, config: LioConfig | None = None) -> None:
         self.config = config or LioConfig(use_imu=False)
         m = self.config.map
-        self.map = LocalMap(m.voxel, m.radius, m.max_per_voxel, m.knn)
+        self.map = LocalMap(m.voxel, m.radius, m.max_per_voxel, m.knn, m.match_params())
         self.T_w_l = np.eye(4)
         self.T_prev = np.eye(4)
         self.t_last: float | None = None
