@@ -96,6 +96,7 @@ class LidarOdometry:
         t_s: FloatArray,
         ring: NDArray[np.integer] | None = None,
         rotation_compensated: bool = False,
+        motion: tuple[FloatArray, FloatArray] | None = None,
     ) -> FloatArray:
         """Register one scan; returns ``T_w_l`` (4, 4) at the scan end ``max(t_s)``.
 
@@ -103,7 +104,9 @@ class LidarOdometry:
         gyro); the constant-velocity model then only removes the translation.
 
         points_l: (N, 3) LiDAR frame at each point's time; t_s: (N,) point times, s (any origin, the
-        same clock for every scan); ring: (N,) beam index or None.
+        same clock for every scan); ring: (N,) beam index or None; motion: the scan-end pose
+        prediction ``T_w_l`` (4, 4) and the world velocity (3,) that deskews the translation, in place
+        of the constant-velocity model (a second pass over scans whose motion is known).
         """
         t_end = float(np.max(t_s))
         if self.t_last is not None and t_end > self.t_last:
@@ -115,6 +118,8 @@ class LidarOdometry:
             omega, vel = np.zeros(3), np.zeros(3)
         if rotation_compensated:
             omega = np.zeros(3)
+        if motion is not None:
+            T_pred, vel = np.asarray(motion[0], float), np.asarray(motion[1], float)
         pts = deskew_constant_velocity(points_l, t_s, t_end, T_pred, omega, vel)
         surf, edge = select_points(pts, t_s, ring, self.config.frontend)
         if len(self.map) == 0:

@@ -29,7 +29,7 @@ class MatchParams:
     max_nbr_dist: float = 2.0
     max_plane_res: float = 0.1
     line_ratio: float = 3.0
-    max_residual: float = 1.0
+    max_residual: float = 0.1
     coarse_residual: float = 1.0
     huber: float = 0.2
 
