@@ -138,13 +138,12 @@ class MapCovariance:
     dtheta x (p_k - p_j) at the current pose). The pieces' errors come from one drifting trajectory,
     so they are taken as fully correlated: C is the mean of J_kj P_j J_kj^T over the matched rows (a
     mean, not the covariance of a mean of independent errors, which would shrink with the count).
-    The world is the first IMU pose (FAST-LIO2's), where the map has no error by construction. The
-    map's error grows along the path: the registration of each scan against a map built from the
-    earlier poses leaves a small, slowly varying error that every new piece inherits (on the simulated
-    street, 0.5-1 deg of roll / pitch over 50 m, as large with LiDAR alone as with the IMU, against a
-    map-relative sigma of 0.035 deg: not white noise, so not in P_rel). ``drift`` models it as a random
-    walk: a record gains ``drift`` times the path since the previous record; the points from before
-    the filter (LiDAR-only, tag -1) carry the drift over the start's path."""
+    The world is the first IMU pose (FAST-LIO2's), where the map has no error by construction.
+    ``drift`` (``filter.map_drift_*``, zero by default) adds a random walk of the map along the
+    path for scenes whose registration drifts: a record gains ``drift`` times the path since the
+    previous record; the points from before the filter (LiDAR-only, tag -1) carry the drift over the
+    start's path. (Its rates were once fitted to a 0.5-1 deg roll / pitch drift on the simulated
+    street, which was the 1 m association gate's doing, ``MapConfig.max_residual``.)"""
 
     def __init__(self, R0: FloatArray, p0: FloatArray, C0: FloatArray, slots: int = 4096,
                  drift: FloatArray | None = None) -> None:  # fmt: skip
