@@ -318,7 +318,8 @@ def frontend_bench(args: Any) -> None:
 
 def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = False,
                      use_imu: bool = True, g_w: list[FloatArr] | None = None,
-                     drift: list[float] | None = None) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
+                     drift: list[float] | None = None,
+                     map_covariance: bool = True) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
     """Register ``d``'s scans one by one (calibrated IMU); returns, for the scans after the filter
     start (all scans without the IMU), the NEES of [attitude, position] against the reported 6 x 6
     covariance (NaN without the IMU), the body-frame attitude error (K, 3) rad and the position error
@@ -330,7 +331,8 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
 
     cfg = LioConfig(frontend=FrontEndConfig(mode=mode),  # type: ignore[arg-type]
                     extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])),  # type: ignore[arg-type]
-                    filter=FilterConfig(state=state), use_imu=use_imu)  # type: ignore[arg-type]  # fmt: skip
+                    filter=FilterConfig(state=state, map_covariance=map_covariance),  # type: ignore[arg-type]
+                    use_imu=use_imu)  # fmt: skip
     if drift is not None:  # --map-drift: the rates of both front ends replaced
         cfg.filter.map_drift_deg_per_sqrt_m, cfg.filter.map_drift_m_per_sqrt_m = drift[0], drift[1]
     imu = true_calibration().correct(d.imu)
@@ -396,7 +398,8 @@ def consistency_bench(args: Any) -> None:
         c0 = time.process_time()
         means, n = [], 0
         for mode in modes:
-            nees, _, _ = _consistency_run(d, mode, args.state, drift=args.map_drift)
+            nees, _, _ = _consistency_run(d, mode, args.state, drift=args.map_drift,
+                                          map_covariance=not args.no_map_covariance)  # fmt: skip
             means.append(f"{np.mean(nees):.2f}")
             n = len(nees)
         lo, hi = chi2.ppf(0.001, 6 * n) / n, chi2.ppf(0.999, 6 * n) / n
@@ -432,8 +435,8 @@ def main() -> None:
     ap.add_argument("--columns", type=int, default=450, help="memory: LiDAR columns per turn")
     ap.add_argument("--every", type=int, default=1000, help="memory: scans between table rows")
     ap.add_argument("--no-map-covariance", action="store_true",
-                    help="main: the filters with filter.map_covariance off (the map-relative "
-                         "covariance only: the same estimate, without the consider term's cost)")  # fmt: skip
+                    help="main, consistency: the filters with filter.map_covariance off (the "
+                         "map-relative covariance only: the same estimate, without the consider term)")  # fmt: skip
     ap.add_argument(
         "--seeds",
         type=int,

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+if TYPE_CHECKING:
+    from imuslam.lio.matcher import MatchParams
 
 FloatArray = NDArray[np.float64]
 
@@ -53,17 +56,34 @@ class FrontEndConfig(BaseModel):
 class MapConfig(BaseModel):
     """voxel: map voxel size, m; max_per_voxel: points per voxel; radius: local map radius, m;
     knn: the k-nearest-neighbour search: ``ivox`` (the incremental voxel-hash map searched over the
-    27 cells around a query, ``lio.ivox``, never rebuilt) or a k-d tree library rebuilt after each insertion."""
+    27 cells around a query, ``lio.ivox``, never rebuilt) or a k-d tree library rebuilt after each insertion;
+    max_residual: the association gate, m: a scan point farther than this from its neighbours' plane
+    (line) is not matched. It equals the plane test's thickness (``MatchParams.max_plane_res``, 0.1 m,
+    FAST-LIO2's): a point farther from the plane than the plane's own points may lie is on another
+    surface (a wall's foot matched to the ground, a pole to the wall behind it). A wider gate (it was
+    1 m) lets those wrong matches in at full Huber weight and they tilt every scan by a few hundredths
+    of a degree, which the map built from those poses accumulates (0.4-0.6 deg of roll / pitch over
+    50 m on the simulated street, README: LIO covariance)."""
 
     model_config = ConfigDict(extra="forbid")
     voxel: float = Field(0.5, gt=0)
     max_per_voxel: int = Field(1, ge=1)
     radius: float = Field(100.0, gt=0)
     knn: Literal["ivox", "pykdtree", "small_gicp", "scipy"] = "ivox"
+    max_residual: float = Field(0.1, gt=0)
+
+    def match_params(self) -> MatchParams:
+        """The association's gates (``lio.matcher.MatchParams``) with this ``max_residual``."""
+        from imuslam.lio.matcher import MatchParams
+
+        return MatchParams(max_residual=self.max_residual)
 
 
-# the map's drift per front end: (attitude deg, position m) per sqrt(m) of path (FilterConfig)
-MAP_DRIFT = {"features": (0.08, 0.011), "direct": (0.123, 0.017)}
+# the map's drift per front end: (attitude deg, position m) per sqrt(m) of path (FilterConfig). Zero:
+# the rates once fitted on simulated seeds (direct 0.123 deg / 0.017 m, features 0.08 / 0.011) stood
+# for the roll / pitch drift of the 1 m association gate (MapConfig.max_residual); with the gate at
+# the plane test's 0.1 m the reported covariance is conservative without them (README, LIO covariance)
+MAP_DRIFT = {"features": (0.0, 0.0), "direct": (0.0, 0.0)}
 
 
 class FilterConfig(BaseModel):
@@ -84,10 +104,9 @@ class FilterConfig(BaseModel):
     map_drift_m_per_sqrt_m: the map's error as a random walk along the path, per axis (attitude deg
     and position m per sqrt(m) of path; each map record gains that variance times the path since the
     previous one), in the world of the first IMU pose where the map has no error; ``None`` takes
-    the front end's default (``MAP_DRIFT``, filled in by ``LioConfig.resolved``), set from the
-    simulated street drive (direct: seeds 5, 7, 11, 13; features: seeds 5, 7, 11; a mean NEES near
-    6 for 6 dof), where the scan-to-map registration drifts by 0.5-1 deg in roll / pitch over 50 m,
-    LiDAR-only as much as with the IMU; max_speed / max_rate bound a physically possible state
+    the front end's default (``MAP_DRIFT``, filled in by ``LioConfig.resolved``: zero, the matched
+    map's recorded covariance alone; a user whose scenes drift sets the rates from the RPE of their
+    own runs); max_speed / max_rate bound a physically possible state
     (divergence check)."""
 
     model_config = ConfigDict(extra="forbid")

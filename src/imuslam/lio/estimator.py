@@ -138,13 +138,12 @@ class MapCovariance:
     dtheta x (p_k - p_j) at the current pose). The pieces' errors come from one drifting trajectory,
     so they are taken as fully correlated: C is the mean of J_kj P_j J_kj^T over the matched rows (a
     mean, not the covariance of a mean of independent errors, which would shrink with the count).
-    The world is the first IMU pose (FAST-LIO2's), where the map has no error by construction. The
-    map's error grows along the path: the registration of each scan against a map built from the
-    earlier poses leaves a small, slowly varying error that every new piece inherits (on the simulated
-    street, 0.5-1 deg of roll / pitch over 50 m, as large with LiDAR alone as with the IMU, against a
-    map-relative sigma of 0.035 deg: not white noise, so not in P_rel). ``drift`` models it as a random
-    walk: a record gains ``drift`` times the path since the previous record; the points from before
-    the filter (LiDAR-only, tag -1) carry the drift over the start's path."""
+    The world is the first IMU pose (FAST-LIO2's), where the map has no error by construction.
+    ``drift`` (``filter.map_drift_*``, zero by default) adds a random walk of the map along the
+    path for scenes whose registration drifts: a record gains ``drift`` times the path since the
+    previous record; the points from before the filter (LiDAR-only, tag -1) carry the drift over the
+    start's path. (Its rates were once fitted to a 0.5-1 deg roll / pitch drift on the simulated
+    street, which was the 1 m association gate's doing, ``MapConfig.max_residual``.)"""
 
     def __init__(self, R0: FloatArray, p0: FloatArray, C0: FloatArray, slots: int = 4096,
                  drift: FloatArray | None = None) -> None:  # fmt: skip
@@ -219,9 +218,11 @@ class LioEstimator:
         self.noise = KfNoise(fc.accel_noise, fc.gyro_noise, max(fc.accel_bias_rw, 1e-12),
                              max(fc.gyro_bias_rw, 1e-12))  # fmt: skip
         m = config.map
-        self.map = LocalMap(m.voxel, m.radius, m.max_per_voxel, m.knn)
+        self.map = LocalMap(m.voxel, m.radius, m.max_per_voxel, m.knn, m.match_params())
         self.lidar_only = LidarOdometry(config.model_copy(update={"use_imu": False}))
         self._init_scans: list[tuple[float, FloatArray]] = []
+        # the start's rotation-compensated scans (points, times, ring), for its second pass
+        self._init_points: list[tuple[FloatArray, FloatArray, NDArray[np.integer] | None]] = []
         self._t_mean0 = 0.0  # the mean point time of the first scan, s
         self.eskf: Eskf | None = None
         self.t_state = 0.0
@@ -236,6 +237,8 @@ class LioEstimator:
             4
         )  # the levelled world in the first IMU frame's terms, set at initialisation
         self.n_before_filter = 0  # poses returned in the first IMU frame, before the filter started
+        # those poses again from the start's last pass (``_second_pass``), first IMU frame (n, 4, 4)
+        self.start_poses = np.zeros((0, 4, 4))
         self.map_cov: MapCovariance | None = None
         self._D = np.zeros((self.layout.dim, self.layout.dim))  # P_abs - P_rel (MapCovariance)
         self._pose_index = np.r_[self.layout.TH, self.layout.P]  # [theta, p] in the error state
@@ -259,26 +262,57 @@ class LioEstimator:
         keep = np.concatenate([[True], np.diff(ts) > 1e-9])
         return ts[keep], acc[keep], gyr[keep]
 
+    # passes over the start's scans (``_second_pass``): each costs about 20 ms a start scan; on the
+    # 20 s street drive 3 passes gave 8-12 mm ATE against 13-17 mm for one, at 0.3-0.6 s more CPU
+    START_PASSES = 1
+
+    def _second_pass(self) -> None:
+        """Register the start's scans again, each deskewed for translation with the velocity of the
+        first pass (central differences of its poses) and predicted at its first-pass pose, into a
+        new map. The first pass knows no velocity for the first two scans (constant velocity from
+        nothing): they enter the map smeared by the 0.8 m a car drives in a turn of the LiDAR, and
+        the map keeps the first point of each voxel, so that warp stayed in it (on the street, 0.15
+        deg of roll / pitch and 5 cm at the filter start, which every later pose inherited). The
+        first pass's velocity is wrong around its third scan (the first deskewed with a velocity,
+        registered against the smeared ones), so the passes can repeat, each with the velocity of the
+        one before, until it changes by less than 0.05 m/s (at most ``START_PASSES``, one by default)."""
+        ts = np.array([s[0] for s in self._init_scans])
+        T1 = np.array([s[1] for s in self._init_scans])
+        vel = np.gradient(T1[:, :3, 3], ts, axis=0)  # the LiDAR origin's, in the first LiDAR frame
+        for _ in range(self.START_PASSES):
+            lo = LidarOdometry(self.config.model_copy(update={"use_imu": False}))
+            T1 = np.array([lo.register_scan(pts, t_s, ring, rotation_compensated=True, motion=(T, v))
+                           for (pts, t_s, ring), T, v in zip(self._init_points, T1, vel, strict=True)])  # fmt: skip
+            v_new = np.gradient(T1[:, :3, 3], ts, axis=0)
+            change = float(np.max(np.linalg.norm(v_new - vel, axis=1)))
+            vel = v_new
+            if change < 0.05:  # m/s: the deskew moves a point by at most 5 mm more
+                break
+        self.lidar_only = lo
+        self._init_scans = [(t, T) for t, T in zip(ts, T1, strict=True)]
+        self._init_points = []
+
     def _initialise(self, t_end: float) -> None:
         """Start the filter at ``t_end`` from the LiDAR-only poses of the first scans (see module doc)."""
         from imuslam.ins.align import Aiding, run_alignment
         from imuslam.interfaces.nav import NavState
 
         cfg = self.config
+        self._second_pass()
         ts = np.array([s[0] for s in self._init_scans])
         T_l0 = np.array([s[1] for s in self._init_scans])  # T_l0_lk
         T_l_i = np.linalg.inv(self.T_i_l)
         T_i0_ik = self.T_i_l @ T_l0 @ T_l_i  # IMU poses in the first IMU frame
+        self.start_poses = T_i0_ik[:-1].copy()
         t0 = ts[0]
         _, acc, _ = self._samples(t0, min(t0 + 0.5, ts[-1]))
         R_w_i0 = level_rotation(acc.mean(axis=0))  # w: levelled first IMU frame, zero yaw
         R_k = R_w_i0 @ T_i0_ik[:, :3, :3]
         p_k = T_i0_ik[:, :3, 3] @ R_w_i0.T
-        # the first scan was deskewed for rotation only (no velocity was known): a point fired at t_j
-        # sits v (t_end0 - t_j) ahead of where the scan-end frame would see it, so the map, and every
-        # pose registered against it, is shifted by v (t_end0 - mean t_j); take it out of the world
-        shift = (p_k[1] - p_k[0]) / (ts[1] - ts[0]) * (ts[0] - self._t_mean0)
-        p_k = p_k - shift
+        # every scan of the start is deskewed with its velocity (``_second_pass``): the map has no
+        # shift to take out of the world (with the first scan deskewed for rotation only, a point fired
+        # at t_j sat v (t_end0 - t_j) ahead, and the map 0.44 m off on the street)
+        shift = np.zeros(3)
         v_end = (p_k[-1] - p_k[-2]) / (ts[-1] - ts[-2])
         ba, bg = np.zeros(3), np.zeros(3)
         R_end, p_end = R_k[-1], p_k[-1]
@@ -362,6 +396,7 @@ class LioEstimator:
                                          np.zeros(3), np.zeros(3), np.zeros(3))  # fmt: skip
             pts_rot = deskew(points_l, t_s, tk, Rk, z, z, z, gyr, self.T_i_l, t_end)
             T_l = self.lidar_only.register_scan(pts_rot, t_s, ring, rotation_compensated=True)
+            self._init_points.append((pts_rot, np.asarray(t_s, float), ring))
             if not self._init_scans:
                 self._t_mean0 = float(np.mean(t_s))
             self._init_scans.append((t_end, T_l))

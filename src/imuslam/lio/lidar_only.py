@@ -40,12 +40,23 @@ def gauss_newton(
     converge: float = 1e-3,
     huber: float = 0.2,
 ) -> Registration:
-    """Iteratively re-associated Gauss-Newton with Huber weights on [dp, dtheta] (right perturbation)."""
+    """Iteratively re-associated Gauss-Newton with Huber weights on [dp, dtheta] (right perturbation).
+
+    Two passes: the first associates with the map's coarse gate (``MatchParams.coarse_residual``)
+    since a constant-velocity prediction can be decimetres off; once it has converged, a second pass
+    of up to ``max_iterations`` re-associates with the tight gate (``max_residual``), which keeps the
+    points matched to another surface out of the final pose."""
     R, p = R_w_s.copy(), p_w.copy()
-    it, n = 0, 0
-    while it < max_iterations:
+    n_it, n = 0, 0
+    pr = local_map.params
+    gates = [pr.coarse_residual] * max_iterations + [pr.max_residual] * max_iterations
+    fine = len(gates) // 2
+    it = 0
+    while it < len(gates):
+        gate = gates[it]
         it += 1
-        corr = local_map.associate(surf, edge, R, p)
+        n_it += 1
+        corr = local_map.associate(surf, edge, R, p, gate)
         n = len(corr)
         if n < 6:
             break
@@ -56,8 +67,10 @@ def gauss_newton(
         p = p + dx[:3]
         R = R @ exp(dx[3:])
         if np.linalg.norm(dx) < converge:
-            break
-    return Registration(R, p, it, n)
+            if it > fine or pr.coarse_residual <= pr.max_residual:
+                break
+            it = fine  # the coarse pass has converged: on to the tight gate
+    return Registration(R, p, n_it, n)
 
 
 class LidarOdometry:
@@ -66,7 +79,7 @@ class LidarOdometry:
     def __init__(self, config: LioConfig | None = None) -> None:
         self.config = config or LioConfig(use_imu=False)
         m = self.config.map
-        self.map = LocalMap(m.voxel, m.radius, m.max_per_voxel, m.knn)
+        self.map = LocalMap(m.voxel, m.radius, m.max_per_voxel, m.knn, m.match_params())
         self.T_w_l = np.eye(4)
         self.T_prev = np.eye(4)
         self.t_last: float | None = None
@@ -83,6 +96,7 @@ class LidarOdometry:
         t_s: FloatArray,
         ring: NDArray[np.integer] | None = None,
         rotation_compensated: bool = False,
+        motion: tuple[FloatArray, FloatArray] | None = None,
     ) -> FloatArray:
         """Register one scan; returns ``T_w_l`` (4, 4) at the scan end ``max(t_s)``.
 
@@ -90,7 +104,9 @@ class LidarOdometry:
         gyro); the constant-velocity model then only removes the translation.
 
         points_l: (N, 3) LiDAR frame at each point's time; t_s: (N,) point times, s (any origin, the
-        same clock for every scan); ring: (N,) beam index or None.
+        same clock for every scan); ring: (N,) beam index or None; motion: the scan-end pose
+        prediction ``T_w_l`` (4, 4) and the world velocity (3,) that deskews the translation, in place
+        of the constant-velocity model (a second pass over scans whose motion is known).
         """
         t_end = float(np.max(t_s))
         if self.t_last is not None and t_end > self.t_last:
@@ -102,6 +118,8 @@ class LidarOdometry:
             omega, vel = np.zeros(3), np.zeros(3)
         if rotation_compensated:
             omega = np.zeros(3)
+        if motion is not None:
+            T_pred, vel = np.asarray(motion[0], float), np.asarray(motion[1], float)
         pts = deskew_constant_velocity(points_l, t_s, t_end, T_pred, omega, vel)
         surf, edge = select_points(pts, t_s, ring, self.config.frontend)
         if len(self.map) == 0:

@@ -21,14 +21,16 @@ FloatArray = NDArray[np.float64]
 @dataclass
 class MatchParams:
     """k: neighbours per plane / line; max_nbr_dist: farthest neighbour, m; max_plane_res: plane
-    thickness, m; line_ratio: eigenvalue ratio of a line; max_residual: gate on |r| before weighting, m;
-    huber: robust kernel width, m."""
+    thickness, m; line_ratio: eigenvalue ratio of a line; max_residual: gate on |r| before weighting, m
+    (``MapConfig.max_residual``); coarse_residual: the wider gate of a registration's first pass from a
+    poor prediction (``lidar_only.gauss_newton``), m; huber: robust kernel width, m."""
 
     k: int = 5
     max_nbr_dist: float = 2.0
     max_plane_res: float = 0.1
     line_ratio: float = 3.0
-    max_residual: float = 1.0
+    max_residual: float = 0.1
+    coarse_residual: float = 1.0
     huber: float = 0.2
 
 
@@ -84,10 +86,13 @@ class LocalMap:
         return len(self.surf) + len(self.edge)
 
     def associate(
-        self, surf_i: FloatArray, edge_i: FloatArray, R_w_i: FloatArray, p_w: FloatArray
-    ) -> Correspondences:
-        """Planes for ``surf_i`` (N, 3) and lines for ``edge_i`` (E, 3), IMU-frame points, at the pose."""
+        self, surf_i: FloatArray, edge_i: FloatArray, R_w_i: FloatArray, p_w: FloatArray,
+        max_residual: float | None = None,
+    ) -> Correspondences:  # fmt: skip
+        """Planes for ``surf_i`` (N, 3) and lines for ``edge_i`` (E, 3), IMU-frame points, at the pose;
+        rows whose |residual| exceeds ``max_residual`` (default ``params.max_residual``) are dropped."""
         pr = self.params
+        gate = pr.max_residual if max_residual is None else max_residual
         out_p, out_n, out_c, out_k, out_t = [], [], [], [], []
         for pts, vmap, kind in ((surf_i, self.surf, 0), (edge_i, self.edge, 1)):
             if len(pts) == 0 or len(vmap) < pr.k:
@@ -101,7 +106,7 @@ class LocalMap:
             else:
                 n, c, ok = fit_lines(q, nbr, d2, vmap.storage, pr.max_nbr_dist**2, pr.line_ratio)
             r = np.einsum("mk,mk->m", n, q - c)
-            ok &= np.abs(r) < pr.max_residual
+            ok &= np.abs(r) < gate
             out_p.append(pts[ok])
             out_n.append(n[ok])
             out_c.append(c[ok])

@@ -240,6 +240,9 @@ class LioPipeline:
         P = np.array(poses)
         n_pre = int(getattr(est, "n_before_filter", 0))
         if n_pre:  # poses returned before the filter's world existed: move them into it
+            start = getattr(est, "start_poses", None)  # the start's refined poses, if it has them
+            if start is not None and len(start) == n_pre:
+                P[:n_pre] = start
             P[:n_pre] = est.T_w_i0 @ P[:n_pre]
         traj = Trajectory(
             np.array(t_ns, np.int64), P[:, :3, 3], P[:, :3, :3], f"imuslam lio {self.dataset.name}"
