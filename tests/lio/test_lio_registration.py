@@ -77,3 +77,29 @@ def test_the_default_gate_is_the_plane_test() -> None:
     p = MapConfig().match_params()
     assert p.max_residual == pytest.approx(p.max_plane_res)
     assert MapConfig(max_residual=0.3).match_params().max_residual == 0.3
+
+
+def test_the_tight_rows_are_the_coarse_rows_within_the_tight_gate(exact_street: LidarDrive) -> None:
+    """The LIO's measurement searches once with the coarse gate and keeps, for its tight stage, the
+    rows within ``max_residual`` at the iterate: the same rows a search with the tight gate finds."""
+    from imuslam.ins.core import ErrorLayout, InsState
+    from imuslam.lio.estimator import LidarMeasurement
+
+    mc = MapConfig()
+    lmap = LocalMap(mc.voxel, mc.radius, mc.max_per_voxel, mc.knn, MatchParams())
+    scans = list(_truth_scans(exact_street))
+    for R_e, p_e, surf, edge in scans[:5]:
+        lmap.insert(surf, edge, R_e, p_e)
+    R_e, p_e, surf, edge = scans[5]
+    x = InsState(p_e + np.array([0.05, -0.04, 0.03]), np.zeros(3), R_e)  # a few cm off
+    meas = LidarMeasurement(lmap, surf, edge, 0.02, 0.2)
+    layout = ErrorLayout.full()
+    meas.set_tight(False)
+    meas.linearize(x, layout)
+    n_coarse = meas.n_corr
+    meas.set_tight(True)
+    r, _, _ = meas.linearize(x, layout)
+    tight = lmap.associate(surf, edge, x.R_n_b, x.p_n)
+    r_ref, _ = tight.system(x.R_n_b, x.p_n)
+    assert n_coarse > len(tight) > 0
+    np.testing.assert_allclose(np.sort(-r), np.sort(r_ref), atol=1e-12)

@@ -752,6 +752,8 @@ class Eskf:
         max_iter: int = 5,
         eps: float = 1e-6,
         gate_prob: float | None = None,
+        x_start: InsState | None = None,
+        commit: bool = True,
     ) -> UpdateResult:
         """IEKF update (FAST-LIO2, Xu et al. 2022, eqs. 18-20): at iterate x_j with
         delta = x_j ⊟ x_prior, ``(r, H, R) = linearize_fn(x_j)``, K = (H^T R^-1 H + P^-1)^-1 H^T R^-1
@@ -759,7 +761,10 @@ class Eskf:
         delta); stop when |x_j+1 ⊟ x_j| < eps or after ``max_iter``; then P = (I - K H) P. The Jacobian
         of ⊟ at the prior is taken as identity (its attitude block differs from it by O(|dtheta|)).
         ``linearize_fn`` may return R as a 1-D array of variances (a diagonal R), which keeps the cost
-        linear in the number of rows; gating needs the full matrix."""
+        linear in the number of rows; gating needs the full matrix. ``x_start`` starts the iterations
+        at another iterate than the prior (Gauss-Newton on the same posterior cost, so any start that
+        converges gives the same estimate); with ``commit=False`` the state and covariance are left as
+        they were and the result's dx is the last iterate's offset from the prior."""
         x0 = self.x
         P0 = self.P
         try:
@@ -768,7 +773,7 @@ class Eskf:
             raise FilterDivergence(
                 f"filter diverged at sample {self.n_samples} (t = {self._t_s:.3f} s): prior covariance singular"
             ) from None
-        xj = x0
+        xj = x0 if x_start is None else x_start
         r0 = np.zeros(0)
         nis = float("nan")
         m = self.n
@@ -795,6 +800,8 @@ class Eskf:
                 break
             if float(np.linalg.norm(step)) < eps:
                 break
+        if not commit:
+            return UpdateResult(True, nis, r0, boxminus(xj, x0, self.layout), it)
         self.x = xj
         self.P = (np.eye(m) - KH) @ P0
         self.P = 0.5 * (self.P + self.P.T)

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import FilterDivergence, InputError
-from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise, propagate_covariance
+from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise, boxplus, propagate_covariance
 from imuslam.io.imulog import ImuLog
 from imuslam.lio.config import LioConfig
 from imuslam.lio.deskew import deskew
@@ -77,6 +77,20 @@ class LidarMeasurement:
         self.last_H, self.last_R = np.zeros((0, 0)), np.zeros(0)
         self.n_calls = 0
         self.n_assoc = 0
+        # the association keeps every row within the map's coarse gate (``MatchParams.coarse_residual``);
+        # ``tight`` keeps of those the rows within ``max_residual`` at the iterate where it is set or
+        # where the rows are searched again (the same rows a search with the tight gate finds there,
+        # without a second nearest-neighbour search)
+        pr = local_map.params
+        self.coarse_gate = max(pr.coarse_residual, pr.max_residual)
+        self.tight_gate = pr.max_residual
+        self.tight = True
+        self._all: Correspondences | None = None
+
+    def set_tight(self, tight: bool) -> None:
+        """Use the tight gate (True) or the coarse one from the next linearisation on."""
+        if tight != self.tight:
+            self.tight, self._corr = tight, None
 
     def _moved(self, x: InsState) -> float:
         """How far the pose moved a point at ``reach`` m since the last association, m (bound)."""
@@ -88,11 +102,19 @@ class LidarMeasurement:
     def linearize(
         self, x: InsState, layout: ErrorLayout
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        corr = self._corr
-        if corr is None or self._at is None or self._moved(x) > self.reassociate:
-            corr = self.map.associate(self.surf_i, self.edge_i, x.R_n_b, x.p_n)
-            self._corr, self._at = corr, (x.R_n_b.copy(), x.p_n.copy())
+        if self._all is None or self._at is None or self._moved(x) > self.reassociate:
+            self._all = self.map.associate(
+                self.surf_i, self.edge_i, x.R_n_b, x.p_n, self.coarse_gate
+            )
+            self._corr, self._at = None, (x.R_n_b.copy(), x.p_n.copy())
             self.n_assoc += 1
+        corr = self._corr
+        if corr is None:
+            corr = self._all
+            if self.tight and self.tight_gate < self.coarse_gate:
+                r_all, _ = corr.system(x.R_n_b, x.p_n)
+                corr = corr.subset(np.abs(r_all) < self.tight_gate)
+            self._corr = corr
         self.n_corr = len(corr)
         self.n_calls += 1
         r, J = corr.system(x.R_n_b, x.p_n)
@@ -441,11 +463,28 @@ class LioEstimator:
                                 self.config.filter.lidar_dof, self.config.filter.reassociate)  # fmt: skip
         fc = self.config.filter
         # at least as many rows as states, else the IMU carries the filter through (corridors, fog)
+        lin = lambda s: meas.linearize(s, self.layout)  # noqa: E731
+        pr = self.map.params
+        coarse = pr.coarse_residual > pr.max_residual
+        # coarse to fine, as the LiDAR-only Gauss-Newton: the prior can be decimetres off at 50 m
+        # (a drifted gyro bias, a raw IMU without bias states), where the tight gate
+        # (``MapConfig.max_residual``) would keep too few true matches to pull it in; so the iterations
+        # first converge with the coarse gate, then go on from there with the tight one, whose rows
+        # alone make the estimate (no wall foot matched to the ground)
+        meas.set_tight(not coarse)
         meas.linearize(eskf.x, self.layout)
         if meas.n_corr >= 3 * self.layout.dim:
-            res = eskf.iterated_update(
-                lambda s: meas.linearize(s, self.layout), fc.max_iterations, fc.converge
-            )
+            x_start = None
+            if coarse:
+                first = eskf.iterated_update(lin, fc.max_iterations, fc.converge, commit=False)
+                meas.set_tight(True)
+                x_c = boxplus(eskf.x, first.dx, self.layout)
+                meas.linearize(x_c, self.layout)
+                if meas.n_corr >= 3 * self.layout.dim:
+                    x_start = x_c
+                else:  # the tight gate keeps too few rows: the coarse rows make the update
+                    meas.set_tight(False)
+            res = eskf.iterated_update(lin, fc.max_iterations, fc.converge, x_start=x_start)
             self.last_iterations = res.iterations
             if self.map_cov is not None:  # the consider term (MapCovariance), not fed to the gain
                 idx = self._pose_index

@@ -49,6 +49,12 @@ class Correspondences:
     def __len__(self) -> int:
         return int(self.p_i.shape[0])
 
+    def subset(self, keep: NDArray[np.bool_]) -> Correspondences:
+        """The rows where ``keep`` is true."""
+        return Correspondences(
+            self.p_i[keep], self.n[keep], self.c[keep], self.kind[keep], self.tag[keep]
+        )
+
     def system(self, R_w_i: FloatArray, p_w: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Residuals (M,) m and Jacobians (M, 6) w.r.t. [dp, dtheta] at the pose (R_w_i, p_w)."""
         return point_to_plane_system(
