@@ -4,6 +4,8 @@ against the maximum a posteriori solution found by scipy."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
@@ -110,18 +112,18 @@ def test_update_rejects_an_outlier_and_reports_it() -> None:
     assert ok.accepted and 0 < kf.p[0] < 0.05
 
 
-def test_iterated_update_reaches_the_map_estimate() -> None:
-    """Ranges to four beacons (nonlinear in position) with a 1 m prior: the IEKF's fixed point is the
-    maximum a posteriori position (the prior on p is independent of the other states), which scipy's
-    least squares finds on the same cost; a single EKF update stops short of it."""
-    rng = np.random.default_rng(4)
+def _beacon_ranges(
+    seed: int,
+) -> tuple[
+    np.ndarray, np.ndarray, float, Callable[[InsState], tuple[np.ndarray, np.ndarray, np.ndarray]]
+]:
+    """Ranges to four beacons from (1, 0.5, -0.3) m with 1 cm noise: the beacons, the ranges, their
+    sigma and the linearisation (innovation, H on the position, R) of the full error layout."""
+    rng = np.random.default_rng(seed)
     beacons = np.array([[10.0, 0, 0], [0, 8.0, 0], [-6.0, -5.0, 1.0], [1.0, 1.0, 9.0]])
-    p_true = np.array([1.0, 0.5, -0.3])
     std = 0.01
-    z = np.linalg.norm(beacons - p_true, axis=1) + rng.normal(size=4) * std
-    x0 = InsState(np.zeros(3), np.zeros(3), np.eye(3))
+    z = np.linalg.norm(beacons - np.array([1.0, 0.5, -0.3]), axis=1) + rng.normal(size=4) * std
     layout = ErrorLayout.full()
-    P0 = np.eye(15)
 
     def lin(x: InsState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         d = x.p_n - beacons
@@ -130,6 +132,16 @@ def test_iterated_update_reaches_the_map_estimate() -> None:
         H[:, layout.P] = d / rng_[:, None]
         return z - rng_, H, np.eye(4) * std**2
 
+    return beacons, z, std, lin
+
+
+def test_iterated_update_reaches_the_map_estimate() -> None:
+    """Ranges to four beacons (nonlinear in position) with a 1 m prior: the IEKF's fixed point is the
+    maximum a posteriori position (the prior on p is independent of the other states), which scipy's
+    least squares finds on the same cost; a single EKF update stops short of it."""
+    beacons, z, std, lin = _beacon_ranges(4)
+    x0 = InsState(np.zeros(3), np.zeros(3), np.eye(3))
+    P0 = np.eye(15)
     kf = Eskf(x0, P=P0)
     res = kf.iterated_update(lin, max_iter=20, eps=1e-10)
     map_ = least_squares(lambda p: np.concatenate([(np.linalg.norm(beacons - p, axis=1) - z) / std, p]),
@@ -145,20 +157,9 @@ def test_iterated_update_from_another_start_reaches_the_same_estimate() -> None:
     """The IEKF is Gauss-Newton on the posterior cost, so iterations started at another iterate
     (``x_start``: the LIO's coarse-gate result) converge to the same maximum a posteriori position;
     ``commit=False`` leaves the filter untouched and reports the iterate's offset from the prior."""
-    rng = np.random.default_rng(5)
-    beacons = np.array([[10.0, 0, 0], [0, 8.0, 0], [-6.0, -5.0, 1.0], [1.0, 1.0, 9.0]])
-    std = 0.01
-    z = np.linalg.norm(beacons - np.array([1.0, 0.5, -0.3]), axis=1) + rng.normal(size=4) * std
+    _, _, _, lin = _beacon_ranges(5)
     x0 = InsState(np.zeros(3), np.zeros(3), np.eye(3))
     layout = ErrorLayout.full()
-
-    def lin(x: InsState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        d = x.p_n - beacons
-        rng_ = np.linalg.norm(d, axis=1)
-        H = np.zeros((4, 15))
-        H[:, layout.P] = d / rng_[:, None]
-        return z - rng_, H, np.eye(4) * std**2
-
     ref = Eskf(x0, P=np.eye(15))
     ref.iterated_update(lin, max_iter=30, eps=1e-12)
     kf = Eskf(x0, P=np.eye(15))
