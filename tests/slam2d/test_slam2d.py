@@ -791,7 +791,7 @@ def test_ambiguous_peaks_support_a_candidate_but_never_reject_it() -> None:
     drift = np.array([0.3, -0.2, np.deg2rad(4.0)])
     cfg = Slam2dConfig()
     cfg.loop.background = False
-    cfg.loop.peaks_per_match = 3
+    assert cfg.loop.peaks_per_match == 3 and cfg.loop.consistent_min == 3  # the defaults
 
     def run(with_true_peak: bool) -> list[int]:
         slam = Slam2d(cfg)
@@ -988,13 +988,14 @@ def test_exp1_first_return_closes_by_consistency_over_time(shared_data: Path) ->
 
     log_ = read_breezyslam(shared_data / "breezyslam_mines" / "exp1.dat")
     cfg = Slam2dConfig()
+    assert cfg.loop.peaks_per_match == 3  # the consistency over time is on by default
     cfg.loop.background = False  # repeatable
-    cfg.loop.min_score = 0.4  # as bench/slam2d.py's BreezySLAM config
+    # as bench/slam2d.py's BreezySLAM config (what is not the default there)
+    cfg.loop.min_score = 0.4
     cfg.loop.every_n_nodes = 1
     cfg.loop.loop_sigma_m = 0.03
     cfg.loop.loop_sigma_rad = 0.005
     cfg.loop.distinct_margin = 0.03
-    cfg.loop.peaks_per_match = 3
     off = run_slam2d(
         log_, cfg.model_copy(update={"loop": cfg.loop.model_copy(update={"peaks_per_match": 0})})
     )

@@ -197,11 +197,8 @@ class LoopConfig(BaseModel):
     # with the local SLAM's relative poses, within ``temporal_tol_m`` / ``temporal_tol_deg``): wrong peaks
     # scatter, the true one recurs (the consistent-set acceptance of Olson 2009 and of Latif et al.'s RRR,
     # "Robust loop closing over time for pose graph SLAM", IJRR 32(14), 2013). 0 peaks: off.
-    # off by default: on the four Radish logs it changed the relation errors by nothing and the ATE by
-    # -0.01 m inline, but MIT-CSAIL's run with the background search kept 60 distinct constraints of 67
-    # and went from 0.36 to 0.44 m ATE (README); bench/slam2d.py turns it on for the BreezySLAM logs
     peaks_per_match: int = Field(
-        0, ge=0, description="peaks kept per ambiguous match for the consistency over time (0: off)"
+        3, ge=0, description="peaks kept per ambiguous match for the consistency over time (0: off)"
     )
     temporal_window: int = Field(
         10, ge=2, description="consecutive nodes searched against a submap that vote"
