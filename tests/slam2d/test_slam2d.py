@@ -995,7 +995,6 @@ def test_exp1_first_return_closes_by_consistency_over_time(shared_data: Path) ->
     cfg.loop.every_n_nodes = 1
     cfg.loop.loop_sigma_m = 0.03
     cfg.loop.loop_sigma_rad = 0.005
-    cfg.loop.distinct_margin = 0.03
     off = run_slam2d(
         log_, cfg.model_copy(update={"loop": cfg.loop.model_copy(update={"peaks_per_match": 0})})
     )
