@@ -602,7 +602,8 @@ class Slam2d:
         been searched (all when ``final``): accepted when candidates of at least ``consistent_min`` - 1
         other nodes agree with it and those nodes outnumber the ones whose candidates all disagree by
         ``consistency_ratio`` (two groups of matches that contradict each other: neither is trusted,
-        the "global sufficiency" side of Olson 2009)."""
+        the "global sufficiency" side of Olson 2009). With the consistency over time on, a node whose
+        ambiguous match has a peak that agrees counts as agreeing; its other peaks never disagree."""
         cfg = self.cfg.loop
         t0 = time.perf_counter()
         W = cfg.consistency_window_nodes
