@@ -777,6 +777,42 @@ def test_loop_candidates_accepted_only_when_consistent() -> None:
     assert slam.loop_stats["inconsistent"] == 6
 
 
+def test_ambiguous_peaks_support_a_candidate_but_never_reject_it() -> None:
+    """Two true distinct matches (nodes 40 and 44) and, at node 42 between them, a match with no
+    distinct peak whose 3 peaks hold the true pose and two wrong ones (1.5 m / 20 deg away): the true
+    peak is the third agreeing node the pairwise check needs, so both are accepted; without that peak
+    both are rejected. Ambiguous matches with only wrong peaks (nodes 41, 43) do not count against
+    them."""
+    from imuslam.slam2d.slam import LoopConstraint, Slam2d, Slam2dConfig
+
+    n = 60
+    th = np.linspace(0, 1.0, n)
+    truth = np.column_stack([5 * np.sin(th), 5 * (1 - np.cos(th)), th])
+    drift = np.array([0.3, -0.2, np.deg2rad(4.0)])
+    cfg = Slam2dConfig()
+    cfg.loop.background = False
+    assert cfg.loop.peaks_per_match == 3 and cfg.loop.consistent_min == 3  # the defaults
+
+    def run(with_true_peak: bool) -> list[int]:
+        slam = Slam2d(cfg)
+        slam.node_local = [pose2.compose(drift, p) for p in truth]
+        slam.node_global = [p.copy() for p in slam.node_local]
+        cands = [LoopConstraint(k, 0, truth[k], 0.7, 0, truth[k]) for k in (40, 44)]
+        for k in (41, 42, 43):
+            wrong = [
+                pose2.compose(truth[k], np.array([1.5, 0.0, np.deg2rad(20.0)])),
+                pose2.compose(truth[k], np.array([-1.5, 0.5, np.deg2rad(-20.0)])),
+            ]
+            peaks = [truth[k], *wrong] if (k == 42 and with_true_peak) else wrong
+            cands += [LoopConstraint(k, 0, q, 0.6, 0, q, r + 1) for r, q in enumerate(peaks)]
+        slam.add_candidates(cands)
+        slam.vet_candidates(final=True)
+        return sorted(c.node for c in slam.loops if c.peak == 0)
+
+    assert run(True) == [40, 44]
+    assert run(False) == []
+
+
 def test_relation_sets_by_separation_and_loops() -> None:
     """On a known path (a 10 m x 10 m square driven twice at 1 m/s, a pose every 0.5 m): the pairs 10 m
     apart along the path are (i, i + 20), and the loop pairs (within 2 m, more than 60 s apart) are only
@@ -942,30 +978,37 @@ def test_loop_peaks_accepted_by_consistency_over_time() -> None:
 @pytest.mark.slow
 def test_exp1_first_return_closes_by_consistency_over_time(shared_data: Path) -> None:
     """BreezySLAM's exp1 (wheel ticks + 4 m Hokuyo): no returning scan has a distinct match, so only the
-    consistency over time can close its loop. Without it no constraint and no returning scan agrees with
-    the trajectory; with it constraints are accepted by it, and the returning scans' best matches against
+    consistency over time can close its loop. Without it no returning scan agrees with the trajectory;
+    with it (on by default) constraints are accepted by it, and the returning scans' best matches against
     the start map agree with the optimised trajectory within the rule's own tolerance (0.1 m, 2 deg),
     where the local SLAM is off by more than 5x that."""
     from imuslam.io.carmen import read_breezyslam
-    from imuslam.slam2d.revisit import check_revisits
-    from imuslam.slam2d.slam import Slam2dConfig, run_slam2d
+    from imuslam.slam2d.revisit import RevisitCheck, check_revisits
+    from imuslam.slam2d.slam import Slam2dConfig, Slam2dResult, run_slam2d
 
     log_ = read_breezyslam(shared_data / "breezyslam_mines" / "exp1.dat")
     cfg = Slam2dConfig()
+    assert cfg.loop.peaks_per_match == 3  # the consistency over time is on by default
     cfg.loop.background = False  # repeatable
-    cfg.loop.min_score = 0.4  # as bench/slam2d.py's BreezySLAM config
+    # as bench/slam2d.py's BreezySLAM config (what is not the default there)
+    cfg.loop.min_score = 0.4
     cfg.loop.every_n_nodes = 1
     cfg.loop.loop_sigma_m = 0.03
     cfg.loop.loop_sigma_rad = 0.005
-    cfg.loop.distinct_margin = 0.03
-    cfg.loop.peaks_per_match = 3
     off = run_slam2d(
         log_, cfg.model_copy(update={"loop": cfg.loop.model_copy(update={"peaks_per_match": 0})})
     )
-    assert off.extra["loop_temporal"] == 0 and len(off.loops) == 0
+
+    def agreeing(r: Slam2dResult) -> list[RevisitCheck]:
+        return [
+            c
+            for c in check_revisits(log_, r, cfg).checks
+            if c.after_m <= 0.1 and c.after_deg <= 2.0
+        ]
+
+    assert off.extra["loop_temporal"] == 0 and agreeing(off) == []
     res = run_slam2d(log_, cfg)
     assert res.extra["loop_temporal"] >= 3
-    checks = check_revisits(log_, res, cfg).checks
-    agree = [c for c in checks if c.after_m <= 0.1 and c.after_deg <= 2.0]
+    agree = agreeing(res)
     assert len(agree) >= 2
     assert all(c.before_m > 0.5 for c in agree)

@@ -170,6 +170,13 @@ class LoopConfig(BaseModel):
     # candidates of other nodes within ``consistency_window_nodes`` imply the same relative pose between
     # their nodes as the local SLAM (pairwise consistency, as Olson's single-cluster graph partitioning
     # and Latif et al.'s RRR group loop hypotheses; Cartographer relies on the Huber loss alone). 1: off.
+    # With 3) on, a peak of another node's ambiguous match may be the agreeing one (never a disagreeing
+    # one: an ambiguous match's peaks scatter by nature). Without that, a group of true candidates
+    # whose neighbours' matches fall just short of the distinct-peak test loses its support: on
+    # MIT-CSAIL with the background search, node 1420 found nothing above the minimum score and 1430
+    # came out ambiguous (its peak the same pose) after 1 cm shifts of their search guesses, and the
+    # distinct candidates of nodes 1410, 1415 and 1590 were rejected for want of two agreeing nodes (60
+    # distinct constraints of 67, ATE 0.36 -> 0.44 m; with the lost ones restored offline, 0.36 m)
     distinct_margin: float = Field(
         0.05, ge=0, description="best score minus the best clearly different pose's, at least"
     )
@@ -190,11 +197,8 @@ class LoopConfig(BaseModel):
     # with the local SLAM's relative poses, within ``temporal_tol_m`` / ``temporal_tol_deg``): wrong peaks
     # scatter, the true one recurs (the consistent-set acceptance of Olson 2009 and of Latif et al.'s RRR,
     # "Robust loop closing over time for pose graph SLAM", IJRR 32(14), 2013). 0 peaks: off.
-    # off by default: on the four Radish logs it changed the relation errors by nothing and the ATE by
-    # -0.01 m inline, but MIT-CSAIL's run with the background search kept 60 distinct constraints of 67
-    # and went from 0.36 to 0.44 m ATE (README); bench/slam2d.py turns it on for the BreezySLAM logs
     peaks_per_match: int = Field(
-        0, ge=0, description="peaks kept per ambiguous match for the consistency over time (0: off)"
+        3, ge=0, description="peaks kept per ambiguous match for the consistency over time (0: off)"
     )
     temporal_window: int = Field(
         10, ge=2, description="consecutive nodes searched against a submap that vote"
@@ -377,6 +381,9 @@ class Slam2d:
         # matched, rejected as ambiguous (on the worker), rejected as inconsistent
         self._candidates: list[LoopConstraint] = []
         self._decided: set[int] = set()  # id() of the candidates in _candidates already decided
+        # the peaks of ambiguous matches (consistency over time on): they can support a candidate in
+        # the pairwise check, never count against it
+        self._support: list[LoopConstraint] = []
         self.loop_stats = {"candidates": 0, "ambiguous": 0, "inconsistent": 0, "temporal": 0}
         # consistency over time (cfg.loop.peaks_per_match): per submap, the nodes searched against it
         # and the peaks of their matches (distinct ones vote too); nodes already decided
@@ -562,6 +569,7 @@ class Slam2d:
                 self._peaks.setdefault(c.submap, {}).setdefault(c.node, []).append(c)
                 if c.peak:
                     self._peaks_open.add((c.submap, c.node))
+            self._support.extend(c for c in loops if c.peak)
             loops = [c for c in loops if c.peak == 0]
             self.vet_peaks(final=False)
         if not loops:
@@ -594,7 +602,8 @@ class Slam2d:
         been searched (all when ``final``): accepted when candidates of at least ``consistent_min`` - 1
         other nodes agree with it and those nodes outnumber the ones whose candidates all disagree by
         ``consistency_ratio`` (two groups of matches that contradict each other: neither is trusted,
-        the "global sufficiency" side of Olson 2009)."""
+        the "global sufficiency" side of Olson 2009). With the consistency over time on, a node whose
+        ambiguous match has a peak that agrees counts as agreeing; its other peaks never disagree."""
         cfg = self.cfg.loop
         t0 = time.perf_counter()
         W = cfg.consistency_window_nodes
@@ -612,7 +621,15 @@ class Slam2d:
                     others.add(o.node)
                     if o.node not in agree and self._consistent(c, o):
                         agree.add(o.node)
-            disagree = len(others) - len(agree)
+            for o in self._support:
+                if (
+                    o.node != c.node
+                    and abs(o.node - c.node) <= W
+                    and o.node not in agree
+                    and self._consistent(c, o)
+                ):
+                    agree.add(o.node)
+            disagree = len(others - agree)
             if (
                 len(agree) + 1 >= cfg.consistent_min
                 and len(agree) >= cfg.consistency_ratio * disagree
@@ -625,6 +642,9 @@ class Slam2d:
         keep = [c for c in cands if not final and c.node + 2 * W >= self._searched_upto]
         self._decided &= {id(c) for c in keep}
         self._candidates = keep
+        self._support = [
+            c for c in self._support if not final and c.node + 2 * W >= self._searched_upto
+        ]
         self.main_loop_time += time.perf_counter() - t0
 
     def collect_loops(self, wait: bool = False) -> None:
