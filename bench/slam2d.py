@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from imuslam.eval.slam2d_gt import relations_against_corrected
 from imuslam.io.carmen import read_breezyslam, read_carmen
@@ -36,7 +37,8 @@ from imuslam.io.laserlog import LaserLog
 from imuslam.slam2d import pose2
 from imuslam.slam2d.slam import Slam2dConfig, Slam2dResult, render_map, run_slam2d, scan_points
 
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / ".." / "shared" / "data"
 RELOC = "scans re-localised by the wide search (the prior was off)"
 POOR = "scans far below the run's match score, not inserted"
 # published relation errors on the same logs (mean ± std, translation m, rotation deg), against the
@@ -67,6 +69,14 @@ def _rejected(res: Slam2dResult) -> str:
 def _loops(res: Slam2dResult) -> str:
     """Loop constraints, with those accepted by the consistency over time in brackets."""
     return f"{len(res.loops)} ({res.extra.get('loop_temporal', 0):.0f})"
+
+
+def _merged(base: dict, update: dict) -> dict:
+    """``base`` with ``update``'s values, nested sections merged key by key."""
+    out = dict(base)
+    for k, v in update.items():
+        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
 
 
 def _override(cfg: Slam2dConfig, kv: str) -> Slam2dConfig:
@@ -262,23 +272,10 @@ def main() -> None:
     cfg = Slam2dConfig()
     for kv in args.set:
         cfg = _override(cfg, kv)
-    # BreezySLAM's logs (4 m Hokuyo, 240 deg, wheel ticks, no IMU) score 0.62 on average even against
-    # their own submap: loop matches are accepted from 0.4 (Cartographer's default global minimum score
-    # is 0.6, local 0.55), searched for every node, and the loop edges weigh as 3 cm / 0.3 deg: their local
-    # SLAM drifts 0.4 m / 9 deg round exp2's loop, which the default 10 cm / 3 deg edges could not undo
-    # (exp2 0.079 m / 4.2 deg after closure). Not the default either: 3 cm / 0.3 deg on the Radish logs
-    # gave ATE fr079 0.11, ACES 0.15 m (0.09, 0.13 with 10 cm / 3 deg), MIT-CSAIL 0.28 m (0.36)
-    cfg_b = cfg.model_copy(deep=True)
-    # from 0.4 for the consistency over time (on by default; exp1's returning scans score 0.42-0.47
-    # against the start's submap, none distinctly; 10 consecutive nodes vote): with 0.5 none of them is
-    # a candidate. Not the default: on MIT-CSAIL 0.4 accepts a consistent group of corridor matches
-    # 0.9 m off the reference (nodes 1355-1390 against submap 16), ATE 0.36 -> 0.54 m at 3x the CPU;
-    # 0.4 for the peaks alone (distinct matches from 0.6) gave 0.52 m. Searched at every node: with
-    # every 5th, 10 voting nodes span 50 nodes of the drive and exp1 and exp2 get no constraint
-    cfg_b.loop.min_score = 0.4
-    cfg_b.loop.every_n_nodes = 1
-    cfg_b.loop.loop_sigma_m = 0.03
-    cfg_b.loop.loop_sigma_rad = 0.005
+    # BreezySLAM's logs (4 m Hokuyo, 240 deg, wheel ticks, no IMU): the shipped profile for such a
+    # scanner, examples/map2d_urg04lx.yaml (its comments give why each value is not the default)
+    profile = yaml.safe_load((ROOT / "examples" / "map2d_urg04lx.yaml").read_text())
+    cfg_b = Slam2dConfig.model_validate(_merged(cfg.model_dump(), profile))
     # their submaps are weak (matches score 0.5-0.6): exp2's true closing matches beat the best pose
     # 0.5 m / 10 deg away by 0.03-0.06 only, so with the default distinct margin 0.05 most are ambiguous;
     # the consistency over time (its peaks as votes and as support in the pairwise check) now closes

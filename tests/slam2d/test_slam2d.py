@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from imuslam.errors import InputError
 from imuslam.io.laserlog import LaserLog, check_beam_count
@@ -987,14 +988,12 @@ def test_exp1_first_return_closes_by_consistency_over_time(shared_data: Path) ->
     from imuslam.slam2d.slam import Slam2dConfig, Slam2dResult, run_slam2d
 
     log_ = read_breezyslam(shared_data / "breezyslam_mines" / "exp1.dat")
-    cfg = Slam2dConfig()
+    # the shipped profile for this scanner, as `imuslam map2d --config` reads it
+    profile = Path(__file__).resolve().parents[2] / "examples" / "map2d_urg04lx.yaml"
+    cfg = Slam2dConfig.model_validate(yaml.safe_load(profile.read_text()))
     assert cfg.loop.peaks_per_match == 3  # the consistency over time is on by default
+    assert cfg.loop.min_score == 0.4 and cfg.loop.every_n_nodes == 1
     cfg.loop.background = False  # repeatable
-    # as bench/slam2d.py's BreezySLAM config (what is not the default there)
-    cfg.loop.min_score = 0.4
-    cfg.loop.every_n_nodes = 1
-    cfg.loop.loop_sigma_m = 0.03
-    cfg.loop.loop_sigma_rad = 0.005
     off = run_slam2d(
         log_, cfg.model_copy(update={"loop": cfg.loop.model_copy(update={"peaks_per_match": 0})})
     )
