@@ -321,7 +321,7 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
                      use_imu: bool = True, g_w: list[FloatArr] | None = None,
                      drift: list[float] | None = None, map_covariance: bool = True,
                      map_voxel: float = 0.5, sensor_noise: bool = False,
-                     map_correlation: str = "full",
+                     map_correlation: str = "full", lidar: tuple[float, float] = (0.05, 30.0),
                      split: list[tuple[float, float]] | None = None) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
     """Register ``d``'s scans one by one (calibrated IMU); returns, for the scans after the filter
     start (all scans without the IMU), the NEES of [attitude, position] against the reported 6 x 6
@@ -343,7 +343,8 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
                     map=MapConfig(voxel=map_voxel),
                     extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])),  # type: ignore[arg-type]
                     filter=FilterConfig(state=state, map_covariance=map_covariance,  # type: ignore[arg-type]
-                                        map_correlation=map_correlation, **imu_noise),  # type: ignore[arg-type]
+                                        map_correlation=map_correlation,
+                                        lidar_std=lidar[0], lidar_dof=lidar[1], **imu_noise),  # type: ignore[arg-type]
                     use_imu=use_imu)  # fmt: skip
     if drift is not None:  # --map-drift: the rates of both front ends replaced
         cfg.filter.map_drift_deg_per_sqrt_m, cfg.filter.map_drift_m_per_sqrt_m = drift[0], drift[1]
@@ -418,7 +419,8 @@ def consistency_bench(args: Any) -> None:
             nees, _, _ = _consistency_run(d, mode, args.state, drift=args.map_drift,
                                           map_covariance=not args.no_map_covariance,
                                           map_voxel=args.map_voxel, sensor_noise=args.sensor_noise,
-                                          map_correlation=args.map_correlation, split=split)  # fmt: skip
+                                          map_correlation=args.map_correlation, split=split,
+                                          lidar=(args.lidar_std, args.lidar_dof))  # fmt: skip
             cell = f"{np.mean(nees):.2f}"
             if args.split:
                 sp = np.array(split)
@@ -469,6 +471,10 @@ def main() -> None:
     )
     ap.add_argument("--state", default="full", help="consistency: reduced or full")
     ap.add_argument("--map-voxel", type=float, default=0.5, help="consistency: map.voxel, m")
+    ap.add_argument(
+        "--lidar-std", type=float, default=0.05, help="consistency: filter.lidar_std, m"
+    )
+    ap.add_argument("--lidar-dof", type=float, default=30.0, help="consistency: filter.lidar_dof")
     ap.add_argument(
         "--map-correlation",
         choices=["full", "independent"],
