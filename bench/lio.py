@@ -39,6 +39,7 @@ from imuslam.lio.config import ExtrinsicConfig, FilterConfig, FrontEndConfig, Li
 from imuslam.lio.datasets import MemoryDataset  # noqa: E402
 from imuslam.lio.pipeline import LioPipeline, LioResult  # noqa: E402
 from imuslam.sim.drive import LidarDrive, simulate_lidar_drive  # noqa: E402
+from imuslam.sim.imu import ImuErrorSpec  # noqa: E402
 from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO  # noqa: E402
 
 LAP_S = 34.32  # one lap of the street loop (sim.drive.car_loop_period_s)
@@ -318,20 +319,32 @@ def frontend_bench(args: Any) -> None:
 
 def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = False,
                      use_imu: bool = True, g_w: list[FloatArr] | None = None,
-                     drift: list[float] | None = None,
-                     map_covariance: bool = True) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
+                     drift: list[float] | None = None, map_covariance: bool = True,
+                     map_voxel: float = 0.5, sensor_noise: bool = False,
+                     map_correlation: str = "full", lidar: tuple[float, float] = (0.05, 30.0),
+                     split: list[tuple[float, float]] | None = None) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
     """Register ``d``'s scans one by one (calibrated IMU); returns, for the scans after the filter
     start (all scans without the IMU), the NEES of [attitude, position] against the reported 6 x 6
     covariance (NaN without the IMU), the body-frame attitude error (K, 3) rad and the position error
     (K, 3) m, in the world of the first IMU pose (the first scan end; the filter's levelling R_w_i0
-    applied once), the truth at the first sample at or after each scan end."""
+    applied once), the truth at the first sample at or after each scan end. ``sensor_noise``: the
+    filter's IMU noise densities and bias random walks set to the simulated IMU's
+    (``ImuErrorSpec.bwt901cl``: the MPU-9250 datasheet's densities) instead of the config defaults."""
     from imuslam.geometry import log as so3_log
     from imuslam.lio.estimator import LioEstimator
     from imuslam.lio.lidar_only import LidarOdometry
 
+    imu_noise: dict[str, float] = {}
+    if sensor_noise:
+        spec = ImuErrorSpec.bwt901cl()
+        imu_noise = {"accel_noise": spec.accel_density, "gyro_noise": float(spec.gyro_density),
+                     "accel_bias_rw": spec.accel_bias_rw, "gyro_bias_rw": spec.gyro_bias_rw}  # fmt: skip
     cfg = LioConfig(frontend=FrontEndConfig(mode=mode),  # type: ignore[arg-type]
+                    map=MapConfig(voxel=map_voxel),
                     extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])),  # type: ignore[arg-type]
-                    filter=FilterConfig(state=state, map_covariance=map_covariance),  # type: ignore[arg-type]
+                    filter=FilterConfig(state=state, map_covariance=map_covariance,  # type: ignore[arg-type]
+                                        map_correlation=map_correlation,
+                                        lidar_std=lidar[0], lidar_dof=lidar[1], **imu_noise),  # type: ignore[arg-type]
                     use_imu=use_imu)  # fmt: skip
     if drift is not None:  # --map-drift: the rates of both front ends replaced
         cfg.filter.map_drift_deg_per_sqrt_m, cfg.filter.map_drift_m_per_sqrt_m = drift[0], drift[1]
@@ -369,12 +382,16 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
     if g_w is not None:  # the true gravity in this world, last
         g_w.append(R_a @ np.array([0.0, 0.0, -cfg.filter.g]))
     nees, e_th, e_p = [], [], []
+    split = [] if split is None else split
     for t_end, T, C in rows[1:] if est is not None else rows:
         g = min(int(np.searchsorted(d.gt_t_ns, t_end)), n)
         th = so3_log(T[:3, :3].T @ (R_a @ d.gt_R_w_b[g]))
         dp = R_a @ (d.gt_p_w[g] - d.gt_p_w[g0]) - T[:3, 3]
         e = np.r_[th, dp]
         nees.append(float(e @ np.linalg.solve(C, e)) if C is not None else np.nan)
+        if C is not None:  # the attitude's and the position's own 3-dof NEES (marginal blocks)
+            split.append((float(th @ np.linalg.solve(C[:3, :3], th)),
+                          float(dp @ np.linalg.solve(C[3:, 3:], dp))))  # fmt: skip
         e_th.append(th)
         e_p.append(dp)
     return np.array(nees), np.array(e_th), np.array(e_p)
@@ -398,9 +415,17 @@ def consistency_bench(args: Any) -> None:
         c0 = time.process_time()
         means, n = [], 0
         for mode in modes:
+            split: list[tuple[float, float]] = []
             nees, _, _ = _consistency_run(d, mode, args.state, drift=args.map_drift,
-                                          map_covariance=not args.no_map_covariance)  # fmt: skip
-            means.append(f"{np.mean(nees):.2f}")
+                                          map_covariance=not args.no_map_covariance,
+                                          map_voxel=args.map_voxel, sensor_noise=args.sensor_noise,
+                                          map_correlation=args.map_correlation, split=split,
+                                          lidar=(args.lidar_std, args.lidar_dof))  # fmt: skip
+            cell = f"{np.mean(nees):.2f}"
+            if args.split:
+                sp = np.array(split)
+                cell += f" (att {sp[:, 0].mean():.2f}, pos {sp[:, 1].mean():.2f})"
+            means.append(cell)
             n = len(nees)
         lo, hi = chi2.ppf(0.001, 6 * n) / n, chi2.ppf(0.999, 6 * n) / n
         print(f"| {seed} | " + " | ".join(means) + f" | {n} | [{lo:.2f}, {hi:.2f}] | "
@@ -445,6 +470,27 @@ def main() -> None:
         help="consistency: the street drive's seeds",
     )
     ap.add_argument("--state", default="full", help="consistency: reduced or full")
+    ap.add_argument("--map-voxel", type=float, default=0.5, help="consistency: map.voxel, m")
+    ap.add_argument(
+        "--lidar-std", type=float, default=0.05, help="consistency: filter.lidar_std, m"
+    )
+    ap.add_argument("--lidar-dof", type=float, default=30.0, help="consistency: filter.lidar_dof")
+    ap.add_argument(
+        "--map-correlation",
+        choices=["full", "independent"],
+        default="full",
+        help="consistency: filter.map_correlation",
+    )
+    ap.add_argument(
+        "--sensor-noise",
+        action="store_true",
+        help="consistency: the filter's IMU noise set to the simulated IMU's densities",
+    )
+    ap.add_argument(
+        "--split",
+        action="store_true",
+        help="consistency: also the attitude's and the position's 3-dof NEES (expect 3)",
+    )
     ap.add_argument("--map-drift", type=float, nargs=2, default=None, metavar=("DEG", "M"),
                     help="consistency: filter.map_drift_deg_per_sqrt_m and map_drift_m_per_sqrt_m "
                          "for both front ends (default: each front end's own)")  # fmt: skip

@@ -309,6 +309,34 @@ def test_map_covariance_transfers_a_map_pieces_error_to_the_pose() -> None:
     np.testing.assert_allclose(C, ref, rtol=1e-12)
 
 
+def test_map_covariance_independent_own_parts_enter_as_a_weighted_mean() -> None:
+    """``filter.map_correlation: independent``: a record's map-relative part ``C_rel`` enters as the
+    covariance of a weighted mean of independent errors, sum_u w_u^2 J_u C_rel_u J_u^T, and the rest
+    of its covariance (inherited from its map) as in the fully correlated model, sum_u w_u J_u (C_u -
+    C_rel_u) J_u^T; a record without a map-relative part is the same in both models."""
+    from imuslam.lio.estimator import MapCovariance
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(6, 6))
+    C_map, C_rel = A @ A.T * 1e-6, np.diag(np.arange(1.0, 7.0)) * 1e-6
+    full = MapCovariance(np.eye(3), np.zeros(3), np.zeros((6, 6)))
+    ind = MapCovariance(np.eye(3), np.zeros(3), np.zeros((6, 6)), correlation="independent")
+    poses = [(exp(rng.normal(size=3) * 0.1), rng.normal(size=3) * 10) for _ in range(2)]
+    for mc in (full, ind):
+        for R, p in poses:
+            mc.record(R, p, C_map + C_rel, C_rel)
+    R_k, p_k = exp(rng.normal(size=3) * 0.1), rng.normal(size=3) * 10
+    tags = np.array([0, 0, 0, 1], np.int32)  # shares 3/4 and 1/4
+    u, w, J = ind.transfer(tags, R_k, p_k)
+    ref = sum(w[i] * J[i] @ C_map @ J[i].T + w[i] ** 2 * J[i] @ C_rel @ J[i].T for i in range(2))
+    np.testing.assert_allclose(ind.covariance(tags, R_k, p_k), ref, rtol=1e-12)
+    full_ref = sum(w[i] * J[i] @ (C_map + C_rel) @ J[i].T for i in range(2))
+    np.testing.assert_allclose(full.covariance(tags, R_k, p_k), full_ref, rtol=1e-12)
+    one = np.array([1, 1], np.int32)  # one record: w = 1, both models agree
+    np.testing.assert_allclose(ind.covariance(one, R_k, p_k), full.covariance(one, R_k, p_k),
+                               rtol=1e-12)  # fmt: skip
+
+
 def test_map_drift_defaults_follow_the_front_end() -> None:
     """An empty ``filter.map_drift_*`` resolves to the front end in use, also when the mode is
     changed after construction (as ``imuslam lio --mode`` does); a value given is kept."""

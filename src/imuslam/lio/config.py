@@ -100,7 +100,11 @@ class FilterConfig(BaseModel):
     map's (every map point remembers the scan that inserted it, whose absolute pose covariance is
     recorded; a consider term that never enters the gain, so the estimate is the same either way,
     ``estimator.MapCovariance``); off: the filter's own covariance, of the pose relative to the map
-    taken as exact (FAST-LIO2's), overconfident for the absolute pose; map_drift_deg_per_sqrt_m /
+    taken as exact (FAST-LIO2's), overconfident for the absolute pose; map_correlation: how the
+    matched map pieces' errors combine (``estimator.MapCovariance``): ``full`` (default) fully
+    correlated, never found overconfident; ``independent``: each piece's own map-relative part
+    independent of the others' (closer on short drives, overconfident on some 20 s drives);
+    map_drift_deg_per_sqrt_m /
     map_drift_m_per_sqrt_m: the map's error as a random walk along the path, per axis (attitude deg
     and position m per sqrt(m) of path; each map record gains that variance times the path since the
     previous one), in the world of the first IMU pose where the map has no error; ``None`` takes
@@ -121,6 +125,7 @@ class FilterConfig(BaseModel):
     reassociate: float = Field(0.02, ge=0)
     converge: float = Field(1e-3, gt=0)
     map_covariance: bool = True
+    map_correlation: Literal["full", "independent"] = "full"
     map_drift_deg_per_sqrt_m: float | None = Field(None, ge=0)
     map_drift_m_per_sqrt_m: float | None = Field(None, ge=0)
     max_speed: float = Field(60.0, gt=0)

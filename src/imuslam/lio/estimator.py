@@ -22,6 +22,7 @@ A pure object: ``register_scan(points, times, ring) -> T_w_i``; it reads no file
 from __future__ import annotations
 
 import logging
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -160,6 +161,11 @@ class MapCovariance:
     dtheta x (p_k - p_j) at the current pose). The pieces' errors come from one drifting trajectory,
     so they are taken as fully correlated: C is the mean of J_kj P_j J_kj^T over the matched rows (a
     mean, not the covariance of a mean of independent errors, which would shrink with the count).
+    ``correlation="independent"`` (``filter.map_correlation``) splits P_j into the part the piece
+    inherited from its own map (still fully correlated) and its scan's map-relative covariance, taken
+    as independent between pieces: that part enters as sum_u w_u^2 J_u Prel_u J_u^T, the covariance
+    of the weighted mean of independent errors (README, LIO covariance: neither model is inside the
+    NEES band on every drive).
     The world is the first IMU pose (FAST-LIO2's), where the map has no error by construction.
     ``drift`` (``filter.map_drift_*``, zero by default) adds a random walk of the map along the
     path for scenes whose registration drifts: a record gains ``drift`` times the path since the
@@ -168,7 +174,8 @@ class MapCovariance:
     street, which was the 1 m association gate's doing, ``MapConfig.max_residual``.)"""
 
     def __init__(self, R0: FloatArray, p0: FloatArray, C0: FloatArray, slots: int = 4096,
-                 drift: FloatArray | None = None) -> None:  # fmt: skip
+                 drift: FloatArray | None = None,
+                 correlation: Literal["full", "independent"] = "full") -> None:  # fmt: skip
         # drift (6,): the diagonal [theta, p] variance the map gains per metre of path (rad^2/m, m^2/m)
         self.drift = np.zeros(6) if drift is None else np.asarray(drift, float)
         self._last_p = np.asarray(p0, float).copy()
@@ -178,19 +185,24 @@ class MapCovariance:
         self._R = np.zeros((slots, 3, 3))
         self._p = np.zeros((slots, 3))
         self._C = np.zeros((slots, 6, 6))  # [theta, p] absolute covariance at insertion
+        self._Crel = np.zeros((slots, 6, 6))  # its map-relative part (the filter's P at insertion)
         self._R[0], self._p[0], self._C[0] = R0, p0, C0
+        self.correlation = correlation
         self.n = 0
 
     def _slot(self, tag: NDArray[np.int64]) -> NDArray[np.int64]:
         return np.where(tag < 0, 0, 1 + tag % (len(self._p) - 1))
 
-    def record(self, R_w_i: FloatArray, p_w: FloatArray, C: FloatArray) -> int:
-        """Record an inserting pose and its absolute [theta, p] covariance (6, 6); returns its tag."""
+    def record(self, R_w_i: FloatArray, p_w: FloatArray, C: FloatArray,
+               C_rel: FloatArray | None = None) -> int:  # fmt: skip
+        """Record an inserting pose and its absolute [theta, p] covariance (6, 6), of which ``C_rel``
+        (6, 6) is the map-relative part (the filter's own; zero if not given); returns its tag."""
         tag = self.n
         i = int(self._slot(np.array([tag]))[0])
         step = float(np.linalg.norm(p_w - self._last_p))  # path since the last record, m
         self._last_p = np.asarray(p_w, float).copy()
         self._R[i], self._p[i], self._C[i] = R_w_i, p_w, C + np.diag(self.drift * step)
+        self._Crel[i] = 0.0 if C_rel is None else C_rel
         self.n += 1
         return tag
 
@@ -214,7 +226,11 @@ class MapCovariance:
     def covariance(self, tag: NDArray[np.int32], R_w_i: FloatArray, p_w: FloatArray) -> FloatArray:
         """C (6, 6) on [theta, p]: the matched map's error covariance seen from (R_w_i, p_w)."""
         u, w, J = self.transfer(tag, R_w_i, p_w)
-        A = (J @ self._C[u]) * w[:, None, None]  # sum_u w_u J_u C_u J_u^T as one (6, 6U) product
+        Cu = self._C[u]
+        # independent own parts: sum_u w_u J (C_u - Crel_u) J^T + sum_u w_u^2 J Crel_u J^T
+        if self.correlation == "independent":
+            Cu = Cu - self._Crel[u] * (1.0 - w)[:, None, None]
+        A = (J @ Cu) * w[:, None, None]  # sum_u w_u J_u C_u J_u^T as one (6, 6U) product
         return np.asarray(
             A.transpose(1, 0, 2).reshape(6, -1) @ J.transpose(1, 0, 2).reshape(6, -1).T
         )
@@ -410,7 +426,9 @@ class LioEstimator:
             drift = np.r_[np.full(3, np.deg2rad(q_deg) ** 2), np.full(3, q_m**2)]
             path0 = float(np.sum(np.linalg.norm(np.diff(p_k, axis=0), axis=1)))
             C0 = np.diag(drift * path0)
-            self.map_cov = MapCovariance(R_end, p_end, C0, drift=drift)
+            self.map_cov = MapCovariance(
+                R_end, p_end, C0, drift=drift, correlation=cfg.filter.map_correlation
+            )
             self._D[np.ix_(idx, idx)] = C0
         # the LiDAR-only map moves into w: x_w = T_w_i0 T_i_l x_l0
         T_w_l0 = np.eye(4)
@@ -532,7 +550,8 @@ class LioEstimator:
         tag = -1
         if self.map_cov is not None:
             idx = self._pose_index
-            tag = self.map_cov.record(x.R_n_b, x.p_n, (eskf.P + self._D)[np.ix_(idx, idx)])
+            P_rel = eskf.P[np.ix_(idx, idx)]
+            tag = self.map_cov.record(x.R_n_b, x.p_n, P_rel + self._D[np.ix_(idx, idx)], P_rel)
         self.map.insert(surf_i, edge_i, x.R_n_b, x.p_n, tag)
         if k % 10 == 0:
             self.map.prune(x.p_n)
