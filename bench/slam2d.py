@@ -71,14 +71,6 @@ def _loops(res: Slam2dResult) -> str:
     return f"{len(res.loops)} ({res.extra.get('loop_temporal', 0):.0f})"
 
 
-def _merged(base: dict, update: dict) -> dict:
-    """``base`` with ``update``'s values, nested sections merged key by key."""
-    out = dict(base)
-    for k, v in update.items():
-        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
-
-
 def _override(cfg: Slam2dConfig, kv: str) -> Slam2dConfig:
     """``section.field=value`` (or ``field=value``) applied to a copy of ``cfg``, validated."""
     key, _, value = kv.partition("=")
@@ -273,9 +265,10 @@ def main() -> None:
     for kv in args.set:
         cfg = _override(cfg, kv)
     # BreezySLAM's logs (4 m Hokuyo, 240 deg, wheel ticks, no IMU): the shipped profile for such a
-    # scanner, examples/map2d_urg04lx.yaml (its comments give why each value is not the default)
+    # scanner, examples/map2d_urg04lx.yaml (its comments give why each value is not the default), read
+    # as `imuslam map2d --config` reads it; the --set values below apply to it as well
     profile = yaml.safe_load((ROOT / "examples" / "map2d_urg04lx.yaml").read_text())
-    cfg_b = Slam2dConfig.model_validate(_merged(cfg.model_dump(), profile))
+    cfg_b = Slam2dConfig.model_validate(profile)
     # their submaps are weak (matches score 0.5-0.6): exp2's true closing matches beat the best pose
     # 0.5 m / 10 deg away by 0.03-0.06 only, so with the default distinct margin 0.05 most are ambiguous;
     # the consistency over time (its peaks as votes and as support in the pairwise check) now closes
