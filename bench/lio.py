@@ -7,6 +7,7 @@
     PYTHONPATH=src python bench/lio.py memory    # map size and peak RSS over a 30-minute drive (streamed)
     PYTHONPATH=src python bench/lio.py frontend  # the compiled front end against its numpy reference
     PYTHONPATH=src python bench/lio.py consistency  # mean NEES of the reported covariance, 6 seeds x 2 modes
+    PYTHONPATH=src python bench/lio.py rowmodel  # one scan's covariance against a map from the true poses
 
 Options: --duration S (drive length), --cache DIR (simulated drives are cached there, keyed by their
 parameters). The street drive is seed 001's car loop around an urban block: VLP-16 at 10 Hz (about 28k
@@ -322,6 +323,7 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
                      drift: list[float] | None = None, map_covariance: bool = True,
                      map_voxel: float = 0.5, sensor_noise: bool = False,
                      map_correlation: str = "full", lidar: tuple[float, float] = (0.05, 30.0),
+                     lidar_model: str = "dof", range_std: float = 0.02,
                      split: list[tuple[float, float]] | None = None) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
     """Register ``d``'s scans one by one (calibrated IMU); returns, for the scans after the filter
     start (all scans without the IMU), the NEES of [attitude, position] against the reported 6 x 6
@@ -344,7 +346,9 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
                     extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])),  # type: ignore[arg-type]
                     filter=FilterConfig(state=state, map_covariance=map_covariance,  # type: ignore[arg-type]
                                         map_correlation=map_correlation,
-                                        lidar_std=lidar[0], lidar_dof=lidar[1], **imu_noise),  # type: ignore[arg-type]
+                                        lidar_std=lidar[0], lidar_dof=lidar[1],
+                                        lidar_model=lidar_model, lidar_range_std=range_std,  # type: ignore[arg-type]
+                                        **imu_noise),  # type: ignore[arg-type]
                     use_imu=use_imu)  # fmt: skip
     if drift is not None:  # --map-drift: the rates of both front ends replaced
         cfg.filter.map_drift_deg_per_sqrt_m, cfg.filter.map_drift_m_per_sqrt_m = drift[0], drift[1]
@@ -416,15 +420,19 @@ def consistency_bench(args: Any) -> None:
         means, n = [], 0
         for mode in modes:
             split: list[tuple[float, float]] = []
-            nees, _, _ = _consistency_run(d, mode, args.state, drift=args.map_drift,
+            nees, e_th, e_p = _consistency_run(d, mode, args.state, drift=args.map_drift,
                                           map_covariance=not args.no_map_covariance,
                                           map_voxel=args.map_voxel, sensor_noise=args.sensor_noise,
                                           map_correlation=args.map_correlation, split=split,
-                                          lidar=(args.lidar_std, args.lidar_dof))  # fmt: skip
+                                          lidar=(args.lidar_std, args.lidar_dof),
+                                          lidar_model=args.lidar_model,
+                                          range_std=args.range_std)  # fmt: skip
             cell = f"{np.mean(nees):.2f}"
             if args.split:
                 sp = np.array(split)
-                cell += f" (att {sp[:, 0].mean():.2f}, pos {sp[:, 1].mean():.2f})"
+                cell += (f" (att {sp[:, 0].mean():.2f}, pos {sp[:, 1].mean():.2f}; RMS "
+                         f"{np.rad2deg(np.sqrt(np.mean(e_th**2))):.3f} deg, "
+                         f"{1e3 * np.sqrt(np.mean(e_p**2)):.1f} mm)")  # fmt: skip
             means.append(cell)
             n = len(nees)
         lo, hi = chi2.ppf(0.001, 6 * n) / n, chi2.ppf(0.999, 6 * n) / n
@@ -450,10 +458,85 @@ def consistency_bench(args: Any) -> None:
               f"{deg(np.max(np.linalg.norm(th_g - th, axis=1))):.3f} deg")  # fmt: skip
 
 
+def _rowmodel_run(d: LidarDrive, mode: str, map_voxel: float = 0.5,
+                  range_std: float = 0.02) -> dict[str, FloatArr]:  # fmt: skip
+    """Each scan registered on its own against a map built from the TRUE poses of the scans before it
+    (the points keep their range noise; the scan deskewed with the true motion), from the true pose:
+    per scan [NEES 6, attitude NEES 3, position NEES 3, |attitude error| deg, |position error| mm] of
+    the registration's covariance, for the rows' noise model (``filter.lidar_model: plane``,
+    ``lio.rowcov``) and the default (diagonal ``lidar_std``^2 scaled by M / ``lidar_dof``, the metric
+    Huber). Isolates one scan's covariance from the filter's prior, its start and the map's pose errors."""
+    from imuslam.geometry import log as so3_log
+    from imuslam.geometry.interp import interpolate_poses
+    from imuslam.lio.frontend import select_points
+    from imuslam.lio.lidar_only import gauss_newton
+    from imuslam.lio.matcher import LocalMap, MatchParams, huber_weights
+    from imuslam.lio.rowcov import SensorOrigins, gauss_newton_rows
+
+    R_i_l, p_i_l = d.T_i_l[:3, :3], d.T_i_l[:3, 3]
+    fe, fc = FrontEndConfig(mode=mode), FilterConfig()  # type: ignore[arg-type]
+    lmap = LocalMap(map_voxel, 100.0, 1, "ivox", MatchParams())
+    origins = SensorOrigins()
+    gt_t = d.gt_t_ns.astype(float) * 1e-9
+    out: dict[str, list[list[float]]] = {"plane": [], "dof": []}
+
+    def row(e: FloatArr, C: FloatArr) -> list[float]:  # e, C on [dp, dtheta]
+        return [float(e @ np.linalg.solve(C, e)), float(e[3:] @ np.linalg.solve(C[3:, 3:], e[3:])),
+                float(e[:3] @ np.linalg.solve(C[:3, :3], e[:3])),
+                float(np.rad2deg(np.linalg.norm(e[3:]))), float(1e3 * np.linalg.norm(e[:3]))]  # fmt: skip
+
+    for j, s in enumerate(d.scans):
+        t = s.t_ns * 1e-9 + s.t_offset_s.astype(float)
+        P, R = interpolate_poses(gt_t, d.gt_p_w, d.gt_R_w_b, t)
+        pe, Re = interpolate_poses(gt_t, d.gt_p_w, d.gt_R_w_b, np.array([t.max()]))
+        pe, Re = pe[0], Re[0]
+        x_w = np.einsum("nij,nj->ni", R, s.points_l.astype(float) @ R_i_l.T + p_i_l) + P
+        x_l = ((x_w - pe) @ Re - p_i_l) @ R_i_l  # the LiDAR frame at the scan end, true deskew
+        surf_l, edge_l = select_points(x_l, t - t.min(), s.ring, fe)
+        surf, edge = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
+        if j >= 10:  # a map of ten scans first
+            Rk, pk, _, _, C = gauss_newton_rows(lmap, surf, edge, Re, pe, range_std, origins,
+                                                coarse=False, p_s=p_i_l)  # fmt: skip
+            out["plane"].append(row(np.r_[pe - pk, so3_log(Rk.T @ Re)], C))
+            reg = gauss_newton(lmap, surf, edge, Re, pe, huber=0.2)
+            corr = lmap.associate(surf, edge, reg.R_w_s, reg.p_w)
+            r, J = corr.system(reg.R_w_s, reg.p_w)
+            Rd = max(1.0, len(r) / fc.lidar_dof) * fc.lidar_std**2 / huber_weights(r, 0.2)
+            C = np.linalg.inv(J.T @ (J / Rd[:, None]))
+            out["dof"].append(row(np.r_[pe - reg.p_w, so3_log(reg.R_w_s.T @ Re)], C))
+        lmap.insert(surf, edge, Re, pe, j)
+        origins.record(j, Re @ p_i_l + pe)
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def rowmodel_bench(args: Any) -> None:
+    """Per-scan consistency of the LiDAR rows' noise model (``_rowmodel_run``), per seed and front end."""
+    from scipy.stats import chi2
+
+    dur = args.duration or 6.0
+    print(f"street excerpt {dur:g} s: each scan against a map from the true poses, from the true pose; "
+          f"mean NEES 6 dof (attitude 3, position 3) and mean |error| (deg, mm); map voxel "
+          f"{args.map_voxel:g} m, range noise {args.range_std:g} m")  # fmt: skip
+    print("| seed | mode | plane (lio.rowcov) | default (5 cm, 30 dof) | n | chi2 band 6 dof | CPU s |")
+    print("|---|---|---|---|---|---|---|")
+    for seed in args.seeds:
+        d = drive("street", dur, args.cache, seed=seed)
+        for mode in ("direct", "features"):
+            c0 = time.process_time()
+            res = _rowmodel_run(d, mode, args.map_voxel, args.range_std)
+            cells = [f"{a[:, 0].mean():.2f} ({a[:, 1].mean():.2f}, {a[:, 2].mean():.2f}); "
+                     f"{a[:, 3].mean():.4f} deg, {a[:, 4].mean():.2f} mm" for a in (res["plane"], res["dof"])]  # fmt: skip
+            n = len(res["plane"])
+            lo, hi = chi2.ppf(0.001, 6 * n) / n, chi2.ppf(0.999, 6 * n) / n
+            print(f"| {seed} | {mode} | {cells[0]} | {cells[1]} | {n} | [{lo:.2f}, {hi:.2f}] | "
+                  f"{time.process_time() - c0:.1f} |")  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument(
-        "what", choices=["main", "imu", "rotating", "corridor", "memory", "frontend", "consistency"]
+        "what",
+        choices=["main", "imu", "rotating", "corridor", "memory", "frontend", "consistency", "rowmodel"],
     )
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/imuslam-bench-lio"))
@@ -475,6 +558,10 @@ def main() -> None:
         "--lidar-std", type=float, default=0.05, help="consistency: filter.lidar_std, m"
     )
     ap.add_argument("--lidar-dof", type=float, default=30.0, help="consistency: filter.lidar_dof")
+    ap.add_argument("--lidar-model", choices=["dof", "plane"], default="dof",
+                    help="consistency: filter.lidar_model")  # fmt: skip
+    ap.add_argument("--range-std", type=float, default=0.02,
+                    help="consistency: filter.lidar_range_std, m (the simulated LiDAR's 2 cm)")  # fmt: skip
     ap.add_argument(
         "--map-correlation",
         choices=["full", "independent"],
@@ -501,7 +588,7 @@ def main() -> None:
     t0 = time.perf_counter()
     {"main": main_bench, "imu": imu_bench, "rotating": rotating_bench, "corridor": corridor_bench,
      "memory": memory_bench, "frontend": frontend_bench,
-     "consistency": consistency_bench}[args.what](args)  # fmt: skip
+     "consistency": consistency_bench, "rowmodel": rowmodel_bench}[args.what](args)  # fmt: skip
     print(f"({time.perf_counter() - t0:.0f} s)")
 
 

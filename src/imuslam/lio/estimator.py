@@ -22,9 +22,11 @@ A pure object: ``register_scan(points, times, ring) -> T_w_i``; it reads no file
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from imuslam.errors import FilterDivergence, InputError
@@ -35,6 +37,7 @@ from imuslam.lio.deskew import deskew
 from imuslam.lio.frontend import select_indices, select_points
 from imuslam.lio.lidar_only import LidarOdometry
 from imuslam.lio.matcher import Correspondences, LocalMap, huber_weights
+from imuslam.lio.rowcov import SensorOrigins, associate_shared, tukey_weights, whitened_system
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -52,6 +55,16 @@ def level_rotation(f_b: FloatArray) -> FloatArray:
     return Ry @ Rx
 
 
+@dataclass
+class SharedMapNoise:
+    """What ``filter.lidar_model: plane`` needs (``lio.rowcov``): the LiDAR's origin in the IMU frame
+    p_i_l (3,), the inserting scans' LiDAR origins and the range noise 1-sigma, m."""
+
+    p_i_l: FloatArray
+    origins: SensorOrigins
+    range_std: float
+
+
 class LidarMeasurement:
     """Point-to-plane / point-to-line residuals of one scan against the local map, re-associated at an
     iterate whose pose moved a point at ``reach`` m by more than ``reassociate`` m since the last
@@ -63,8 +76,15 @@ class LidarMeasurement:
 
     def __init__(self, local_map: LocalMap, surf_i: FloatArray, edge_i: FloatArray, std: float,
                  huber: float, dof: float = np.inf, reassociate: float = 0.0,
-                 reach: float = 20.0) -> None:  # fmt: skip
+                 reach: float = 20.0, shared: SharedMapNoise | None = None) -> None:  # fmt: skip
         self.map = local_map
+        # ``filter.lidar_model: plane``: the rows' own range noise and the frozen map points' noise they
+        # share (``lio.rowcov``) instead of the diagonal std^2 scaled by M / dof
+        self.shared = shared
+        self._s = np.zeros(0)
+        self._G: sp.csr_matrix | None = None
+        self._s_all = np.zeros(0)
+        self._G_all: sp.csr_matrix | None = None
         self.reassociate = reassociate
         self.reach = reach
         self._at: tuple[FloatArray, FloatArray] | None = None
@@ -103,22 +123,52 @@ class LidarMeasurement:
     def linearize(
         self, x: InsState, layout: ErrorLayout
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        sh = self.shared
         if self._all is None or self._at is None or self._moved(x) > self.reassociate:
-            self._all = self.map.associate(
-                self.surf_i, self.edge_i, x.R_n_b, x.p_n, self.coarse_gate
-            )
+            if sh is None:
+                self._all = self.map.associate(
+                    self.surf_i, self.edge_i, x.R_n_b, x.p_n, self.coarse_gate
+                )
+            else:
+                origin = x.R_n_b @ sh.p_i_l + x.p_n
+                self._all, self._s_all, self._G_all = associate_shared(
+                    self.map, self.surf_i, self.edge_i, x.R_n_b, x.p_n, self.coarse_gate,
+                    origin, sh.origins, sh.range_std,
+                )  # fmt: skip
             self._corr, self._at = None, (x.R_n_b.copy(), x.p_n.copy())
             self.n_assoc += 1
         corr = self._corr
         if corr is None:
             corr = self._all
+            self._s, self._G = self._s_all, self._G_all
             if self.tight and self.tight_gate < self.coarse_gate:
                 r_all, _ = corr.system(x.R_n_b, x.p_n)
-                corr = corr.subset(np.abs(r_all) < self.tight_gate)
+                keep = np.abs(r_all) < self.tight_gate
+                corr = corr.subset(keep)
+                if sh is not None:
+                    assert self._G_all is not None
+                    self._s, self._G = self._s_all[keep], self._G_all[np.flatnonzero(keep)]
             self._corr = corr
         self.n_corr = len(corr)
         self.n_calls += 1
         r, J = corr.system(x.R_n_b, x.p_n)
+        if sh is not None:
+            assert self._G is not None
+            # the rows' own variance (a floor of a tenth of the range noise where the beam grazes the
+            # plane, numerical) and the shared map noise G G^T
+            s = np.maximum(self._s, 0.1 * sh.range_std)
+            # Tukey's biweight on the residual in units of its own predicted sigma (IRLS): the row's
+            # whole covariance inflated by 1 / w, as scaling its residual and Jacobian by sqrt(w);
+            # the metric Huber (0.2 m) would leave the few rows on another surface (a kerb, a corner
+            # straddled by the neighbours, 2-3 % beyond 3 sigma) their full weight
+            g2 = np.asarray(self._G.multiply(self._G).sum(axis=1)).ravel()
+            sw = tukey_weights(r / np.sqrt(s * s + g2))
+            r, J, D = r * sw, J * sw[:, None], s * s
+            U, z = whitened_system(r, J, D, self._G)
+            Hc = np.zeros((6, layout.dim))
+            Hc[:, layout.P], Hc[:, layout.TH] = U[:, :3], U[:, 3:]
+            self.last_H, self.last_R = Hc, np.ones(6)
+            return -z, Hc, np.ones(6)
         H = np.zeros((len(r), layout.dim))
         H[:, layout.P] = J[:, :3]
         H[:, layout.TH] = J[:, 3:]
@@ -279,6 +329,10 @@ class LioEstimator:
         self.start_poses = np.zeros((0, 4, 4))
         self.map_cov: MapCovariance | None = None
         self._D = np.zeros((self.layout.dim, self.layout.dim))  # P_abs - P_rel (MapCovariance)
+        self.shared: SharedMapNoise | None = None
+        if fc.lidar_model == "plane":
+            self.shared = SharedMapNoise(self.T_i_l[:3, 3].copy(), SensorOrigins(), fc.lidar_range_std)
+        self._n_inserted = 0
         self._pose_index = np.r_[self.layout.TH, self.layout.P]  # [theta, p] in the error state
 
     # ------------------------------------------------------------------------------------------
@@ -503,7 +557,8 @@ class LioEstimator:
         R_i_l, p_i_l = self.T_i_l[:3, :3], self.T_i_l[:3, 3]
         surf_i, edge_i = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
         meas = LidarMeasurement(self.map, surf_i, edge_i, self.config.filter.lidar_std, 0.2,
-                                self.config.filter.lidar_dof, self.config.filter.reassociate)  # fmt: skip
+                                self.config.filter.lidar_dof, self.config.filter.reassociate,
+                                shared=self.shared)  # fmt: skip
         fc = self.config.filter
         # at least as many rows as states, else the IMU carries the filter through (corridors, fog)
         lin = lambda s: meas.linearize(s, self.layout)  # noqa: E731
@@ -552,6 +607,11 @@ class LioEstimator:
             idx = self._pose_index
             P_rel = eskf.P[np.ix_(idx, idx)]
             tag = self.map_cov.record(x.R_n_b, x.p_n, P_rel + self._D[np.ix_(idx, idx)], P_rel)
+        elif self.shared is not None:
+            tag = self._n_inserted
+        if self.shared is not None:  # the LiDAR origin the inserted points were measured from
+            self.shared.origins.record(tag, x.R_n_b @ self.shared.p_i_l + x.p_n)
+        self._n_inserted += 1
         self.map.insert(surf_i, edge_i, x.R_n_b, x.p_n, tag)
         if k % 10 == 0:
             self.map.prune(x.p_n)
