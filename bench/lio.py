@@ -517,7 +517,9 @@ def rowmodel_bench(args: Any) -> None:
     print(f"street excerpt {dur:g} s: each scan against a map from the true poses, from the true pose; "
           f"mean NEES 6 dof (attitude 3, position 3) and mean |error| (deg, mm); map voxel "
           f"{args.map_voxel:g} m, range noise {args.range_std:g} m")  # fmt: skip
-    print("| seed | mode | plane (lio.rowcov) | default (5 cm, 30 dof) | n | chi2 band 6 dof | CPU s |")
+    print(
+        "| seed | mode | plane (lio.rowcov) | default (5 cm, 30 dof) | n | chi2 band 6 dof | CPU s |"
+    )
     print("|---|---|---|---|---|---|---|")
     for seed in args.seeds:
         d = drive("street", dur, args.cache, seed=seed)
@@ -536,7 +538,16 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument(
         "what",
-        choices=["main", "imu", "rotating", "corridor", "memory", "frontend", "consistency", "rowmodel"],
+        choices=[
+            "main",
+            "imu",
+            "rotating",
+            "corridor",
+            "memory",
+            "frontend",
+            "consistency",
+            "rowmodel",
+        ],
     )
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/imuslam-bench-lio"))

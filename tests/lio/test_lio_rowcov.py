@@ -6,10 +6,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from numpy.typing import NDArray
 
+from imuslam.eval.metrics import evaluate
+from imuslam.geometry import log as so3_log
+from imuslam.geometry.interp import interpolate_poses
+from imuslam.imu.model import ImuCalibration, TriadModel
+from imuslam.interfaces import Trajectory
+from imuslam.lio.config import ExtrinsicConfig, FilterConfig, FrontEndConfig, LioConfig
+from imuslam.lio.datasets import MemoryDataset
+from imuslam.lio.frontend import select_points
 from imuslam.lio.matcher import LocalMap, MatchParams
+from imuslam.lio.pipeline import LioPipeline
 from imuslam.lio.residuals import fit_planes_reference
-from imuslam.lio.rowcov import SensorOrigins, associate_shared, whitened_system
+from imuslam.lio.rowcov import SensorOrigins, associate_shared, gauss_newton_rows, whitened_system
+from imuslam.sim.drive import LidarDrive, simulate_lidar_drive
+from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO
+
+FloatArray = NDArray[np.float64]
 
 
 def test_whitened_system_is_the_generalised_least_squares_one() -> None:
@@ -56,3 +70,70 @@ def test_plane_fit_error_and_its_sharing_match_monte_carlo() -> None:
     corr_mc = C_mc[0, 1] / np.sqrt(C_mc[0, 0] * C_mc[1, 1])
     corr_pred = C_pred[0, 1] / np.sqrt(C_pred[0, 0] * C_pred[1, 1])
     assert corr_mc == pytest.approx(corr_pred, abs=0.03)
+
+
+def _per_scan_nees(d: LidarDrive, mode: str) -> FloatArray:
+    """Each scan registered with the rows' model against a map built from the TRUE poses of the scans
+    before it (ten scans first), from the true pose, deskewed with the true motion: the NEES (6 dof) of
+    its covariance per scan (``bench/lio.py rowmodel``)."""
+    R_i_l, p_i_l = d.T_i_l[:3, :3], d.T_i_l[:3, 3]
+    lmap = LocalMap(0.5, 100.0, 1, "ivox", MatchParams())
+    origins = SensorOrigins()
+    gt_t = d.gt_t_ns.astype(float) * 1e-9
+    out = []
+    for j, s in enumerate(d.scans):
+        t = s.t_ns * 1e-9 + s.t_offset_s.astype(float)
+        P, R = interpolate_poses(gt_t, d.gt_p_w, d.gt_R_w_b, t)
+        pe, Re = interpolate_poses(gt_t, d.gt_p_w, d.gt_R_w_b, np.array([t.max()]))
+        pe, Re = pe[0], Re[0]
+        x_w = np.einsum("nij,nj->ni", R, s.points_l.astype(float) @ R_i_l.T + p_i_l) + P
+        x_l = ((x_w - pe) @ Re - p_i_l) @ R_i_l
+        surf_l, edge_l = select_points(x_l, t - t.min(), s.ring, FrontEndConfig(mode=mode))  # type: ignore[arg-type]
+        surf, edge = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
+        if j >= 10:
+            Rk, pk, _, _, C = gauss_newton_rows(lmap, surf, edge, Re, pe, 0.02, origins,
+                                                coarse=False, p_s=p_i_l)  # fmt: skip
+            e = np.r_[pe - pk, so3_log(Rk.T @ Re)]
+            out.append(float(e @ np.linalg.solve(C, e)))
+        lmap.insert(surf, edge, Re, pe, j)
+        origins.record(j, Re @ p_i_l + pe)
+    return np.array(out)
+
+
+@pytest.mark.slow
+def test_one_scans_covariance_is_consistent_on_a_held_out_seed() -> None:
+    """The rows' model gives one scan's registration covariance: against a map from the true poses
+    (its points with the simulated 2 cm range noise), the mean NEES of the 6-dof pose over the scans of
+    a held-out street seed (19; the model was built looking at seeds 5, 7, 11, 13) lies inside the
+    0.1-99.9 % band of chi2(6 n) / n (the scans share map points, so the band is approximate), with
+    the LOAM features front end (the direct one read 3.5-4.5 on the chosen seeds, a little below the
+    band: conservative). The
+    filter with this model is not consistent (README, LIO covariance): the start's and the map
+    chain's slowly varying errors are not in it."""
+    from scipy.stats import chi2
+
+    nees = _per_scan_nees(simulate_lidar_drive("street", 6.0, seed=19), "features")
+    n = len(nees)
+    print(f"mean NEES {nees.mean():.2f} over {n} scans")
+    assert n > 30
+    assert chi2.ppf(0.001, 6 * n) / n < nees.mean() < chi2.ppf(0.999, 6 * n) / n
+
+
+@pytest.mark.slow
+def test_lio_with_the_rows_model_on_the_street_drive() -> None:
+    """``filter.lidar_model: plane`` end to end (the option, off by default) within the accuracy
+    targets of ``test_lio_sim.test_lio_on_the_street_drive`` (ATE 0.5 % of the path, rotation RMSE
+    0.5 deg) on the seed-11 excerpt."""
+    d = simulate_lidar_drive("street", 6.0, seed=11)
+    a, g = SEED000_ACCEL, SEED000_GYRO
+    cal = ImuCalibration(
+        TriadModel(a.T, a.K, a.b, a.bias_sign), TriadModel(g.T, g.K, g.b, g.bias_sign)
+    )
+    cfg = LioConfig(extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])),  # type: ignore[arg-type]
+                    frontend=FrontEndConfig(mode="direct"), filter=FilterConfig(lidar_model="plane"))  # fmt: skip
+    res = LioPipeline(MemoryDataset(d.scans, cal.correct(d.imu), "sim"), cfg, progress=False).run()
+    gt = Trajectory(d.gt_t_ns, d.gt_p_w, d.gt_R_w_b, "truth")
+    ev, _, _ = evaluate(gt, res.trajectory, "se3", 1.0, "frames", 0.02)
+    assert len(res.trajectory) == len(d.scans)
+    assert ev.ape_trans.rmse < 0.005 * gt.path_length
+    assert ev.ape_rot_deg.rmse < 0.5

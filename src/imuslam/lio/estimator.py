@@ -331,7 +331,9 @@ class LioEstimator:
         self._D = np.zeros((self.layout.dim, self.layout.dim))  # P_abs - P_rel (MapCovariance)
         self.shared: SharedMapNoise | None = None
         if fc.lidar_model == "plane":
-            self.shared = SharedMapNoise(self.T_i_l[:3, 3].copy(), SensorOrigins(), fc.lidar_range_std)
+            self.shared = SharedMapNoise(
+                self.T_i_l[:3, 3].copy(), SensorOrigins(), fc.lidar_range_std
+            )
         self._n_inserted = 0
         self._pose_index = np.r_[self.layout.TH, self.layout.P]  # [theta, p] in the error state
 

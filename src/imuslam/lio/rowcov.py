@@ -98,7 +98,8 @@ def associate_shared(
         u = qk - ck
         k = nb.shape[1]
         S = np.einsum("mki,mkj->mij", E, E)
-        lam, V = np.linalg.eigh(S)  # ascending: the normal last-but-two for a plane, the line's last
+        # eigenvalues ascending: a plane's normal first, a line's direction last
+        lam, V = np.linalg.eigh(S)
         if kind == 0:
             a_j = np.einsum("mki,mil->mkl", E, V[:, :, 1:])  # in-plane coordinates (M, k, 2)
             a_q = np.einsum("mi,mil->ml", u, V[:, :, 1:])
@@ -155,7 +156,7 @@ def whitened_system(
         w, V = np.linalg.eigh(Lam)
         U = (V * np.sqrt(np.maximum(w, 1e-12 * max(float(w.max()), 1e-300)))).T
     z = np.linalg.solve(U.T, b)
-    return U, z
+    return np.asarray(U, np.float64), np.asarray(z, np.float64)
 
 
 def gauss_newton_rows(
