@@ -92,7 +92,13 @@ class FilterConfig(BaseModel):
     lidar_dof: independent residuals a scan is worth (map and plane-fit errors are shared by many points,
     so thousands of residuals do not carry thousands of independent errors; R is scaled by M / lidar_dof
     when a scan has M > lidar_dof residuals; it does not make the absolute covariance consistent,
-    see map_covariance);
+    see map_covariance); lidar_model: ``dof`` (default) that diagonal R; ``plane`` each row's own
+    range noise projected on its normal plus the error of the plane (line) fitted to its k frozen map
+    points, shared by the rows that fit the same points, whitened into an equivalent 6-row update,
+    with Tukey weights on the residuals in units of their sigma (``lio.rowcov``; no lidar_dof); it
+    gives one scan's covariance right but the filter with it is overconfident (README, LIO
+    covariance) and 4-7x slower; lidar_range_std: the LiDAR's range noise 1-sigma for ``plane``, m
+    (datasheet; the simulated VLP-16's is 0.02);
     max_iterations and the convergence threshold of the iterated update (on |dx|); reassociate: an
     iterate searches the map's neighbours again only when it moved a point 20 m away by more than this
     since the last search, m (0: at every iterate, as FAST-LIO2); map_covariance (default on): the
