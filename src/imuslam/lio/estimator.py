@@ -23,10 +23,9 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from imuslam.errors import FilterDivergence, InputError
@@ -37,7 +36,11 @@ from imuslam.lio.deskew import deskew
 from imuslam.lio.frontend import select_indices, select_points
 from imuslam.lio.lidar_only import LidarOdometry
 from imuslam.lio.matcher import Correspondences, LocalMap, huber_weights
-from imuslam.lio.rowcov import SensorOrigins, associate_shared, tukey_weights, whitened_system
+
+if TYPE_CHECKING:  # lio.rowcov (scipy.sparse) is imported only with ``filter.lidar_model: plane``
+    import scipy.sparse as sp
+
+    from imuslam.lio.rowcov import SensorOrigins
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -130,6 +133,8 @@ class LidarMeasurement:
                     self.surf_i, self.edge_i, x.R_n_b, x.p_n, self.coarse_gate
                 )
             else:
+                from imuslam.lio.rowcov import associate_shared
+
                 origin = x.R_n_b @ sh.p_i_l + x.p_n
                 self._all, self._s_all, self._G_all = associate_shared(
                     self.map, self.surf_i, self.edge_i, x.R_n_b, x.p_n, self.coarse_gate,
@@ -153,6 +158,8 @@ class LidarMeasurement:
         self.n_calls += 1
         r, J = corr.system(x.R_n_b, x.p_n)
         if sh is not None:
+            from imuslam.lio.rowcov import tukey_weights, whitened_system
+
             assert self._G is not None
             # the rows' own variance (a floor of a tenth of the range noise where the beam grazes the
             # plane, numerical) and the shared map noise G G^T
@@ -331,6 +338,8 @@ class LioEstimator:
         self._D = np.zeros((self.layout.dim, self.layout.dim))  # P_abs - P_rel (MapCovariance)
         self.shared: SharedMapNoise | None = None
         if fc.lidar_model == "plane":
+            from imuslam.lio.rowcov import SensorOrigins
+
             self.shared = SharedMapNoise(
                 self.T_i_l[:3, 3].copy(), SensorOrigins(), fc.lidar_range_std
             )
