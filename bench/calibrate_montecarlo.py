@@ -18,6 +18,8 @@ over the runs divided by its standard error (|t| > 3: a bias of the estimator on
 ``--variants "no G, no drift" "no drift" "no G"`` adds joint-fit variants without the nuisance terms beside
 the default; the "G kept" and "drift kept" columns count the runs whose final calibration keeps the gyro
 g-sensitivity and the accelerometer bias drift (with the first seeds that do).
+The last table asks whether the runs that decide the gyro ratio are draws or faults: Hausman's statistic
+of each run's gyro difference joint - tedaldi against ``P_tedaldi - P_joint``.
 ``--gyro-ends first_quiet`` runs the joint fit with the gyro segment ends it had before (see
 ``CalibrationConfig.gyro_ends``).
 """
@@ -74,6 +76,7 @@ def main() -> None:
     err = {(m, t): [] for m in methods for t in "ag"}  # type: dict[tuple[str, str], list[np.ndarray]]
     var = {(m, t): [] for m in methods for t in "ag"}  # type: dict[tuple[str, str], list[np.ndarray]]
     nees = {(m, t): [] for m in methods for t in "ag"}  # type: dict[tuple[str, str], list[float]]
+    cov_g = {m: [] for m in methods}  # type: dict[str, list[np.ndarray]]
     kept = {m: {"G": [], "drift": []} for m in methods}  # type: dict[str, dict[str, list[int]]]
     for seed in range(args.start, args.start + args.runs):
         if args.plan_seed is None:
@@ -93,6 +96,7 @@ def main() -> None:
             if "accel_bias_drift_per_s" in c.notes:
                 kept[m]["drift"].append(seed)
             assert c.cov_accel is not None and c.cov_gyro is not None
+            cov_g[m].append(c.cov_gyro)
             for t, e, P in (
                 ("a", c.accel_params - TRUTH.accel_params, c.cov_accel),
                 ("g", c.gyro_params - TRUTH.gyro_params, c.cov_gyro),
@@ -150,7 +154,69 @@ def main() -> None:
         t = e.mean(axis=0) / (e.std(axis=0, ddof=1) / np.sqrt(R))
         bias.add_row(m, *(f"{v:+.1f}" for v in t))
     Console(width=200).print(bias)
+    hausman_table(methods, err, nees, cov_g, args.start if args.plan_seed is None else 1000)
     print(f"CPU {time.process_time() - c0:.0f} s, wall {time.perf_counter() - t0:.0f} s")
+
+
+def hausman(d: np.ndarray, P_t: np.ndarray, P_j: np.ndarray) -> tuple[float, int]:
+    """Hausman's statistic d^T (P_t - P_j)^+ d and its degrees of freedom (Hausman 1978, Econometrica 46).
+
+    If both estimators are consistent and the joint one is efficient, the covariance of their difference
+    d = joint - tedaldi is P_t - P_j; the statistic is then chi-square with its rank. Directions in which
+    the joint fit is not the more precise (non-positive eigenvalues) are left out.
+    """
+    w, U = np.linalg.eigh(P_t - P_j)
+    keep = w > 1e-9 * max(float(w.max()), 1e-300)
+    z = U[:, keep].T @ d
+    return float(np.sum(z**2 / w[keep])), int(keep.sum())
+
+
+def hausman_table(
+    methods: tuple[str, ...],
+    err: dict[tuple[str, str], list[np.ndarray]],
+    nees: dict[tuple[str, str], list[float]],
+    cov_g: dict[str, list[np.ndarray]],
+    first: int,
+) -> None:
+    """Is the gap between the methods on the runs that decide the ratio a draw or a fault?
+
+    Per joint variant: Hausman's statistic of the gyro difference joint - tedaldi on every run (its mean
+    over the runs against the mean of its degrees of freedom, and how many runs exceed the 99 % point),
+    and on the two runs that contribute most to the gyro mean squared errors, with both methods' NEES.
+    Where the two covariances nearly agree, a small error in either inflates the statistic, so a large
+    value asks for a look at that run and a typical one says the gap is a draw both covariances cover.
+    """
+    from scipy.special import chdtri  # chi-square quantile
+
+    table = Table(title="gyro: joint - tedaldi against the covariance of the difference (Hausman)")
+    for col in ("method", "mean statistic", "mean dof", "runs above 99 %", "two worst runs: "
+                "seed, statistic / dof, NEES joint / tedaldi"):  # fmt: skip
+        table.add_column(col, justify="right")
+    et = np.asarray(err["tedaldi", "g"])
+    for m in methods[1:]:
+        ej = np.asarray(err[m, "g"])
+        hs = [
+            hausman(a - b, Pt, Pj)
+            for a, b, Pt, Pj in zip(ej, et, cov_g["tedaldi"], cov_g[m], strict=True)
+        ]
+        stat = np.array([h[0] for h in hs])
+        dof = np.array([h[1] for h in hs])
+        above = int(sum(s > chdtri(k, 0.01) for s, k in zip(stat, dof, strict=True) if k > 0))
+        # each run's share of the joint's mean squared error, summed over the parameters
+        share = np.sum(ej**2 / np.sum(ej**2, axis=0), axis=1)
+        worst = np.argsort(-share)[:2]
+        table.add_row(
+            m,
+            f"{stat.mean():.2f}",
+            f"{dof.mean():.2f}",
+            f"{above} of {len(stat)}",
+            "; ".join(
+                f"{first + i}: {stat[i]:.1f} / {dof[i]}, {nees[m, 'g'][i]:.1f} / "
+                f"{nees['tedaldi', 'g'][i]:.1f}"
+                for i in worst
+            ),
+        )
+    Console(width=200).print(table)
 
 
 if __name__ == "__main__":

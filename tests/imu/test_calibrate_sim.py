@@ -33,7 +33,9 @@ def test_monte_carlo_errors_consistent_with_covariance() -> None:
     for that run (the same yardstick for both methods): the joint fit must be below tedaldi on that
     normalised mean square, for the accelerometer and the gyroscope. The raw ratio (mean over the 9
     parameters of the ratio of mean squared errors) must be below 1 for the accelerometer; the gyro's is
-    printed and reported in the README (1.22 over these runs: missed).
+    printed and reported in the README, not asserted: 1.21 over these runs (missed), 0.67 over seeds
+    100-299. It is decided by seeds 16 and 40, whose errors are draws that each method's covariance
+    covers (docs/measurements/imu.md), so no tolerance derived from the noise makes it a sure pass.
     """
     nees: dict[str, list[float]] = {k: [] for k in ("ta", "tg", "ja", "jg")}
     err: dict[str, list[np.ndarray]] = {k: [] for k in ("ta", "tg", "ja", "jg")}
