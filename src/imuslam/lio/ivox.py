@@ -59,13 +59,12 @@ def _probe(keys: IntArray, key: int, h: int) -> int:  # pragma: no cover - compi
 
 
 @numba.njit(cache=True)
-def _insert(keys: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32], pts: FloatArray,
-            ids: NDArray[np.int32], new: FloatArray, new_ids: NDArray[np.int32], voxel: float, nsub: int,
-            mpv: int) -> tuple[int, int]:  # pragma: no cover - compiled  # fmt: skip
-    """Insert ``new`` (N, 3) with their tags ``new_ids`` (N,) where their voxel has room; returns
-    (points admitted, cells created)."""
+def _insert(keys: IntArray, slot: IntArray, ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32],
+            pts: FloatArray, ids: NDArray[np.int32], n_cells: int, new: FloatArray, new_ids: NDArray[np.int32],
+            voxel: float, nsub: int, mpv: int) -> tuple[int, int]:  # pragma: no cover - compiled  # fmt: skip
+    """Insert ``new`` (N, 3) with their tags ``new_ids`` (N,) where their voxel has room; a new cell
+    takes the next free row ``n_cells`` of the cell arrays; returns (points admitted, cells in use)."""
     n_ok = 0
-    n_new_cells = 0
     cap_pts = pts.shape[1]
     for i in range(new.shape[0]):
         vx = int(np.floor(new[i, 0] / voxel))
@@ -78,22 +77,78 @@ def _insert(keys: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32], pts:
         if s < 0:
             s = -1 - s
             keys[s] = key
-            cnt[s] = 0
-            sub[s, :] = 0
-            n_new_cells += 1
-        if sub[s, si] >= mpv or cnt[s] >= cap_pts:
+            slot[s] = n_cells
+            c = n_cells
+            ckey[c] = key
+            cnt[c] = 0
+            sub[c, :] = 0
+            n_cells += 1
+        else:
+            c = slot[s]
+        if sub[c, si] >= mpv or cnt[c] >= cap_pts:
             continue
-        sub[s, si] += 1
-        j = cnt[s]
-        pts[s, j, 0], pts[s, j, 1], pts[s, j, 2] = new[i, 0], new[i, 1], new[i, 2]
-        ids[s, j] = new_ids[i]
-        cnt[s] = j + 1
+        sub[c, si] += 1
+        j = cnt[c]
+        pts[c, j, 0], pts[c, j, 1], pts[c, j, 2] = new[i, 0], new[i, 1], new[i, 2]
+        ids[c, j] = new_ids[i]
+        cnt[c] = j + 1
         n_ok += 1
-    return n_ok, n_new_cells
+    return n_ok, n_cells
 
 
 @numba.njit(cache=True)
-def _knn(keys: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, k: int,
+def _rehash(keys: IntArray, slot: IntArray, ckey: IntArray, n_cells: int) -> None:  # pragma: no cover - compiled
+    """Fill the emptied hash table ``keys`` / ``slot`` with the cells 0..n_cells-1 (their keys ``ckey``)."""
+    for c in range(n_cells):
+        key = ckey[c]
+        # the cell indices back from the packed key (21 bits per axis, offset by 2^20)
+        cz = (key & ((1 << 21) - 1)) - (1 << 20)
+        cy = ((key >> 21) & ((1 << 21) - 1)) - (1 << 20)
+        cx = (key >> 42) - (1 << 20)
+        _, h = _key(cx, cy, cz)
+        s = -1 - _probe(keys, key, h)
+        keys[s] = key
+        slot[s] = c
+
+
+@numba.njit(cache=True)
+def _prune(ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32], pts: FloatArray,
+           ids: NDArray[np.int32], n_cells: int, centre: FloatArray, r2: float, voxel: float,
+           nsub: int) -> tuple[int, int]:  # pragma: no cover - compiled  # fmt: skip
+    """Drop the points farther than sqrt(r2) from ``centre`` in place: each cell keeps its remaining
+    points in their order, emptied cells are removed and the others keep their order; returns (points
+    dropped, cells left). The voxel counts ``sub`` are recounted from the points kept."""
+    n_drop = 0
+    w = 0
+    for c in range(n_cells):
+        kept = 0
+        for j in range(cnt[c]):
+            ex = pts[c, j, 0] - centre[0]
+            ey = pts[c, j, 1] - centre[1]
+            ez = pts[c, j, 2] - centre[2]
+            if ex * ex + ey * ey + ez * ez <= r2:
+                pts[w, kept, :] = pts[c, j, :]
+                ids[w, kept] = ids[c, j]
+                kept += 1
+            else:
+                n_drop += 1
+        if kept == 0:
+            continue
+        ckey[w] = ckey[c]
+        cnt[w] = kept
+        sub[w, :] = 0
+        for j in range(kept):
+            vx = int(np.floor(pts[w, j, 0] / voxel))
+            vy = int(np.floor(pts[w, j, 1] / voxel))
+            vz = int(np.floor(pts[w, j, 2] / voxel))
+            cx, cy, cz = vx // nsub, vy // nsub, vz // nsub
+            sub[w, ((vx - cx * nsub) * nsub + (vy - cy * nsub)) * nsub + (vz - cz * nsub)] += 1
+        w += 1
+    return n_drop, w
+
+
+@numba.njit(cache=True)
+def _knn(keys: IntArray, slot: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, k: int,
          voxel: float, nsub: int) -> tuple[IntArray, FloatArray]:  # pragma: no cover - compiled  # fmt: skip
     """k nearest stored points of each query among the 27 cells around it: flat indices (M, k) into
     ``pts.reshape(-1, 3)`` and squared distances (M, k), ascending; -1 / inf where fewer were found."""
@@ -131,10 +186,11 @@ def _knn(keys: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray,
             s = _probe(keys, key, h)
             if s < 0:
                 continue
-            for j in range(cnt[s]):
-                ex = pts[s, j, 0] - qx
-                ey = pts[s, j, 1] - qy
-                ez = pts[s, j, 2] - qz
+            c = slot[s]
+            for j in range(cnt[c]):
+                ex = pts[c, j, 0] - qx
+                ey = pts[c, j, 1] - qy
+                ez = pts[c, j, 2] - qz
                 d = ex * ex + ey * ey + ez * ez
                 if d >= dist[m, k - 1]:
                     continue
@@ -144,32 +200,35 @@ def _knn(keys: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray,
                     idx[m, a] = idx[m, a - 1]
                     a -= 1
                 dist[m, a] = d
-                idx[m, a] = s * C + j
+                idx[m, a] = c * C + j
     return idx, dist
 
 
 @numba.njit(cache=True)
-def _gather(keys: IntArray, cnt: NDArray[np.int32], pts: FloatArray, ids: NDArray[np.int32]) -> tuple[FloatArray, NDArray[np.int32]]:  # pragma: no cover - compiled  # fmt: skip
+def _gather(cnt: NDArray[np.int32], pts: FloatArray, ids: NDArray[np.int32], n_cells: int) -> tuple[FloatArray, NDArray[np.int32]]:  # pragma: no cover - compiled  # fmt: skip
     n = 0
-    for s in range(keys.size):
-        if keys[s] != _EMPTY:
-            n += cnt[s]
+    for c in range(n_cells):
+        n += cnt[c]
     out = np.empty((n, 3))
     out_ids = np.empty(n, np.int32)
     i = 0
-    for s in range(keys.size):
-        if keys[s] != _EMPTY:
-            for j in range(cnt[s]):
-                out[i, :] = pts[s, j, :]
-                out_ids[i] = ids[s, j]
-                i += 1
+    for c in range(n_cells):
+        for j in range(cnt[c]):
+            out[i, :] = pts[c, j, :]
+            out_ids[i] = ids[c, j]
+            i += 1
     return out, out_ids
 
 
 class IncrementalVoxelMap:
     """Points in the world frame, at most ``max_per_voxel`` per voxel of ``voxel_size`` m, hashed by
     cells of ``nsub`` voxels a side, within ``max_range`` m of the last pruning centre. Same interface
-    as :class:`~imuslam.lio.voxelmap.VoxelMap` (``add``, ``prune``, ``transform``, ``knn``)."""
+    as :class:`~imuslam.lio.voxelmap.VoxelMap` (``add``, ``prune``, ``transform``, ``knn``).
+
+    The hash table holds only each cell's key and its row in the cell arrays, which are dense (the
+    cells in use are rows 0..n_cells-1, in the order they were created): the points of a few
+    thousand cells are not spread over a table kept at most half full, so a search touches less
+    memory, and pruning compacts the rows in place without re-inserting the points."""
 
     def __init__(self, voxel_size: float = 0.5, max_per_voxel: int = 1, max_range: float = 100.0,
                  nsub: int = 2, capacity: int = 1 << 10, slots: int | None = None) -> None:  # fmt: skip
@@ -182,18 +241,24 @@ class IncrementalVoxelMap:
         self.slots = int(slots) if slots is not None else self.nsub**3 * self.max_per_voxel
         self.n_points = 0
         self.n_cells = 0
-        self._alloc(capacity)
+        self._alloc_table(capacity)
+        self._alloc_cells(max(capacity // 2, 8))
 
-    def _alloc(self, capacity: int) -> None:
+    def _alloc_table(self, capacity: int) -> None:
         cap = 1 << max(int(np.ceil(np.log2(max(capacity, 16)))), 4)
-        n3 = self.nsub**3
         self._keys = np.full(cap, _EMPTY, np.int64)
-        self._cnt = np.zeros(cap, np.int32)
-        self._sub = np.zeros((cap, n3), np.int32)
-        self._pts = np.zeros((cap, self.slots, 3))
-        self._ids = np.zeros((cap, self.slots), np.int32)
-        self.n_points = 0
-        self.n_cells = 0
+        self._slot = np.zeros(cap, np.int64)
+
+    def _alloc_cells(self, rows: int) -> None:
+        """Cell arrays of ``rows`` rows, the rows in use copied over."""
+        n, n3 = self.n_cells, self.nsub**3
+        ckey, cnt = np.zeros(rows, np.int64), np.zeros(rows, np.int32)
+        sub = np.zeros((rows, n3), np.int32)
+        pts, ids = np.zeros((rows, self.slots, 3)), np.zeros((rows, self.slots), np.int32)
+        if n:
+            ckey[:n], cnt[:n], sub[:n] = self._ckey[:n], self._cnt[:n], self._sub[:n]
+            pts[:n], ids[:n] = self._pts[:n], self._ids[:n]
+        self._ckey, self._cnt, self._sub, self._pts, self._ids = ckey, cnt, sub, pts, ids
 
     def __len__(self) -> int:
         return self.n_points
@@ -201,7 +266,7 @@ class IncrementalVoxelMap:
     @property
     def points(self) -> FloatArray:
         """The stored points (N, 3), a copy."""
-        return _gather(self._keys, self._cnt, self._pts, self._ids)[0]  # type: ignore[no-any-return]
+        return _gather(self._cnt, self._pts, self._ids, self.n_cells)[0]  # type: ignore[no-any-return]
 
     @property
     def ids(self) -> NDArray[np.int32]:
@@ -213,27 +278,22 @@ class IncrementalVoxelMap:
         """The flat point storage that ``knn``'s indices index (a view)."""
         return self._pts.reshape(-1, 3)
 
-    def _rebuild(self, points: FloatArray, ids: NDArray[np.int32], capacity: int) -> None:
-        if capacity == self._keys.size:
-            # the same table emptied in place: a new cell's counts are zeroed when it is created, so
-            # only the keys need clearing (allocating and touching a fresh table costs more than the
-            # points it holds)
-            self._keys.fill(_EMPTY)
-            self.n_points = 0
-            self.n_cells = 0
-        else:
-            self._alloc(capacity)
-        self._add(points, ids)
+    def _clear(self) -> None:
+        self._keys.fill(_EMPTY)
+        self.n_points = 0
+        self.n_cells = 0
 
     def _add(self, p: FloatArray, ids: NDArray[np.int32]) -> int:
-        if 2 * (self.n_cells + len(p)) > self._keys.size:  # keep the load factor below 1/2
-            old, old_ids = _gather(self._keys, self._cnt, self._pts, self._ids)
-            self._alloc(2 * (self.n_cells + len(p)) + 1)
-            self._add(old, old_ids)
-        n_ok, n_cells = _insert(self._keys, self._cnt, self._sub, self._pts, self._ids, p, ids,
-                                self.voxel_size, self.nsub, self.max_per_voxel)  # fmt: skip
+        need = self.n_cells + len(p)  # every point may open a cell
+        if 2 * need > self._keys.size:  # keep the load factor below 1/2
+            self._alloc_table(2 * need + 1)
+            _rehash(self._keys, self._slot, self._ckey, self.n_cells)
+        if need > len(self._cnt):
+            self._alloc_cells(max(need, 2 * len(self._cnt)))
+        n_ok, self.n_cells = _insert(self._keys, self._slot, self._ckey, self._cnt, self._sub, self._pts,
+                                     self._ids, self.n_cells, p, ids, self.voxel_size, self.nsub,
+                                     self.max_per_voxel)  # fmt: skip
         self.n_points += n_ok
-        self.n_cells += n_cells
         return int(n_ok)
 
     def add(self, points_w: FloatArray, tag: int = -1) -> int:
@@ -246,27 +306,29 @@ class IncrementalVoxelMap:
 
     def prune(self, centre_w: FloatArray) -> int:
         """Drop points farther than ``max_range`` from ``centre_w`` (3,); returns how many were dropped."""
-        p, ids = _gather(self._keys, self._cnt, self._pts, self._ids)
-        keep = np.sum((p - np.asarray(centre_w)[None]) ** 2, axis=1) <= self.max_range**2
-        n_drop = int(len(keep) - keep.sum())
+        centre = np.ascontiguousarray(centre_w, dtype=np.float64)
+        n_drop, n_cells = _prune(self._ckey, self._cnt, self._sub, self._pts, self._ids, self.n_cells,
+                                 centre, self.max_range**2, self.voxel_size, self.nsub)  # fmt: skip
         if n_drop:
-            self._rebuild(np.ascontiguousarray(p[keep]), ids[keep], self._keys.size)
-        return n_drop
+            self._keys.fill(_EMPTY)
+            self.n_cells = int(n_cells)
+            self.n_points -= int(n_drop)
+            _rehash(self._keys, self._slot, self._ckey, self.n_cells)
+        return int(n_drop)
 
     def transform(self, R: FloatArray, t: FloatArray) -> None:
         """Move every point by ``x -> R x + t`` (a change of world frame) and re-hash the cells."""
-        p, ids = _gather(self._keys, self._cnt, self._pts, self._ids)
-        self._rebuild(
-            np.ascontiguousarray(p @ np.asarray(R).T + np.asarray(t)), ids, self._keys.size
-        )
+        p, ids = _gather(self._cnt, self._pts, self._ids, self.n_cells)
+        self._clear()
+        self._add(np.ascontiguousarray(p @ np.asarray(R).T + np.asarray(t)), ids)
 
     def knn(self, q_w: FloatArray, k: int) -> tuple[IntArray, FloatArray]:
         """k nearest map points (within the 27 cells) of each query (M, 3): indices into ``storage``
         (M, k) and squared distances (M, k)."""
         q = np.ascontiguousarray(q_w, dtype=np.float64)
-        return _knn(self._keys, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub)  # type: ignore[no-any-return]
+        return _knn(self._keys, self._slot, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub)  # type: ignore[no-any-return]
 
     @property
     def nbytes(self) -> int:
-        return int(self._keys.nbytes + self._cnt.nbytes + self._sub.nbytes + self._pts.nbytes
-                   + self._ids.nbytes)  # fmt: skip
+        return int(self._keys.nbytes + self._slot.nbytes + self._ckey.nbytes + self._cnt.nbytes
+                   + self._sub.nbytes + self._pts.nbytes + self._ids.nbytes)  # fmt: skip
