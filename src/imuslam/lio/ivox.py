@@ -20,6 +20,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.lio.residuals import line_row, plane_row
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
@@ -45,12 +47,13 @@ def _key(cx: int, cy: int, cz: int) -> tuple[int, int]:  # pragma: no cover - co
 
 
 @numba.njit(cache=True, inline="always")
-def _probe(keys: IntArray, key: int, h: int) -> int:  # pragma: no cover - compiled
-    """Slot of ``key``, or -1 - (the free slot where it would go)."""
-    mask = keys.size - 1
+def _probe(tab: IntArray, key: int, h: int) -> int:  # pragma: no cover - compiled
+    """Slot of ``key`` in the table ``tab`` (S, 2) of [key, cell row], or -1 - (the free slot where
+    it would go)."""
+    mask = tab.shape[0] - 1
     s = h & mask
     while True:
-        kk = keys[s]
+        kk = tab[s, 0]
         if kk == key:
             return s
         if kk == _EMPTY:
@@ -59,7 +62,7 @@ def _probe(keys: IntArray, key: int, h: int) -> int:  # pragma: no cover - compi
 
 
 @numba.njit(cache=True)
-def _insert(keys: IntArray, slot: IntArray, ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32],
+def _insert(tab: IntArray, ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32],
             pts: FloatArray, ids: NDArray[np.int32], n_cells: int, new: FloatArray, new_ids: NDArray[np.int32],
             voxel: float, nsub: int, mpv: int) -> tuple[int, int]:  # pragma: no cover - compiled  # fmt: skip
     """Insert ``new`` (N, 3) with their tags ``new_ids`` (N,) where their voxel has room; a new cell
@@ -73,18 +76,18 @@ def _insert(keys: IntArray, slot: IntArray, ckey: IntArray, cnt: NDArray[np.int3
         cx, cy, cz = vx // nsub, vy // nsub, vz // nsub
         si = ((vx - cx * nsub) * nsub + (vy - cy * nsub)) * nsub + (vz - cz * nsub)
         key, h = _key(cx, cy, cz)
-        s = _probe(keys, key, h)
+        s = _probe(tab, key, h)
         if s < 0:
             s = -1 - s
-            keys[s] = key
-            slot[s] = n_cells
+            tab[s, 0] = key
+            tab[s, 1] = n_cells
             c = n_cells
             ckey[c] = key
             cnt[c] = 0
             sub[c, :] = 0
             n_cells += 1
         else:
-            c = slot[s]
+            c = tab[s, 1]
         if sub[c, si] >= mpv or cnt[c] >= cap_pts:
             continue
         sub[c, si] += 1
@@ -97,8 +100,8 @@ def _insert(keys: IntArray, slot: IntArray, ckey: IntArray, cnt: NDArray[np.int3
 
 
 @numba.njit(cache=True)
-def _rehash(keys: IntArray, slot: IntArray, ckey: IntArray, n_cells: int) -> None:  # pragma: no cover - compiled
-    """Fill the emptied hash table ``keys`` / ``slot`` with the cells 0..n_cells-1 (their keys ``ckey``)."""
+def _rehash(tab: IntArray, ckey: IntArray, n_cells: int) -> None:  # pragma: no cover - compiled
+    """Fill the emptied hash table ``tab`` with the cells 0..n_cells-1 (their keys ``ckey``)."""
     for c in range(n_cells):
         key = ckey[c]
         # the cell indices back from the packed key (21 bits per axis, offset by 2^20)
@@ -106,9 +109,9 @@ def _rehash(keys: IntArray, slot: IntArray, ckey: IntArray, n_cells: int) -> Non
         cy = ((key >> 21) & ((1 << 21) - 1)) - (1 << 20)
         cx = (key >> 42) - (1 << 20)
         _, h = _key(cx, cy, cz)
-        s = -1 - _probe(keys, key, h)
-        keys[s] = key
-        slot[s] = c
+        s = -1 - _probe(tab, key, h)
+        tab[s, 0] = key
+        tab[s, 1] = c
 
 
 @numba.njit(cache=True)
@@ -147,61 +150,112 @@ def _prune(ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32], pts: 
     return n_drop, w
 
 
+@numba.njit(cache=True, inline="always")
+def _knn_row(tab: IntArray, cnt: NDArray[np.int32], pts: FloatArray, qx: float, qy: float, qz: float,
+             voxel: float, nsub: int, bi: IntArray, bd: FloatArray) -> None:  # pragma: no cover - compiled  # fmt: skip
+    """The k = bi.shape[1] nearest stored points of the query (qx, qy, qz) among the 27 cells around
+    it into bi[0] (flat indices into ``pts.reshape(-1, 3)``) and bd[0] (squared distances), ascending;
+    -1 / inf where fewer were found."""
+    k = bi.shape[1]
+    C = pts.shape[1]
+    cell = voxel * nsub
+    for a in range(k):
+        bi[0, a] = -1
+        bd[0, a] = np.inf
+    worst = np.inf  # bd[0, k - 1], kept in a register
+    cx = int(np.floor(qx / voxel)) // nsub
+    cy = int(np.floor(qy / voxel)) // nsub
+    cz = int(np.floor(qz / voxel)) // nsub
+    # distances from the query to the faces of its cell, for the lower bound of each neighbour
+    lx, ly, lz = qx - cx * cell, qy - cy * cell, qz - cz * cell
+    hx, hy, hz = cell - lx, cell - ly, cell - lz
+    for o in range(27):
+        dx, dy, dz = _ORDER[o, 0], _ORDER[o, 1], _ORDER[o, 2]
+        bound = 0.0
+        if dx < 0:
+            bound += lx * lx
+        elif dx > 0:
+            bound += hx * hx
+        if dy < 0:
+            bound += ly * ly
+        elif dy > 0:
+            bound += hy * hy
+        if dz < 0:
+            bound += lz * lz
+        elif dz > 0:
+            bound += hz * hz
+        if bound >= worst:
+            continue  # no point of that cell can be among the k nearest (exact pruning)
+        key, h = _key(cx + dx, cy + dy, cz + dz)
+        s = _probe(tab, key, h)
+        if s < 0:
+            continue
+        c = tab[s, 1]
+        for j in range(cnt[c]):
+            ex = pts[c, j, 0] - qx
+            ey = pts[c, j, 1] - qy
+            ez = pts[c, j, 2] - qz
+            d = ex * ex + ey * ey + ez * ez
+            if d >= worst:
+                continue
+            a = k - 1  # insertion into the sorted k best
+            while a > 0 and bd[0, a - 1] > d:
+                bd[0, a] = bd[0, a - 1]
+                bi[0, a] = bi[0, a - 1]
+                a -= 1
+            bd[0, a] = d
+            bi[0, a] = c * C + j
+            worst = bd[0, k - 1]
+
+
 @numba.njit(cache=True)
-def _knn(keys: IntArray, slot: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, k: int,
+def _knn(tab: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, k: int,
          voxel: float, nsub: int) -> tuple[IntArray, FloatArray]:  # pragma: no cover - compiled  # fmt: skip
     """k nearest stored points of each query among the 27 cells around it: flat indices (M, k) into
     ``pts.reshape(-1, 3)`` and squared distances (M, k), ascending; -1 / inf where fewer were found."""
     M = q.shape[0]
-    C = pts.shape[1]
-    cell = voxel * nsub
-    idx = np.full((M, k), -1, np.int64)
-    dist = np.full((M, k), np.inf)
+    idx = np.empty((M, k), np.int64)
+    dist = np.empty((M, k))
+    bi = np.empty((1, k), np.int64)
+    bd = np.empty((1, k))
+    for m in range(M):
+        _knn_row(tab, cnt, pts, q[m, 0], q[m, 1], q[m, 2], voxel, nsub, bi, bd)
+        idx[m] = bi[0]
+        dist[m] = bd[0]
+    return idx, dist
+
+
+@numba.njit(cache=True)
+def _knn_fit(tab: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, k: int,
+             voxel: float, nsub: int, lines: bool, max_d2: float, thr: float) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], IntArray]:  # pragma: no cover - compiled  # fmt: skip
+    """The search and the plane (``lines``: line) fit of each query in one pass, while its neighbours
+    are in cache: the outputs of :func:`imuslam.lio.residuals.fit_planes` (``fit_lines``) on
+    :func:`_knn`'s neighbours (``thr``: their ``max_plane_res`` / ``min_ratio``), and the index of
+    each query's nearest point (M,) (-1 if none)."""
+    M = q.shape[0]
+    n_out = np.zeros((M, 3))
+    c_out = np.zeros((M, 3))
+    ok = np.zeros(M, dtype=np.bool_)
+    first = np.empty(M, np.int64)
+    flat = pts.reshape(-1, 3)
+    bi = np.empty((1, k), np.int64)
+    bd = np.empty((1, k))
+    c = np.empty(3)
+    d = np.empty(3)
+    n = np.empty(3)
     for m in range(M):
         qx, qy, qz = q[m, 0], q[m, 1], q[m, 2]
-        cx = int(np.floor(qx / voxel)) // nsub
-        cy = int(np.floor(qy / voxel)) // nsub
-        cz = int(np.floor(qz / voxel)) // nsub
-        # distances from the query to the faces of its cell, for the lower bound of each neighbour
-        lx, ly, lz = qx - cx * cell, qy - cy * cell, qz - cz * cell
-        hx, hy, hz = cell - lx, cell - ly, cell - lz
-        for o in range(27):
-            dx, dy, dz = _ORDER[o, 0], _ORDER[o, 1], _ORDER[o, 2]
-            bound = 0.0
-            if dx < 0:
-                bound += lx * lx
-            elif dx > 0:
-                bound += hx * hx
-            if dy < 0:
-                bound += ly * ly
-            elif dy > 0:
-                bound += hy * hy
-            if dz < 0:
-                bound += lz * lz
-            elif dz > 0:
-                bound += hz * hz
-            if bound >= dist[m, k - 1]:
-                continue  # no point of that cell can be among the k nearest (exact pruning)
-            key, h = _key(cx + dx, cy + dy, cz + dz)
-            s = _probe(keys, key, h)
-            if s < 0:
-                continue
-            c = slot[s]
-            for j in range(cnt[c]):
-                ex = pts[c, j, 0] - qx
-                ey = pts[c, j, 1] - qy
-                ez = pts[c, j, 2] - qz
-                d = ex * ex + ey * ey + ez * ez
-                if d >= dist[m, k - 1]:
-                    continue
-                a = k - 1  # insertion into the sorted k best
-                while a > 0 and dist[m, a - 1] > d:
-                    dist[m, a] = dist[m, a - 1]
-                    idx[m, a] = idx[m, a - 1]
-                    a -= 1
-                dist[m, a] = d
-                idx[m, a] = c * C + j
-    return idx, dist
+        _knn_row(tab, cnt, pts, qx, qy, qz, voxel, nsub, bi, bd)
+        first[m] = bi[0, 0]
+        if lines:
+            good = line_row(qx, qy, qz, bi, bd, flat, 0, max_d2, thr, c, d, n)
+        else:
+            good = plane_row(bi, bd, flat, 0, max_d2, thr, c, n)
+        if good:
+            n_out[m] = n
+            c_out[m] = c
+            ok[m] = True
+    return n_out, c_out, ok, first
 
 
 @numba.njit(cache=True)
@@ -241,13 +295,18 @@ class IncrementalVoxelMap:
         self.slots = int(slots) if slots is not None else self.nsub**3 * self.max_per_voxel
         self.n_points = 0
         self.n_cells = 0
+        self._ckey: IntArray
+        self._cnt: NDArray[np.int32]
+        self._sub: NDArray[np.int32]
+        self._pts: FloatArray
+        self._ids: NDArray[np.int32]
         self._alloc_table(capacity)
         self._alloc_cells(max(capacity // 2, 8))
 
     def _alloc_table(self, capacity: int) -> None:
         cap = 1 << max(int(np.ceil(np.log2(max(capacity, 16)))), 4)
-        self._keys = np.full(cap, _EMPTY, np.int64)
-        self._slot = np.zeros(cap, np.int64)
+        # [key, cell row] side by side: a probe that finds its cell reads one cache line
+        self._tab = np.full((cap, 2), _EMPTY, np.int64)
 
     def _alloc_cells(self, rows: int) -> None:
         """Cell arrays of ``rows`` rows, the rows in use copied over."""
@@ -279,18 +338,18 @@ class IncrementalVoxelMap:
         return self._pts.reshape(-1, 3)
 
     def _clear(self) -> None:
-        self._keys.fill(_EMPTY)
+        self._tab.fill(_EMPTY)
         self.n_points = 0
         self.n_cells = 0
 
     def _add(self, p: FloatArray, ids: NDArray[np.int32]) -> int:
         need = self.n_cells + len(p)  # every point may open a cell
-        if 2 * need > self._keys.size:  # keep the load factor below 1/2
+        if 2 * need > len(self._tab):  # keep the load factor below 1/2
             self._alloc_table(2 * need + 1)
-            _rehash(self._keys, self._slot, self._ckey, self.n_cells)
+            _rehash(self._tab, self._ckey, self.n_cells)
         if need > len(self._cnt):
             self._alloc_cells(max(need, 2 * len(self._cnt)))
-        n_ok, self.n_cells = _insert(self._keys, self._slot, self._ckey, self._cnt, self._sub, self._pts,
+        n_ok, self.n_cells = _insert(self._tab, self._ckey, self._cnt, self._sub, self._pts,
                                      self._ids, self.n_cells, p, ids, self.voxel_size, self.nsub,
                                      self.max_per_voxel)  # fmt: skip
         self.n_points += n_ok
@@ -310,10 +369,10 @@ class IncrementalVoxelMap:
         n_drop, n_cells = _prune(self._ckey, self._cnt, self._sub, self._pts, self._ids, self.n_cells,
                                  centre, self.max_range**2, self.voxel_size, self.nsub)  # fmt: skip
         if n_drop:
-            self._keys.fill(_EMPTY)
+            self._tab.fill(_EMPTY)
             self.n_cells = int(n_cells)
             self.n_points -= int(n_drop)
-            _rehash(self._keys, self._slot, self._ckey, self.n_cells)
+            _rehash(self._tab, self._ckey, self.n_cells)
         return int(n_drop)
 
     def transform(self, R: FloatArray, t: FloatArray) -> None:
@@ -326,9 +385,20 @@ class IncrementalVoxelMap:
         """k nearest map points (within the 27 cells) of each query (M, 3): indices into ``storage``
         (M, k) and squared distances (M, k)."""
         q = np.ascontiguousarray(q_w, dtype=np.float64)
-        return _knn(self._keys, self._slot, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub)  # type: ignore[no-any-return]
+        return _knn(self._tab, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub)  # type: ignore[no-any-return]
+
+    def knn_fit(self, q_w: FloatArray, k: int, lines: bool, max_d2: float, thr: float
+                ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], IntArray]:  # fmt: skip
+        """Each query's (M, 3) plane (``lines``: line) through its k nearest map points, fitted in the
+        same compiled pass as the search: normal n (M, 3), anchor c (M, 3), validity (M,) as
+        :func:`~imuslam.lio.residuals.fit_planes` (``fit_lines``) with ``max_d2`` and ``thr`` (the
+        plane thickness, m / the line's eigenvalue ratio), and the nearest point's index into
+        ``storage`` (M,)."""
+        q = np.ascontiguousarray(q_w, dtype=np.float64)
+        return _knn_fit(self._tab, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub,  # type: ignore[no-any-return]
+                        bool(lines), float(max_d2), float(thr))  # fmt: skip
 
     @property
     def nbytes(self) -> int:
-        return int(self._keys.nbytes + self._slot.nbytes + self._ckey.nbytes + self._cnt.nbytes
+        return int(self._tab.nbytes + self._ckey.nbytes + self._cnt.nbytes
                    + self._sub.nbytes + self._pts.nbytes + self._ids.nbytes)  # fmt: skip

@@ -104,20 +104,21 @@ class LocalMap:
             if len(pts) == 0 or len(vmap) < pr.k:
                 continue
             q = pts @ R_w_i.T + p_w
-            nbr, d2 = vmap.knn(q, pr.k)
-            if kind == 0:
-                n, c, ok = fit_planes(
-                    q, nbr, d2, vmap.storage, pr.max_nbr_dist**2, pr.max_plane_res
-                )
+            thr = pr.max_plane_res if kind == 0 else pr.line_ratio
+            if isinstance(vmap, IncrementalVoxelMap):  # search and fit in one compiled pass
+                n, c, ok, first = vmap.knn_fit(q, pr.k, kind == 1, pr.max_nbr_dist**2, thr)
             else:
-                n, c, ok = fit_lines(q, nbr, d2, vmap.storage, pr.max_nbr_dist**2, pr.line_ratio)
+                nbr, d2 = vmap.knn(q, pr.k)
+                fit = fit_planes if kind == 0 else fit_lines
+                n, c, ok = fit(q, nbr, d2, vmap.storage, pr.max_nbr_dist**2, thr)
+                first = nbr[:, 0]
             r = np.einsum("mk,mk->m", n, q - c)
             ok &= np.abs(r) < gate
             out_p.append(pts[ok])
             out_n.append(n[ok])
             out_c.append(c[ok])
             out_k.append(np.full(int(ok.sum()), kind, np.int8))
-            out_t.append(vmap.ids[nbr[ok, 0]])
+            out_t.append(vmap.ids[first[ok]])
         if not out_p:
             z = np.zeros((0, 3))
             return Correspondences(z, z, z, np.zeros(0, np.int8), np.zeros(0, np.int32))
