@@ -46,6 +46,21 @@ def _key(cx: int, cy: int, cz: int) -> tuple[int, int]:  # pragma: no cover - co
     return key, h
 
 
+# the occupancy bitmap: one bit per cell, the cell indices taken modulo 2^7, 2^7, 2^5 (a 64 KB table
+# that stays in cache, where the hash table does not): a cell whose bit is clear is not probed; a set
+# bit may be another cell's (the indices wrap), then the probe decides
+_BX, _BY, _BZ = 7, 7, 5
+
+
+@numba.njit(cache=True, inline="always")
+def _bit(cx: int, cy: int, cz: int) -> int:  # pragma: no cover - compiled
+    return (
+        ((cx & ((1 << _BX) - 1)) << (_BY + _BZ))
+        | ((cy & ((1 << _BY) - 1)) << _BZ)
+        | (cz & ((1 << _BZ) - 1))
+    )
+
+
 @numba.njit(cache=True, inline="always")
 def _probe(tab: IntArray, key: int, h: int) -> int:  # pragma: no cover - compiled
     """Slot of ``key`` in the table ``tab`` (S, 2) of [key, cell row], or -1 - (the free slot where
@@ -62,7 +77,7 @@ def _probe(tab: IntArray, key: int, h: int) -> int:  # pragma: no cover - compil
 
 
 @numba.njit(cache=True)
-def _insert(tab: IntArray, ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32],
+def _insert(tab: IntArray, bits: NDArray[np.uint8], ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32],
             pts: FloatArray, ids: NDArray[np.int32], n_cells: int, new: FloatArray, new_ids: NDArray[np.int32],
             voxel: float, nsub: int, mpv: int) -> tuple[int, int]:  # pragma: no cover - compiled  # fmt: skip
     """Insert ``new`` (N, 3) with their tags ``new_ids`` (N,) where their voxel has room; a new cell
@@ -81,6 +96,8 @@ def _insert(tab: IntArray, ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[
             s = -1 - s
             tab[s, 0] = key
             tab[s, 1] = n_cells
+            b = _bit(cx, cy, cz)
+            bits[b >> 3] |= np.uint8(1 << (b & 7))
             c = n_cells
             ckey[c] = key
             cnt[c] = 0
@@ -100,8 +117,9 @@ def _insert(tab: IntArray, ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[
 
 
 @numba.njit(cache=True)
-def _rehash(tab: IntArray, ckey: IntArray, n_cells: int) -> None:  # pragma: no cover - compiled
-    """Fill the emptied hash table ``tab`` with the cells 0..n_cells-1 (their keys ``ckey``)."""
+def _rehash(tab: IntArray, bits: NDArray[np.uint8], ckey: IntArray, n_cells: int) -> None:  # pragma: no cover - compiled  # fmt: skip
+    """Fill the emptied hash table ``tab`` and the bitmap ``bits`` with the cells 0..n_cells-1 (their
+    keys ``ckey``)."""
     for c in range(n_cells):
         key = ckey[c]
         # the cell indices back from the packed key (21 bits per axis, offset by 2^20)
@@ -112,6 +130,8 @@ def _rehash(tab: IntArray, ckey: IntArray, n_cells: int) -> None:  # pragma: no 
         s = -1 - _probe(tab, key, h)
         tab[s, 0] = key
         tab[s, 1] = c
+        b = _bit(cx, cy, cz)
+        bits[b >> 3] |= np.uint8(1 << (b & 7))
 
 
 @numba.njit(cache=True)
@@ -151,7 +171,7 @@ def _prune(ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32], pts: 
 
 
 @numba.njit(cache=True, inline="always")
-def _knn_row(tab: IntArray, cnt: NDArray[np.int32], pts: FloatArray, qx: float, qy: float, qz: float,
+def _knn_row(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts: FloatArray, qx: float, qy: float, qz: float,
              voxel: float, nsub: int, bi: IntArray, bd: FloatArray) -> None:  # pragma: no cover - compiled  # fmt: skip
     """The k = bi.shape[1] nearest stored points of the query (qx, qy, qz) among the 27 cells around
     it into bi[0] (flat indices into ``pts.reshape(-1, 3)``) and bd[0] (squared distances), ascending;
@@ -186,6 +206,9 @@ def _knn_row(tab: IntArray, cnt: NDArray[np.int32], pts: FloatArray, qx: float, 
             bound += hz * hz
         if bound >= worst:
             continue  # no point of that cell can be among the k nearest (exact pruning)
+        b = _bit(cx + dx, cy + dy, cz + dz)
+        if not (bits[b >> 3] >> (b & 7)) & 1:
+            continue  # no such cell
         key, h = _key(cx + dx, cy + dy, cz + dz)
         s = _probe(tab, key, h)
         if s < 0:
@@ -209,7 +232,7 @@ def _knn_row(tab: IntArray, cnt: NDArray[np.int32], pts: FloatArray, qx: float, 
 
 
 @numba.njit(cache=True)
-def _knn(tab: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, k: int,
+def _knn(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, k: int,
          voxel: float, nsub: int) -> tuple[IntArray, FloatArray]:  # pragma: no cover - compiled  # fmt: skip
     """k nearest stored points of each query among the 27 cells around it: flat indices (M, k) into
     ``pts.reshape(-1, 3)`` and squared distances (M, k), ascending; -1 / inf where fewer were found."""
@@ -219,14 +242,14 @@ def _knn(tab: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, 
     bi = np.empty((1, k), np.int64)
     bd = np.empty((1, k))
     for m in range(M):
-        _knn_row(tab, cnt, pts, q[m, 0], q[m, 1], q[m, 2], voxel, nsub, bi, bd)
+        _knn_row(tab, bits, cnt, pts, q[m, 0], q[m, 1], q[m, 2], voxel, nsub, bi, bd)
         idx[m] = bi[0]
         dist[m] = bd[0]
     return idx, dist
 
 
 @numba.njit(cache=True)
-def _knn_fit(tab: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, k: int,
+def _knn_fit(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, k: int,
              voxel: float, nsub: int, lines: bool, max_d2: float, thr: float) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], IntArray]:  # pragma: no cover - compiled  # fmt: skip
     """The search and the plane (``lines``: line) fit of each query in one pass, while its neighbours
     are in cache: the outputs of :func:`imuslam.lio.residuals.fit_planes` (``fit_lines``) on
@@ -245,7 +268,7 @@ def _knn_fit(tab: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArr
     n = np.empty(3)
     for m in range(M):
         qx, qy, qz = q[m, 0], q[m, 1], q[m, 2]
-        _knn_row(tab, cnt, pts, qx, qy, qz, voxel, nsub, bi, bd)
+        _knn_row(tab, bits, cnt, pts, qx, qy, qz, voxel, nsub, bi, bd)
         first[m] = bi[0, 0]
         if lines:
             good = line_row(qx, qy, qz, bi, bd, flat, 0, max_d2, thr, c, d, n)
@@ -300,6 +323,7 @@ class IncrementalVoxelMap:
         self._sub: NDArray[np.int32]
         self._pts: FloatArray
         self._ids: NDArray[np.int32]
+        self._bits = np.zeros(1 << (_BX + _BY + _BZ - 3), np.uint8)
         self._alloc_table(capacity)
         self._alloc_cells(max(capacity // 2, 8))
 
@@ -339,6 +363,7 @@ class IncrementalVoxelMap:
 
     def _clear(self) -> None:
         self._tab.fill(_EMPTY)
+        self._bits.fill(0)
         self.n_points = 0
         self.n_cells = 0
 
@@ -346,10 +371,10 @@ class IncrementalVoxelMap:
         need = self.n_cells + len(p)  # every point may open a cell
         if 2 * need > len(self._tab):  # keep the load factor below 1/2
             self._alloc_table(2 * need + 1)
-            _rehash(self._tab, self._ckey, self.n_cells)
+            _rehash(self._tab, self._bits, self._ckey, self.n_cells)
         if need > len(self._cnt):
             self._alloc_cells(max(need, 2 * len(self._cnt)))
-        n_ok, self.n_cells = _insert(self._tab, self._ckey, self._cnt, self._sub, self._pts,
+        n_ok, self.n_cells = _insert(self._tab, self._bits, self._ckey, self._cnt, self._sub, self._pts,
                                      self._ids, self.n_cells, p, ids, self.voxel_size, self.nsub,
                                      self.max_per_voxel)  # fmt: skip
         self.n_points += n_ok
@@ -370,9 +395,10 @@ class IncrementalVoxelMap:
                                  centre, self.max_range**2, self.voxel_size, self.nsub)  # fmt: skip
         if n_drop:
             self._tab.fill(_EMPTY)
+            self._bits.fill(0)
             self.n_cells = int(n_cells)
             self.n_points -= int(n_drop)
-            _rehash(self._tab, self._ckey, self.n_cells)
+            _rehash(self._tab, self._bits, self._ckey, self.n_cells)
         return int(n_drop)
 
     def transform(self, R: FloatArray, t: FloatArray) -> None:
@@ -385,7 +411,9 @@ class IncrementalVoxelMap:
         """k nearest map points (within the 27 cells) of each query (M, 3): indices into ``storage``
         (M, k) and squared distances (M, k)."""
         q = np.ascontiguousarray(q_w, dtype=np.float64)
-        return _knn(self._tab, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub)  # type: ignore[no-any-return]
+        return _knn(
+            self._tab, self._bits, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub
+        )  # type: ignore[no-any-return]
 
     def knn_fit(self, q_w: FloatArray, k: int, lines: bool, max_d2: float, thr: float
                 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], IntArray]:  # fmt: skip
@@ -395,10 +423,10 @@ class IncrementalVoxelMap:
         plane thickness, m / the line's eigenvalue ratio), and the nearest point's index into
         ``storage`` (M,)."""
         q = np.ascontiguousarray(q_w, dtype=np.float64)
-        return _knn_fit(self._tab, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub,  # type: ignore[no-any-return]
+        return _knn_fit(self._tab, self._bits, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub,  # type: ignore[no-any-return]
                         bool(lines), float(max_d2), float(thr))  # fmt: skip
 
     @property
     def nbytes(self) -> int:
-        return int(self._tab.nbytes + self._ckey.nbytes + self._cnt.nbytes
+        return int(self._tab.nbytes + self._bits.nbytes + self._ckey.nbytes + self._cnt.nbytes
                    + self._sub.nbytes + self._pts.nbytes + self._ids.nbytes)  # fmt: skip
