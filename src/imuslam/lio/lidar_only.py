@@ -74,14 +74,14 @@ def gauss_newton(
         it += 1
         n_it += 1
         if base is None or moved(at[0], at[1], R, p) > reassociate:
-            corr = base = local_map.associate(surf, edge, R, p, gate)
+            base = local_map.associate(surf, edge, R, p, gate)
             at = (R, p)
-            r, J = corr.system(R, p)
+            r, J = base.system(R, p)
         else:
             r, J = base.system(R, p)
             keep = np.abs(r) < gate
-            corr, r, J = base.subset(keep), r[keep], J[keep]
-        n = len(corr)
+            r, J = r[keep], J[keep]
+        n = len(r)
         if n < 6:
             break
         w = huber_weights(r, huber)
