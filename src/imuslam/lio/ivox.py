@@ -214,10 +214,11 @@ def _knn_row(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts
         if s < 0:
             continue
         c = tab[s, 1]
+        row = pts[c]  # the cell's points as a view: j below is non-negative, no index check
         for j in range(cnt[c]):
-            ex = pts[c, j, 0] - qx
-            ey = pts[c, j, 1] - qy
-            ez = pts[c, j, 2] - qz
+            ex = row[j, 0] - qx
+            ey = row[j, 1] - qy
+            ez = row[j, 2] - qz
             d = ex * ex + ey * ey + ez * ez
             if d >= worst:
                 continue

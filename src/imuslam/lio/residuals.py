@@ -73,16 +73,20 @@ def _eigvec3(a00: float, a01: float, a02: float, a11: float, a12: float, a22: fl
 def _moments(nbr: IntArray, map_pts: FloatArray, m: int, c: FloatArray) -> tuple[float, float, float, float, float, float]:  # pragma: no cover - compiled  # fmt: skip
     k = nbr.shape[1]
     c[0] = c[1] = c[2] = 0.0
+    # each neighbour read through a view of its row: constant indices, checked once (numba checks a
+    # possibly negative index at every access)
     for j in range(k):
+        p = map_pts[nbr[m, j]]
         for a in range(3):
-            c[a] += map_pts[nbr[m, j], a]
+            c[a] += p[a]
     for a in range(3):
         c[a] /= k
     s00 = s01 = s02 = s11 = s12 = s22 = 0.0
     for j in range(k):
-        ex = map_pts[nbr[m, j], 0] - c[0]
-        ey = map_pts[nbr[m, j], 1] - c[1]
-        ez = map_pts[nbr[m, j], 2] - c[2]
+        p = map_pts[nbr[m, j]]
+        ex = p[0] - c[0]
+        ey = p[1] - c[1]
+        ez = p[2] - c[2]
         s00 += ex * ex
         s01 += ex * ey
         s02 += ex * ez
@@ -104,9 +108,10 @@ def plane_row(nbr: IntArray, d2: FloatArray, map_pts: FloatArray, m: int, max_d2
     if not _eigvec3(s00, s01, s02, s11, s12, s22, w0, n):
         return False
     for j in range(k):
-        e0 = map_pts[nbr[m, j], 0] - c[0]
-        e1 = map_pts[nbr[m, j], 1] - c[1]
-        e2 = map_pts[nbr[m, j], 2] - c[2]
+        p = map_pts[nbr[m, j]]
+        e0 = p[0] - c[0]
+        e1 = p[1] - c[1]
+        e2 = p[2] - c[2]
         if abs(n[0] * e0 + n[1] * e1 + n[2] * e2) > max_plane_res:
             return False
     return True
