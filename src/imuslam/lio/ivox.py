@@ -173,16 +173,16 @@ def _prune(ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32], pts: 
 @numba.njit(cache=True, inline="always")
 def _knn_row(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts: FloatArray, qx: float, qy: float, qz: float,
              voxel: float, nsub: int, bi: IntArray, bd: FloatArray) -> None:  # pragma: no cover - compiled  # fmt: skip
-    """The k = bi.shape[1] nearest stored points of the query (qx, qy, qz) among the 27 cells around
-    it into bi[0] (flat indices into ``pts.reshape(-1, 3)``) and bd[0] (squared distances), ascending;
+    """The k = bi.size nearest stored points of the query (qx, qy, qz) among the 27 cells around
+    it into bi (k,) (flat indices into ``pts.reshape(-1, 3)``) and bd (k,) (squared distances), ascending;
     -1 / inf where fewer were found."""
-    k = bi.shape[1]
+    k = bi.size
     C = pts.shape[1]
     cell = voxel * nsub
     for a in range(k):
-        bi[0, a] = -1
-        bd[0, a] = np.inf
-    worst = np.inf  # bd[0, k - 1], kept in a register
+        bi[a] = -1
+        bd[a] = np.inf
+    worst = np.inf  # bd[k - 1], kept in a register
     cx = int(np.floor(qx / voxel)) // nsub
     cy = int(np.floor(qy / voxel)) // nsub
     cz = int(np.floor(qz / voxel)) // nsub
@@ -223,13 +223,13 @@ def _knn_row(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts
             if d >= worst:
                 continue
             a = k - 1  # insertion into the sorted k best
-            while a > 0 and bd[0, a - 1] > d:
-                bd[0, a] = bd[0, a - 1]
-                bi[0, a] = bi[0, a - 1]
+            while a > 0 and bd[a - 1] > d:
+                bd[a] = bd[a - 1]
+                bi[a] = bi[a - 1]
                 a -= 1
-            bd[0, a] = d
-            bi[0, a] = c * C + j
-            worst = bd[0, k - 1]
+            bd[a] = d
+            bi[a] = c * C + j
+            worst = bd[k - 1]
 
 
 @numba.njit(cache=True)
@@ -240,12 +240,12 @@ def _knn(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts: Fl
     M = q.shape[0]
     idx = np.empty((M, k), np.int64)
     dist = np.empty((M, k))
-    bi = np.empty((1, k), np.int64)
-    bd = np.empty((1, k))
+    bi = np.empty(k, np.int64)
+    bd = np.empty(k)
     for m in range(M):
         _knn_row(tab, bits, cnt, pts, q[m, 0], q[m, 1], q[m, 2], voxel, nsub, bi, bd)
-        idx[m] = bi[0]
-        dist[m] = bd[0]
+        idx[m] = bi
+        dist[m] = bd
     return idx, dist
 
 
@@ -262,19 +262,20 @@ def _knn_fit(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts
     ok = np.zeros(M, dtype=np.bool_)
     first = np.empty(M, np.int64)
     flat = pts.reshape(-1, 3)
-    bi = np.empty((1, k), np.int64)
-    bd = np.empty((1, k))
+    bi2 = np.empty((1, k), np.int64)  # the neighbours as row 0 of an (M, k) table, for the fits
+    bd2 = np.empty((1, k))
+    bi, bd = bi2[0], bd2[0]
     c = np.empty(3)
     d = np.empty(3)
     n = np.empty(3)
     for m in range(M):
         qx, qy, qz = q[m, 0], q[m, 1], q[m, 2]
         _knn_row(tab, bits, cnt, pts, qx, qy, qz, voxel, nsub, bi, bd)
-        first[m] = bi[0, 0]
+        first[m] = bi[0]
         if lines:
-            good = line_row(qx, qy, qz, bi, bd, flat, 0, max_d2, thr, c, d, n)
+            good = line_row(qx, qy, qz, bi2, bd2, flat, 0, max_d2, thr, c, d, n)
         else:
-            good = plane_row(bi, bd, flat, 0, max_d2, thr, c, n)
+            good = plane_row(bi2, bd2, flat, 0, max_d2, thr, c, n)
         if good:
             n_out[m] = n
             c_out[m] = c
