@@ -250,37 +250,46 @@ def _knn(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts: Fl
 
 
 @numba.njit(cache=True)
-def _knn_fit(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, k: int,
-             voxel: float, nsub: int, lines: bool, max_d2: float, thr: float) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], IntArray]:  # pragma: no cover - compiled  # fmt: skip
-    """The search and the plane (``lines``: line) fit of each query in one pass, while its neighbours
-    are in cache: the outputs of :func:`imuslam.lio.residuals.fit_planes` (``fit_lines``) on
-    :func:`_knn`'s neighbours (``thr``: their ``max_plane_res`` / ``min_ratio``), and the index of
-    each query's nearest point (M,) (-1 if none)."""
+def _knn_fit(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts: FloatArray,
+             ids: NDArray[np.int32], q: FloatArray, p_in: FloatArray, k: int, voxel: float, nsub: int,
+             lines: bool, max_d2: float, thr: float, gate: float) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int32]]:  # pragma: no cover - compiled  # fmt: skip
+    """The search, the plane (``lines``: line) fit and the residual gate of each query in one pass,
+    while its neighbours are in cache: the rows of ``p_in`` (M, 3) whose query ``q`` (M, 3) has a
+    valid fit (:func:`imuslam.lio.residuals.fit_planes` / ``fit_lines`` on :func:`_knn`'s neighbours,
+    ``thr`` their ``max_plane_res`` / ``min_ratio``) with |n . (q - c)| < ``gate``, with the fit's n
+    and c (K, 3) and the tag in ``ids`` of the nearest neighbour (K,)."""
     M = q.shape[0]
-    n_out = np.zeros((M, 3))
-    c_out = np.zeros((M, 3))
-    ok = np.zeros(M, dtype=np.bool_)
-    first = np.empty(M, np.int64)
+    p_out = np.empty((M, 3))
+    n_out = np.empty((M, 3))
+    c_out = np.empty((M, 3))
+    t_out = np.empty(M, np.int32)
     flat = pts.reshape(-1, 3)
+    flat_ids = ids.reshape(-1)
     bi2 = np.empty((1, k), np.int64)  # the neighbours as row 0 of an (M, k) table, for the fits
     bd2 = np.empty((1, k))
     bi, bd = bi2[0], bd2[0]
     c = np.empty(3)
     d = np.empty(3)
     n = np.empty(3)
+    K = 0
     for m in range(M):
         qx, qy, qz = q[m, 0], q[m, 1], q[m, 2]
         _knn_row(tab, bits, cnt, pts, qx, qy, qz, voxel, nsub, bi, bd)
-        first[m] = bi[0]
         if lines:
             good = line_row(qx, qy, qz, bi2, bd2, flat, 0, max_d2, thr, c, d, n)
         else:
             good = plane_row(bi2, bd2, flat, 0, max_d2, thr, c, n)
-        if good:
-            n_out[m] = n
-            c_out[m] = c
-            ok[m] = True
-    return n_out, c_out, ok, first
+        if not good:
+            continue
+        r = n[0] * (qx - c[0]) + n[1] * (qy - c[1]) + n[2] * (qz - c[2])
+        if not abs(r) < gate:
+            continue
+        p_out[K, 0], p_out[K, 1], p_out[K, 2] = p_in[m, 0], p_in[m, 1], p_in[m, 2]
+        n_out[K, 0], n_out[K, 1], n_out[K, 2] = n[0], n[1], n[2]
+        c_out[K, 0], c_out[K, 1], c_out[K, 2] = c[0], c[1], c[2]
+        t_out[K] = flat_ids[bi[0]]
+        K += 1
+    return p_out[:K], n_out[:K], c_out[:K], t_out[:K]
 
 
 @numba.njit(cache=True)
@@ -417,16 +426,18 @@ class IncrementalVoxelMap:
             self._tab, self._bits, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub
         )  # type: ignore[no-any-return]
 
-    def knn_fit(self, q_w: FloatArray, k: int, lines: bool, max_d2: float, thr: float
-                ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], IntArray]:  # fmt: skip
+    def knn_fit(self, q_w: FloatArray, p: FloatArray, k: int, lines: bool, max_d2: float, thr: float,
+                gate: float) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int32]]:  # fmt: skip
         """Each query's (M, 3) plane (``lines``: line) through its k nearest map points, fitted in the
-        same compiled pass as the search: normal n (M, 3), anchor c (M, 3), validity (M,) as
-        :func:`~imuslam.lio.residuals.fit_planes` (``fit_lines``) with ``max_d2`` and ``thr`` (the
-        plane thickness, m / the line's eigenvalue ratio), and the nearest point's index into
-        ``storage`` (M,)."""
+        same compiled pass as the search (as :func:`~imuslam.lio.residuals.fit_planes` / ``fit_lines``
+        with ``max_d2`` and ``thr``, the plane thickness, m / the line's eigenvalue ratio), kept where
+        the query is within ``gate`` m of it: the kept rows of ``p`` (M, 3) (the queries' points in
+        another frame), the normals n and anchors c (K, 3), and the tag of each one's nearest map
+        point (K,) (see ``add``)."""
         q = np.ascontiguousarray(q_w, dtype=np.float64)
-        return _knn_fit(self._tab, self._bits, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub,  # type: ignore[no-any-return]
-                        bool(lines), float(max_d2), float(thr))  # fmt: skip
+        return _knn_fit(self._tab, self._bits, self._cnt, self._pts, self._ids, q,  # type: ignore[no-any-return]
+                        np.ascontiguousarray(p, dtype=np.float64), int(k), self.voxel_size, self.nsub,
+                        bool(lines), float(max_d2), float(thr), float(gate))  # fmt: skip
 
     @property
     def nbytes(self) -> int:
