@@ -256,6 +256,56 @@ def test_ivox_matches_the_voxel_map_and_brute_force() -> None:
     assert np.all(d_near < 1e-20)
 
 
+def test_ivox_fused_search_fit_gate_equals_the_two_step_path() -> None:
+    """The association's compiled pass (search, plane / line fit and residual gate per query,
+    ``IncrementalVoxelMap.knn_fit``) keeps exactly the rows, normals, anchors and tags of the search
+    followed by ``fit_planes`` / ``fit_lines`` and the gate on n . (q - c); after a prune (cells
+    compacted, the occupancy bitmap rebuilt) the search still equals brute force where the k
+    nearest lie within one cell."""
+    rng = np.random.default_rng(21)
+    # noisy patches of planes (2 cm) and lines, so that the plane test and the gate reject some rows
+    base = rng.uniform(-20, 20, size=(400, 3))
+    nrm = rng.normal(size=(400, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    u = np.cross(nrm, [0.3, 0.5, 0.8])
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    vv = np.cross(nrm, u)
+    ab = rng.uniform(-1.5, 1.5, size=(400, 40, 2))
+    pts = (base[:, None] + ab[..., :1] * u[:, None] + ab[..., 1:] * vv[:, None]
+           + rng.normal(size=(400, 40, 1)) * 0.02 * nrm[:, None]).reshape(-1, 3)  # fmt: skip
+    t = rng.uniform(-3, 3, size=(400, 60, 1))
+    line_pts = (base[:, None] + t * nrm[:, None] + rng.normal(size=(400, 60, 3)) * 0.01).reshape(
+        -1, 3
+    )
+    for lines, voxel, nsub, slots, thr in ((False, 0.5, 2, None, 0.1), (True, 0.25, 4, 16, 3.0)):
+        iv = IncrementalVoxelMap(voxel, 1, 100.0, nsub=nsub, capacity=64, slots=slots)
+        data = line_pts if lines else pts
+        for i, chunk in enumerate(np.array_split(data, 5)):
+            iv.add(chunk, tag=i)
+        q = data[rng.integers(0, len(data), 3000)] + rng.normal(size=(3000, 3)) * 0.05
+        p_i = rng.normal(size=(3000, 3))  # the same rows in another frame, carried along
+        got = iv.knn_fit(q, p_i, 5, lines, 4.0, thr, 0.05)
+        nbr, d2 = iv.knn(q, 5)
+        fit = fit_lines if lines else fit_planes
+        n, c, ok = fit(q, nbr, d2, iv.storage, 4.0, thr)
+        ok &= np.abs(np.einsum("mk,mk->m", n, q - c)) < 0.05
+        assert 100 < ok.sum() < len(q)  # both outcomes occur
+        for a, b in zip(got, (p_i[ok], n[ok], c[ok], iv.ids[nbr[ok, 0]]), strict=True):
+            np.testing.assert_array_equal(a, b)
+    iv = IncrementalVoxelMap(0.5, 1, 100.0, nsub=2, capacity=64)
+    iv.add(pts)
+    iv.max_range = 15.0
+    assert iv.prune(np.zeros(3)) > 0
+    kept = iv.points
+    assert np.all(np.linalg.norm(kept, axis=1) <= 15.0)
+    q = rng.uniform(-12, 12, size=(500, 3))
+    _, d2 = iv.knn(q, 5)
+    ref = np.sort(np.sum((q[:, None] - kept[None]) ** 2, axis=2), axis=1)[:, :5]
+    inside = ref[:, 4] <= 1.0
+    assert inside.sum() > 20
+    np.testing.assert_allclose(d2[inside], ref[inside], rtol=1e-12)
+
+
 def test_pcd_and_ply_round_trip(tmp_path: object) -> None:
     from pathlib import Path
 

@@ -293,6 +293,28 @@ class MapCovariance:
         )
 
 
+class _Memo:
+    """``meas.linearize`` at a state, answered again without recomputing when it is asked for the
+    same state object with the same gate (the count of rows before an update and the update's first
+    iterate linearise at the same state)."""
+
+    def __init__(self, meas: LidarMeasurement, layout: ErrorLayout) -> None:
+        self.meas, self.layout = meas, layout
+        self._key: tuple[InsState, bool] | None = None
+        self._out: tuple[FloatArray, FloatArray, FloatArray] | None = None
+
+    def __call__(self, x: InsState) -> tuple[FloatArray, FloatArray, FloatArray]:
+        if (
+            self._out is None
+            or self._key is None
+            or self._key[0] is not x
+            or self._key[1] != self.meas.tight
+        ):
+            self._out = self.meas.linearize(x, self.layout)
+            self._key = (x, self.meas.tight)
+        return self._out
+
+
 class LioEstimator:
     """Iterated ESKF LiDAR-inertial odometry. ``imu``: the whole IMU log (SI, IMU frame, already
     calibrated if a calibration is used); scan times are seconds after ``imu.t_ns[0]``."""
@@ -572,7 +594,7 @@ class LioEstimator:
                                 shared=self.shared)  # fmt: skip
         fc = self.config.filter
         # at least as many rows as states, else the IMU carries the filter through (corridors, fog)
-        lin = lambda s: meas.linearize(s, self.layout)  # noqa: E731
+        lin = _Memo(meas, self.layout)
         pr = self.map.params
         coarse = pr.coarse_residual > pr.max_residual
         # coarse to fine, as the LiDAR-only Gauss-Newton: the prior can be decimetres off at 50 m
@@ -581,14 +603,14 @@ class LioEstimator:
         # first converge with the coarse gate, then go on from there with the tight one, whose rows
         # alone make the estimate (no wall foot matched to the ground)
         meas.set_tight(not coarse)
-        meas.linearize(eskf.x, self.layout)
+        lin(eskf.x)
         if meas.n_corr >= 3 * self.layout.dim:
             x_start = None
             if coarse:
                 first = eskf.iterated_update(lin, fc.max_iterations, fc.converge, commit=False)
                 meas.set_tight(True)
                 x_c = boxplus(eskf.x, first.dx, self.layout)
-                meas.linearize(x_c, self.layout)
+                lin(x_c)
                 if meas.n_corr >= 3 * self.layout.dim:
                     x_start = x_c
                 else:  # the tight gate keeps too few rows: the coarse rows make the update

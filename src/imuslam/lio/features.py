@@ -266,20 +266,21 @@ def features_pass(pts_in: FloatArray, t_in: FloatArray, ring_in: IntArray, min_r
             continue
         for i in range(s + HALF, e - HALF):  # smoothness, eq. 1
             cx = cy = cz = 0.0
-            for j in range(i - HALF, i + HALF + 1):
-                cx += px[j] - px[i]
-                cy += py[j] - py[i]
-                cz += pz[j] - pz[i]
+            # the window as views indexed from 0: constant non-negative indices, which numba compiles
+            # without the negative-index check of px[j] (a fifth of the pass); the same sums in the
+            # same order
+            wx, wy, wz = px[i - HALF :], py[i - HALF :], pz[i - HALF :]
+            for j in range(2 * HALF + 1):
+                cx += wx[j] - wx[HALF]
+                cy += wy[j] - wy[HALF]
+                cz += wz[j] - wz[HALF]
             curv[i] = np.sqrt(cx * cx + cy * cy + cz * cz) / (2 * HALF * rg[i])
             ok[i] = True
         # reliability (Fig. 4): beams parallel to the surface, occlusions
         for i in range(s + HALF, e - HALF):
-            dn = np.sqrt(
-                (px[i + 1] - px[i]) ** 2 + (py[i + 1] - py[i]) ** 2 + (pz[i + 1] - pz[i]) ** 2
-            )
-            dp = np.sqrt(
-                (px[i] - px[i - 1]) ** 2 + (py[i] - py[i - 1]) ** 2 + (pz[i] - pz[i - 1]) ** 2
-            )
+            wx, wy, wz = px[i - 1 :], py[i - 1 :], pz[i - 1 :]  # [i - 1, i, i + 1] (as above)
+            dn = np.sqrt((wx[2] - wx[1]) ** 2 + (wy[2] - wy[1]) ** 2 + (wz[2] - wz[1]) ** 2)
+            dp = np.sqrt((wx[1] - wx[0]) ** 2 + (wy[1] - wy[0]) ** 2 + (wz[1] - wz[0]) ** 2)
             if dn > par * rg[i] and dp > par * rg[i]:
                 ok[i] = False
             if dn > occ * rg[i]:

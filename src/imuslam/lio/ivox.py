@@ -20,6 +20,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.lio.residuals import line_row, plane_row
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
@@ -44,13 +46,29 @@ def _key(cx: int, cy: int, cz: int) -> tuple[int, int]:  # pragma: no cover - co
     return key, h
 
 
+# the occupancy bitmap: one bit per cell, the cell indices taken modulo 2^7, 2^7, 2^5 (a 64 KB table
+# that stays in cache, where the hash table does not): a cell whose bit is clear is not probed; a set
+# bit may be another cell's (the indices wrap), then the probe decides
+_BX, _BY, _BZ = 7, 7, 5
+
+
 @numba.njit(cache=True, inline="always")
-def _probe(keys: IntArray, key: int, h: int) -> int:  # pragma: no cover - compiled
-    """Slot of ``key``, or -1 - (the free slot where it would go)."""
-    mask = keys.size - 1
+def _bit(cx: int, cy: int, cz: int) -> int:  # pragma: no cover - compiled
+    return (
+        ((cx & ((1 << _BX) - 1)) << (_BY + _BZ))
+        | ((cy & ((1 << _BY) - 1)) << _BZ)
+        | (cz & ((1 << _BZ) - 1))
+    )
+
+
+@numba.njit(cache=True, inline="always")
+def _probe(tab: IntArray, key: int, h: int) -> int:  # pragma: no cover - compiled
+    """Slot of ``key`` in the table ``tab`` (S, 2) of [key, cell row], or -1 - (the free slot where
+    it would go)."""
+    mask = tab.shape[0] - 1
     s = h & mask
     while True:
-        kk = keys[s]
+        kk = tab[s, 0]
         if kk == key:
             return s
         if kk == _EMPTY:
@@ -59,13 +77,12 @@ def _probe(keys: IntArray, key: int, h: int) -> int:  # pragma: no cover - compi
 
 
 @numba.njit(cache=True)
-def _insert(keys: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32], pts: FloatArray,
-            ids: NDArray[np.int32], new: FloatArray, new_ids: NDArray[np.int32], voxel: float, nsub: int,
-            mpv: int) -> tuple[int, int]:  # pragma: no cover - compiled  # fmt: skip
-    """Insert ``new`` (N, 3) with their tags ``new_ids`` (N,) where their voxel has room; returns
-    (points admitted, cells created)."""
+def _insert(tab: IntArray, bits: NDArray[np.uint8], ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32],
+            pts: FloatArray, ids: NDArray[np.int32], n_cells: int, new: FloatArray, new_ids: NDArray[np.int32],
+            voxel: float, nsub: int, mpv: int) -> tuple[int, int]:  # pragma: no cover - compiled  # fmt: skip
+    """Insert ``new`` (N, 3) with their tags ``new_ids`` (N,) where their voxel has room; a new cell
+    takes the next free row ``n_cells`` of the cell arrays; returns (points admitted, cells in use)."""
     n_ok = 0
-    n_new_cells = 0
     cap_pts = pts.shape[1]
     for i in range(new.shape[0]):
         vx = int(np.floor(new[i, 0] / voxel))
@@ -74,102 +91,232 @@ def _insert(keys: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32], pts:
         cx, cy, cz = vx // nsub, vy // nsub, vz // nsub
         si = ((vx - cx * nsub) * nsub + (vy - cy * nsub)) * nsub + (vz - cz * nsub)
         key, h = _key(cx, cy, cz)
-        s = _probe(keys, key, h)
+        s = _probe(tab, key, h)
         if s < 0:
             s = -1 - s
-            keys[s] = key
-            cnt[s] = 0
-            sub[s, :] = 0
-            n_new_cells += 1
-        if sub[s, si] >= mpv or cnt[s] >= cap_pts:
+            tab[s, 0] = key
+            tab[s, 1] = n_cells
+            b = _bit(cx, cy, cz)
+            bits[b >> 3] |= np.uint8(1 << (b & 7))
+            c = n_cells
+            ckey[c] = key
+            cnt[c] = 0
+            sub[c, :] = 0
+            n_cells += 1
+        else:
+            c = tab[s, 1]
+        if sub[c, si] >= mpv or cnt[c] >= cap_pts:
             continue
-        sub[s, si] += 1
-        j = cnt[s]
-        pts[s, j, 0], pts[s, j, 1], pts[s, j, 2] = new[i, 0], new[i, 1], new[i, 2]
-        ids[s, j] = new_ids[i]
-        cnt[s] = j + 1
+        sub[c, si] += 1
+        j = cnt[c]
+        pts[c, j, 0], pts[c, j, 1], pts[c, j, 2] = new[i, 0], new[i, 1], new[i, 2]
+        ids[c, j] = new_ids[i]
+        cnt[c] = j + 1
         n_ok += 1
-    return n_ok, n_new_cells
+    return n_ok, n_cells
 
 
 @numba.njit(cache=True)
-def _knn(keys: IntArray, cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, k: int,
+def _rehash(tab: IntArray, bits: NDArray[np.uint8], ckey: IntArray, n_cells: int) -> None:  # pragma: no cover - compiled  # fmt: skip
+    """Fill the emptied hash table ``tab`` and the bitmap ``bits`` with the cells 0..n_cells-1 (their
+    keys ``ckey``)."""
+    for c in range(n_cells):
+        key = ckey[c]
+        # the cell indices back from the packed key (21 bits per axis, offset by 2^20)
+        cz = (key & ((1 << 21) - 1)) - (1 << 20)
+        cy = ((key >> 21) & ((1 << 21) - 1)) - (1 << 20)
+        cx = (key >> 42) - (1 << 20)
+        _, h = _key(cx, cy, cz)
+        s = -1 - _probe(tab, key, h)
+        tab[s, 0] = key
+        tab[s, 1] = c
+        b = _bit(cx, cy, cz)
+        bits[b >> 3] |= np.uint8(1 << (b & 7))
+
+
+@numba.njit(cache=True)
+def _prune(ckey: IntArray, cnt: NDArray[np.int32], sub: NDArray[np.int32], pts: FloatArray,
+           ids: NDArray[np.int32], n_cells: int, centre: FloatArray, r2: float, voxel: float,
+           nsub: int) -> tuple[int, int]:  # pragma: no cover - compiled  # fmt: skip
+    """Drop the points farther than sqrt(r2) from ``centre`` in place: each cell keeps its remaining
+    points in their order, emptied cells are removed and the others keep their order; returns (points
+    dropped, cells left). The voxel counts ``sub`` are recounted from the points kept."""
+    n_drop = 0
+    w = 0
+    for c in range(n_cells):
+        kept = 0
+        for j in range(cnt[c]):
+            ex = pts[c, j, 0] - centre[0]
+            ey = pts[c, j, 1] - centre[1]
+            ez = pts[c, j, 2] - centre[2]
+            if ex * ex + ey * ey + ez * ez <= r2:
+                pts[w, kept, :] = pts[c, j, :]
+                ids[w, kept] = ids[c, j]
+                kept += 1
+            else:
+                n_drop += 1
+        if kept == 0:
+            continue
+        ckey[w] = ckey[c]
+        cnt[w] = kept
+        sub[w, :] = 0
+        for j in range(kept):
+            vx = int(np.floor(pts[w, j, 0] / voxel))
+            vy = int(np.floor(pts[w, j, 1] / voxel))
+            vz = int(np.floor(pts[w, j, 2] / voxel))
+            cx, cy, cz = vx // nsub, vy // nsub, vz // nsub
+            sub[w, ((vx - cx * nsub) * nsub + (vy - cy * nsub)) * nsub + (vz - cz * nsub)] += 1
+        w += 1
+    return n_drop, w
+
+
+@numba.njit(cache=True, inline="always")
+def _knn_row(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts: FloatArray, qx: float, qy: float, qz: float,
+             voxel: float, nsub: int, bi: IntArray, bd: FloatArray) -> None:  # pragma: no cover - compiled  # fmt: skip
+    """The k = bi.size nearest stored points of the query (qx, qy, qz) among the 27 cells around
+    it into bi (k,) (flat indices into ``pts.reshape(-1, 3)``) and bd (k,) (squared distances), ascending;
+    -1 / inf where fewer were found."""
+    k = bi.size
+    C = pts.shape[1]
+    cell = voxel * nsub
+    for a in range(k):
+        bi[a] = -1
+        bd[a] = np.inf
+    worst = np.inf  # bd[k - 1], kept in a register
+    cx = int(np.floor(qx / voxel)) // nsub
+    cy = int(np.floor(qy / voxel)) // nsub
+    cz = int(np.floor(qz / voxel)) // nsub
+    # distances from the query to the faces of its cell, for the lower bound of each neighbour
+    lx, ly, lz = qx - cx * cell, qy - cy * cell, qz - cz * cell
+    hx, hy, hz = cell - lx, cell - ly, cell - lz
+    for o in range(27):
+        dx, dy, dz = _ORDER[o, 0], _ORDER[o, 1], _ORDER[o, 2]
+        bound = 0.0
+        if dx < 0:
+            bound += lx * lx
+        elif dx > 0:
+            bound += hx * hx
+        if dy < 0:
+            bound += ly * ly
+        elif dy > 0:
+            bound += hy * hy
+        if dz < 0:
+            bound += lz * lz
+        elif dz > 0:
+            bound += hz * hz
+        if bound >= worst:
+            continue  # no point of that cell can be among the k nearest (exact pruning)
+        b = _bit(cx + dx, cy + dy, cz + dz)
+        if not (bits[b >> 3] >> (b & 7)) & 1:
+            continue  # no such cell
+        key, h = _key(cx + dx, cy + dy, cz + dz)
+        s = _probe(tab, key, h)
+        if s < 0:
+            continue
+        c = tab[s, 1]
+        row = pts[c]  # the cell's points as a view: j below is non-negative, no index check
+        for j in range(cnt[c]):
+            ex = row[j, 0] - qx
+            ey = row[j, 1] - qy
+            ez = row[j, 2] - qz
+            d = ex * ex + ey * ey + ez * ez
+            if d >= worst:
+                continue
+            a = k - 1  # insertion into the sorted k best
+            while a > 0 and bd[a - 1] > d:
+                bd[a] = bd[a - 1]
+                bi[a] = bi[a - 1]
+                a -= 1
+            bd[a] = d
+            bi[a] = c * C + j
+            worst = bd[k - 1]
+
+
+@numba.njit(cache=True)
+def _knn(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts: FloatArray, q: FloatArray, k: int,
          voxel: float, nsub: int) -> tuple[IntArray, FloatArray]:  # pragma: no cover - compiled  # fmt: skip
     """k nearest stored points of each query among the 27 cells around it: flat indices (M, k) into
     ``pts.reshape(-1, 3)`` and squared distances (M, k), ascending; -1 / inf where fewer were found."""
     M = q.shape[0]
-    C = pts.shape[1]
-    cell = voxel * nsub
-    idx = np.full((M, k), -1, np.int64)
-    dist = np.full((M, k), np.inf)
+    idx = np.empty((M, k), np.int64)
+    dist = np.empty((M, k))
+    bi = np.empty(k, np.int64)
+    bd = np.empty(k)
     for m in range(M):
-        qx, qy, qz = q[m, 0], q[m, 1], q[m, 2]
-        cx = int(np.floor(qx / voxel)) // nsub
-        cy = int(np.floor(qy / voxel)) // nsub
-        cz = int(np.floor(qz / voxel)) // nsub
-        # distances from the query to the faces of its cell, for the lower bound of each neighbour
-        lx, ly, lz = qx - cx * cell, qy - cy * cell, qz - cz * cell
-        hx, hy, hz = cell - lx, cell - ly, cell - lz
-        for o in range(27):
-            dx, dy, dz = _ORDER[o, 0], _ORDER[o, 1], _ORDER[o, 2]
-            bound = 0.0
-            if dx < 0:
-                bound += lx * lx
-            elif dx > 0:
-                bound += hx * hx
-            if dy < 0:
-                bound += ly * ly
-            elif dy > 0:
-                bound += hy * hy
-            if dz < 0:
-                bound += lz * lz
-            elif dz > 0:
-                bound += hz * hz
-            if bound >= dist[m, k - 1]:
-                continue  # no point of that cell can be among the k nearest (exact pruning)
-            key, h = _key(cx + dx, cy + dy, cz + dz)
-            s = _probe(keys, key, h)
-            if s < 0:
-                continue
-            for j in range(cnt[s]):
-                ex = pts[s, j, 0] - qx
-                ey = pts[s, j, 1] - qy
-                ez = pts[s, j, 2] - qz
-                d = ex * ex + ey * ey + ez * ez
-                if d >= dist[m, k - 1]:
-                    continue
-                a = k - 1  # insertion into the sorted k best
-                while a > 0 and dist[m, a - 1] > d:
-                    dist[m, a] = dist[m, a - 1]
-                    idx[m, a] = idx[m, a - 1]
-                    a -= 1
-                dist[m, a] = d
-                idx[m, a] = s * C + j
+        _knn_row(tab, bits, cnt, pts, q[m, 0], q[m, 1], q[m, 2], voxel, nsub, bi, bd)
+        idx[m] = bi
+        dist[m] = bd
     return idx, dist
 
 
 @numba.njit(cache=True)
-def _gather(keys: IntArray, cnt: NDArray[np.int32], pts: FloatArray, ids: NDArray[np.int32]) -> tuple[FloatArray, NDArray[np.int32]]:  # pragma: no cover - compiled  # fmt: skip
+def _knn_fit(tab: IntArray, bits: NDArray[np.uint8], cnt: NDArray[np.int32], pts: FloatArray,
+             ids: NDArray[np.int32], q: FloatArray, p_in: FloatArray, k: int, voxel: float, nsub: int,
+             lines: bool, max_d2: float, thr: float, gate: float) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int32]]:  # pragma: no cover - compiled  # fmt: skip
+    """The search, the plane (``lines``: line) fit and the residual gate of each query in one pass,
+    while its neighbours are in cache: the rows of ``p_in`` (M, 3) whose query ``q`` (M, 3) has a
+    valid fit (:func:`imuslam.lio.residuals.fit_planes` / ``fit_lines`` on :func:`_knn`'s neighbours,
+    ``thr`` their ``max_plane_res`` / ``min_ratio``) with |n . (q - c)| < ``gate``, with the fit's n
+    and c (K, 3) and the tag in ``ids`` of the nearest neighbour (K,)."""
+    M = q.shape[0]
+    p_out = np.empty((M, 3))
+    n_out = np.empty((M, 3))
+    c_out = np.empty((M, 3))
+    t_out = np.empty(M, np.int32)
+    flat = pts.reshape(-1, 3)
+    flat_ids = ids.reshape(-1)
+    bi2 = np.empty((1, k), np.int64)  # the neighbours as row 0 of an (M, k) table, for the fits
+    bd2 = np.empty((1, k))
+    bi, bd = bi2[0], bd2[0]
+    c = np.empty(3)
+    d = np.empty(3)
+    n = np.empty(3)
+    K = 0
+    for m in range(M):
+        qx, qy, qz = q[m, 0], q[m, 1], q[m, 2]
+        _knn_row(tab, bits, cnt, pts, qx, qy, qz, voxel, nsub, bi, bd)
+        if lines:
+            good = line_row(qx, qy, qz, bi2, bd2, flat, 0, max_d2, thr, c, d, n)
+        else:
+            good = plane_row(bi2, bd2, flat, 0, max_d2, thr, c, n)
+        if not good:
+            continue
+        r = n[0] * (qx - c[0]) + n[1] * (qy - c[1]) + n[2] * (qz - c[2])
+        if not abs(r) < gate:
+            continue
+        p_out[K, 0], p_out[K, 1], p_out[K, 2] = p_in[m, 0], p_in[m, 1], p_in[m, 2]
+        n_out[K, 0], n_out[K, 1], n_out[K, 2] = n[0], n[1], n[2]
+        c_out[K, 0], c_out[K, 1], c_out[K, 2] = c[0], c[1], c[2]
+        t_out[K] = flat_ids[bi[0]]
+        K += 1
+    return p_out[:K], n_out[:K], c_out[:K], t_out[:K]
+
+
+@numba.njit(cache=True)
+def _gather(cnt: NDArray[np.int32], pts: FloatArray, ids: NDArray[np.int32], n_cells: int) -> tuple[FloatArray, NDArray[np.int32]]:  # pragma: no cover - compiled  # fmt: skip
     n = 0
-    for s in range(keys.size):
-        if keys[s] != _EMPTY:
-            n += cnt[s]
+    for c in range(n_cells):
+        n += cnt[c]
     out = np.empty((n, 3))
     out_ids = np.empty(n, np.int32)
     i = 0
-    for s in range(keys.size):
-        if keys[s] != _EMPTY:
-            for j in range(cnt[s]):
-                out[i, :] = pts[s, j, :]
-                out_ids[i] = ids[s, j]
-                i += 1
+    for c in range(n_cells):
+        for j in range(cnt[c]):
+            out[i, :] = pts[c, j, :]
+            out_ids[i] = ids[c, j]
+            i += 1
     return out, out_ids
 
 
 class IncrementalVoxelMap:
     """Points in the world frame, at most ``max_per_voxel`` per voxel of ``voxel_size`` m, hashed by
     cells of ``nsub`` voxels a side, within ``max_range`` m of the last pruning centre. Same interface
-    as :class:`~imuslam.lio.voxelmap.VoxelMap` (``add``, ``prune``, ``transform``, ``knn``)."""
+    as :class:`~imuslam.lio.voxelmap.VoxelMap` (``add``, ``prune``, ``transform``, ``knn``).
+
+    The hash table holds only each cell's key and its row in the cell arrays, which are dense (the
+    cells in use are rows 0..n_cells-1, in the order they were created): the points of a few
+    thousand cells are not spread over a table kept at most half full, so a search touches less
+    memory, and pruning compacts the rows in place without re-inserting the points."""
 
     def __init__(self, voxel_size: float = 0.5, max_per_voxel: int = 1, max_range: float = 100.0,
                  nsub: int = 2, capacity: int = 1 << 10, slots: int | None = None) -> None:  # fmt: skip
@@ -182,18 +329,30 @@ class IncrementalVoxelMap:
         self.slots = int(slots) if slots is not None else self.nsub**3 * self.max_per_voxel
         self.n_points = 0
         self.n_cells = 0
-        self._alloc(capacity)
+        self._ckey: IntArray
+        self._cnt: NDArray[np.int32]
+        self._sub: NDArray[np.int32]
+        self._pts: FloatArray
+        self._ids: NDArray[np.int32]
+        self._bits = np.zeros(1 << (_BX + _BY + _BZ - 3), np.uint8)
+        self._alloc_table(capacity)
+        self._alloc_cells(max(capacity // 2, 8))
 
-    def _alloc(self, capacity: int) -> None:
+    def _alloc_table(self, capacity: int) -> None:
         cap = 1 << max(int(np.ceil(np.log2(max(capacity, 16)))), 4)
-        n3 = self.nsub**3
-        self._keys = np.full(cap, _EMPTY, np.int64)
-        self._cnt = np.zeros(cap, np.int32)
-        self._sub = np.zeros((cap, n3), np.int32)
-        self._pts = np.zeros((cap, self.slots, 3))
-        self._ids = np.zeros((cap, self.slots), np.int32)
-        self.n_points = 0
-        self.n_cells = 0
+        # [key, cell row] side by side: a probe that finds its cell reads one cache line
+        self._tab = np.full((cap, 2), _EMPTY, np.int64)
+
+    def _alloc_cells(self, rows: int) -> None:
+        """Cell arrays of ``rows`` rows, the rows in use copied over."""
+        n, n3 = self.n_cells, self.nsub**3
+        ckey, cnt = np.zeros(rows, np.int64), np.zeros(rows, np.int32)
+        sub = np.zeros((rows, n3), np.int32)
+        pts, ids = np.zeros((rows, self.slots, 3)), np.zeros((rows, self.slots), np.int32)
+        if n:
+            ckey[:n], cnt[:n], sub[:n] = self._ckey[:n], self._cnt[:n], self._sub[:n]
+            pts[:n], ids[:n] = self._pts[:n], self._ids[:n]
+        self._ckey, self._cnt, self._sub, self._pts, self._ids = ckey, cnt, sub, pts, ids
 
     def __len__(self) -> int:
         return self.n_points
@@ -201,7 +360,7 @@ class IncrementalVoxelMap:
     @property
     def points(self) -> FloatArray:
         """The stored points (N, 3), a copy."""
-        return _gather(self._keys, self._cnt, self._pts, self._ids)[0]  # type: ignore[no-any-return]
+        return _gather(self._cnt, self._pts, self._ids, self.n_cells)[0]  # type: ignore[no-any-return]
 
     @property
     def ids(self) -> NDArray[np.int32]:
@@ -213,27 +372,23 @@ class IncrementalVoxelMap:
         """The flat point storage that ``knn``'s indices index (a view)."""
         return self._pts.reshape(-1, 3)
 
-    def _rebuild(self, points: FloatArray, ids: NDArray[np.int32], capacity: int) -> None:
-        if capacity == self._keys.size:
-            # the same table emptied in place: a new cell's counts are zeroed when it is created, so
-            # only the keys need clearing (allocating and touching a fresh table costs more than the
-            # points it holds)
-            self._keys.fill(_EMPTY)
-            self.n_points = 0
-            self.n_cells = 0
-        else:
-            self._alloc(capacity)
-        self._add(points, ids)
+    def _clear(self) -> None:
+        self._tab.fill(_EMPTY)
+        self._bits.fill(0)
+        self.n_points = 0
+        self.n_cells = 0
 
     def _add(self, p: FloatArray, ids: NDArray[np.int32]) -> int:
-        if 2 * (self.n_cells + len(p)) > self._keys.size:  # keep the load factor below 1/2
-            old, old_ids = _gather(self._keys, self._cnt, self._pts, self._ids)
-            self._alloc(2 * (self.n_cells + len(p)) + 1)
-            self._add(old, old_ids)
-        n_ok, n_cells = _insert(self._keys, self._cnt, self._sub, self._pts, self._ids, p, ids,
-                                self.voxel_size, self.nsub, self.max_per_voxel)  # fmt: skip
+        need = self.n_cells + len(p)  # every point may open a cell
+        if 2 * need > len(self._tab):  # keep the load factor below 1/2
+            self._alloc_table(2 * need + 1)
+            _rehash(self._tab, self._bits, self._ckey, self.n_cells)
+        if need > len(self._cnt):
+            self._alloc_cells(max(need, 2 * len(self._cnt)))
+        n_ok, self.n_cells = _insert(self._tab, self._bits, self._ckey, self._cnt, self._sub, self._pts,
+                                     self._ids, self.n_cells, p, ids, self.voxel_size, self.nsub,
+                                     self.max_per_voxel)  # fmt: skip
         self.n_points += n_ok
-        self.n_cells += n_cells
         return int(n_ok)
 
     def add(self, points_w: FloatArray, tag: int = -1) -> int:
@@ -246,27 +401,45 @@ class IncrementalVoxelMap:
 
     def prune(self, centre_w: FloatArray) -> int:
         """Drop points farther than ``max_range`` from ``centre_w`` (3,); returns how many were dropped."""
-        p, ids = _gather(self._keys, self._cnt, self._pts, self._ids)
-        keep = np.sum((p - np.asarray(centre_w)[None]) ** 2, axis=1) <= self.max_range**2
-        n_drop = int(len(keep) - keep.sum())
+        centre = np.ascontiguousarray(centre_w, dtype=np.float64)
+        n_drop, n_cells = _prune(self._ckey, self._cnt, self._sub, self._pts, self._ids, self.n_cells,
+                                 centre, self.max_range**2, self.voxel_size, self.nsub)  # fmt: skip
         if n_drop:
-            self._rebuild(np.ascontiguousarray(p[keep]), ids[keep], self._keys.size)
-        return n_drop
+            self._tab.fill(_EMPTY)
+            self._bits.fill(0)
+            self.n_cells = int(n_cells)
+            self.n_points -= int(n_drop)
+            _rehash(self._tab, self._bits, self._ckey, self.n_cells)
+        return int(n_drop)
 
     def transform(self, R: FloatArray, t: FloatArray) -> None:
         """Move every point by ``x -> R x + t`` (a change of world frame) and re-hash the cells."""
-        p, ids = _gather(self._keys, self._cnt, self._pts, self._ids)
-        self._rebuild(
-            np.ascontiguousarray(p @ np.asarray(R).T + np.asarray(t)), ids, self._keys.size
-        )
+        p, ids = _gather(self._cnt, self._pts, self._ids, self.n_cells)
+        self._clear()
+        self._add(np.ascontiguousarray(p @ np.asarray(R).T + np.asarray(t)), ids)
 
     def knn(self, q_w: FloatArray, k: int) -> tuple[IntArray, FloatArray]:
         """k nearest map points (within the 27 cells) of each query (M, 3): indices into ``storage``
         (M, k) and squared distances (M, k)."""
         q = np.ascontiguousarray(q_w, dtype=np.float64)
-        return _knn(self._keys, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub)  # type: ignore[no-any-return]
+        return _knn(
+            self._tab, self._bits, self._cnt, self._pts, q, int(k), self.voxel_size, self.nsub
+        )  # type: ignore[no-any-return]
+
+    def knn_fit(self, q_w: FloatArray, p: FloatArray, k: int, lines: bool, max_d2: float, thr: float,
+                gate: float) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int32]]:  # fmt: skip
+        """Each query's (M, 3) plane (``lines``: line) through its k nearest map points, fitted in the
+        same compiled pass as the search (as :func:`~imuslam.lio.residuals.fit_planes` / ``fit_lines``
+        with ``max_d2`` and ``thr``, the plane thickness, m / the line's eigenvalue ratio), kept where
+        the query is within ``gate`` m of it: the kept rows of ``p`` (M, 3) (the queries' points in
+        another frame), the normals n and anchors c (K, 3), and the tag of each one's nearest map
+        point (K,) (see ``add``)."""
+        q = np.ascontiguousarray(q_w, dtype=np.float64)
+        return _knn_fit(self._tab, self._bits, self._cnt, self._pts, self._ids, q,  # type: ignore[no-any-return]
+                        np.ascontiguousarray(p, dtype=np.float64), int(k), self.voxel_size, self.nsub,
+                        bool(lines), float(max_d2), float(thr), float(gate))  # fmt: skip
 
     @property
     def nbytes(self) -> int:
-        return int(self._keys.nbytes + self._cnt.nbytes + self._sub.nbytes + self._pts.nbytes
-                   + self._ids.nbytes)  # fmt: skip
+        return int(self._tab.nbytes + self._bits.nbytes + self._ckey.nbytes + self._cnt.nbytes
+                   + self._sub.nbytes + self._pts.nbytes + self._ids.nbytes)  # fmt: skip

@@ -15,7 +15,7 @@ from imuslam.geometry import exp
 from imuslam.lio.config import LioConfig
 from imuslam.lio.deskew import constant_velocity_motion, deskew_constant_velocity
 from imuslam.lio.frontend import select_points
-from imuslam.lio.matcher import LocalMap, huber_weights
+from imuslam.lio.matcher import Correspondences, LocalMap, huber_weights
 
 FloatArray = NDArray[np.float64]
 
@@ -30,6 +30,15 @@ class Registration:
     n_corr: int
 
 
+def moved(
+    R0: FloatArray, p0: FloatArray, R: FloatArray, p: FloatArray, reach: float = 20.0
+) -> float:
+    """How far the pose (R, p) moved a point at ``reach`` m from where (R0, p0) put it, m (a bound:
+    the translation plus the rotation angle times the reach)."""
+    c = np.clip((np.trace(R0.T @ R) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.linalg.norm(p - p0) + reach * np.arccos(c))
+
+
 def gauss_newton(
     local_map: LocalMap,
     surf: FloatArray,
@@ -39,28 +48,42 @@ def gauss_newton(
     max_iterations: int = 10,
     converge: float = 1e-3,
     huber: float = 0.2,
+    reassociate: float = 0.0,
 ) -> Registration:
     """Iteratively re-associated Gauss-Newton with Huber weights on [dp, dtheta] (right perturbation).
 
     Two passes: the first associates with the map's coarse gate (``MatchParams.coarse_residual``)
     since a constant-velocity prediction can be decimetres off; once it has converged, a second pass
     of up to ``max_iterations`` re-associates with the tight gate (``max_residual``), which keeps the
-    points matched to another surface out of the final pose."""
+    points matched to another surface out of the final pose.
+
+    An iterate searches the map again only when it moved a point 20 m away by more than
+    ``reassociate`` m since the last search (``filter.reassociate``, as the filter's measurement);
+    else the last search's rows are evaluated at the iterate and gated there (the neighbours of a
+    point moved by a few mm are the same ones, and the search is the cost). 0: every iterate."""
     R, p = R_w_s.copy(), p_w.copy()
     n_it, n = 0, 0
     pr = local_map.params
     gates = [pr.coarse_residual] * max_iterations + [pr.max_residual] * max_iterations
     fine = len(gates) // 2
     it = 0
+    base: Correspondences | None = None  # the rows of the last search
+    at = (R, p)  # the pose of the last search
     while it < len(gates):
         gate = gates[it]
         it += 1
         n_it += 1
-        corr = local_map.associate(surf, edge, R, p, gate)
-        n = len(corr)
+        if base is None or moved(at[0], at[1], R, p) > reassociate:
+            base = local_map.associate(surf, edge, R, p, gate)
+            at = (R, p)
+            r, J = base.system(R, p)
+        else:
+            r, J = base.system(R, p)
+            keep = np.abs(r) < gate
+            r, J = r[keep], J[keep]
+        n = len(r)
         if n < 6:
             break
-        r, J = corr.system(R, p)
         w = huber_weights(r, huber)
         H = J.T @ (w[:, None] * J) + 1e-9 * np.eye(6)
         dx = -np.linalg.solve(H, J.T @ (w * r))
@@ -126,7 +149,8 @@ class LidarOdometry:
         if len(self.map) == 0:
             reg = Registration(T_pred[:3, :3], T_pred[:3, 3], 0, 0)
         else:
-            reg = gauss_newton(self.map, surf, edge, T_pred[:3, :3], T_pred[:3, 3])
+            reg = gauss_newton(self.map, surf, edge, T_pred[:3, :3], T_pred[:3, 3],
+                               reassociate=self.config.filter.reassociate)  # fmt: skip
             if self.config.filter.lidar_model == "plane" and reg.n_corr >= 6:
                 # refined with the rows' noise model (lio.rowcov) at the tight gate
                 from imuslam.lio.rowcov import gauss_newton_rows

@@ -104,23 +104,27 @@ class LocalMap:
             if len(pts) == 0 or len(vmap) < pr.k:
                 continue
             q = pts @ R_w_i.T + p_w
-            nbr, d2 = vmap.knn(q, pr.k)
-            if kind == 0:
-                n, c, ok = fit_planes(
-                    q, nbr, d2, vmap.storage, pr.max_nbr_dist**2, pr.max_plane_res
+            thr = pr.max_plane_res if kind == 0 else pr.line_ratio
+            if isinstance(vmap, IncrementalVoxelMap):  # search, fit and gate in one compiled pass
+                p_ok, n, c, tag = vmap.knn_fit(
+                    q, pts, pr.k, kind == 1, pr.max_nbr_dist**2, thr, gate
                 )
             else:
-                n, c, ok = fit_lines(q, nbr, d2, vmap.storage, pr.max_nbr_dist**2, pr.line_ratio)
-            r = np.einsum("mk,mk->m", n, q - c)
-            ok &= np.abs(r) < gate
-            out_p.append(pts[ok])
-            out_n.append(n[ok])
-            out_c.append(c[ok])
-            out_k.append(np.full(int(ok.sum()), kind, np.int8))
-            out_t.append(vmap.ids[nbr[ok, 0]])
+                nbr, d2 = vmap.knn(q, pr.k)
+                fit = fit_planes if kind == 0 else fit_lines
+                n, c, ok = fit(q, nbr, d2, vmap.storage, pr.max_nbr_dist**2, thr)
+                ok &= np.abs(np.einsum("mk,mk->m", n, q - c)) < gate
+                p_ok, n, c, tag = pts[ok], n[ok], c[ok], vmap.ids[nbr[ok, 0]]
+            out_p.append(p_ok)
+            out_n.append(n)
+            out_c.append(c)
+            out_k.append(np.full(len(p_ok), kind, np.int8))
+            out_t.append(tag)
         if not out_p:
             z = np.zeros((0, 3))
             return Correspondences(z, z, z, np.zeros(0, np.int8), np.zeros(0, np.int32))
+        if len(out_p) == 1:  # one kind (the direct front end): no copies
+            return Correspondences(out_p[0], out_n[0], out_c[0], out_k[0], out_t[0])
         return Correspondences(
             np.concatenate(out_p),
             np.concatenate(out_n),

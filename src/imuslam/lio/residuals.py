@@ -73,16 +73,20 @@ def _eigvec3(a00: float, a01: float, a02: float, a11: float, a12: float, a22: fl
 def _moments(nbr: IntArray, map_pts: FloatArray, m: int, c: FloatArray) -> tuple[float, float, float, float, float, float]:  # pragma: no cover - compiled  # fmt: skip
     k = nbr.shape[1]
     c[0] = c[1] = c[2] = 0.0
+    # each neighbour read through a view of its row: constant indices, checked once (numba checks a
+    # possibly negative index at every access)
     for j in range(k):
+        p = map_pts[nbr[m, j]]
         for a in range(3):
-            c[a] += map_pts[nbr[m, j], a]
+            c[a] += p[a]
     for a in range(3):
         c[a] /= k
     s00 = s01 = s02 = s11 = s12 = s22 = 0.0
     for j in range(k):
-        ex = map_pts[nbr[m, j], 0] - c[0]
-        ey = map_pts[nbr[m, j], 1] - c[1]
-        ez = map_pts[nbr[m, j], 2] - c[2]
+        p = map_pts[nbr[m, j]]
+        ex = p[0] - c[0]
+        ey = p[1] - c[1]
+        ez = p[2] - c[2]
         s00 += ex * ex
         s01 += ex * ey
         s02 += ex * ez
@@ -92,34 +96,63 @@ def _moments(nbr: IntArray, map_pts: FloatArray, m: int, c: FloatArray) -> tuple
     return s00 / k, s01 / k, s02 / k, s11 / k, s12 / k, s22 / k
 
 
+@numba.njit(cache=True, inline="always")
+def plane_row(nbr: IntArray, d2: FloatArray, map_pts: FloatArray, m: int, max_d2: float, max_plane_res: float, c: FloatArray, n: FloatArray) -> bool:  # pragma: no cover - compiled  # fmt: skip
+    """The plane of row ``m``'s k neighbours into ``n`` (normal) and ``c`` (anchor); False when it is
+    not valid (see :func:`fit_planes`)."""
+    k = nbr.shape[1]
+    if nbr[m, k - 1] < 0 or d2[m, k - 1] > max_d2:
+        return False
+    s00, s01, s02, s11, s12, s22 = _moments(nbr, map_pts, m, c)
+    w0, w1, w2 = _eigvals3(s00, s01, s02, s11, s12, s22)
+    if not _eigvec3(s00, s01, s02, s11, s12, s22, w0, n):
+        return False
+    for j in range(k):
+        p = map_pts[nbr[m, j]]
+        e0 = p[0] - c[0]
+        e1 = p[1] - c[1]
+        e2 = p[2] - c[2]
+        if abs(n[0] * e0 + n[1] * e1 + n[2] * e2) > max_plane_res:
+            return False
+    return True
+
+
+@numba.njit(cache=True, inline="always")
+def line_row(qx: float, qy: float, qz: float, nbr: IntArray, d2: FloatArray, map_pts: FloatArray, m: int, max_d2: float, min_ratio: float, c: FloatArray, d: FloatArray, n: FloatArray) -> bool:  # pragma: no cover - compiled  # fmt: skip
+    """The line of row ``m``'s k neighbours: a point on it into ``c``, the unit direction from it to
+    the query (qx, qy, qz) into ``n`` (``d``: scratch); False when it is not valid (see
+    :func:`fit_lines`)."""
+    k = nbr.shape[1]
+    if nbr[m, k - 1] < 0 or d2[m, k - 1] > max_d2:
+        return False
+    s00, s01, s02, s11, s12, s22 = _moments(nbr, map_pts, m, c)
+    w0, w1, w2 = _eigvals3(s00, s01, s02, s11, s12, s22)
+    if w2 < min_ratio * w1 or not _eigvec3(s00, s01, s02, s11, s12, s22, w2, d):
+        return False
+    e0, e1, e2 = qx - c[0], qy - c[1], qz - c[2]
+    t = e0 * d[0] + e1 * d[1] + e2 * d[2]
+    e0, e1, e2 = e0 - t * d[0], e1 - t * d[1], e2 - t * d[2]
+    r = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    if r < 1e-6:
+        return False
+    n[0], n[1], n[2] = e0 / r, e1 / r, e2 / r
+    return True
+
+
 @numba.njit(cache=True)
 def fit_planes(q: FloatArray, nbr: IntArray, d2: FloatArray, map_pts: FloatArray, max_d2: float, max_plane_res: float) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:  # pragma: no cover - compiled  # fmt: skip
     """Plane normal n (M, 3), anchor c (M, 3) and validity (M,) of each query's k neighbours.
 
     Valid when all k neighbours exist within sqrt(max_d2) and lie within max_plane_res of the plane.
     """
-    M, k = nbr.shape
+    M = nbr.shape[0]
     n_out = np.zeros((M, 3))
     c_out = np.zeros((M, 3))
     ok = np.zeros(M, dtype=np.bool_)
     c = np.empty(3)
     n = np.empty(3)
     for m in range(M):
-        if nbr[m, k - 1] < 0 or d2[m, k - 1] > max_d2:
-            continue
-        s00, s01, s02, s11, s12, s22 = _moments(nbr, map_pts, m, c)
-        w0, w1, w2 = _eigvals3(s00, s01, s02, s11, s12, s22)
-        if not _eigvec3(s00, s01, s02, s11, s12, s22, w0, n):
-            continue
-        good = True
-        for j in range(k):
-            e0 = map_pts[nbr[m, j], 0] - c[0]
-            e1 = map_pts[nbr[m, j], 1] - c[1]
-            e2 = map_pts[nbr[m, j], 2] - c[2]
-            if abs(n[0] * e0 + n[1] * e1 + n[2] * e2) > max_plane_res:
-                good = False
-                break
-        if good:
+        if plane_row(nbr, d2, map_pts, m, max_d2, max_plane_res, c, n):
             n_out[m] = n
             c_out[m] = c
             ok[m] = True
@@ -133,28 +166,18 @@ def fit_lines(q: FloatArray, nbr: IntArray, d2: FloatArray, map_pts: FloatArray,
     Valid when the largest eigenvalue of the neighbours' covariance is ``min_ratio`` times the second
     (LOAM's edge test) and the query is off the line.
     """
-    M, k = nbr.shape
+    M = nbr.shape[0]
     n_out = np.zeros((M, 3))
     c_out = np.zeros((M, 3))
     ok = np.zeros(M, dtype=np.bool_)
     c = np.empty(3)
     d = np.empty(3)
+    n = np.empty(3)
     for m in range(M):
-        if nbr[m, k - 1] < 0 or d2[m, k - 1] > max_d2:
-            continue
-        s00, s01, s02, s11, s12, s22 = _moments(nbr, map_pts, m, c)
-        w0, w1, w2 = _eigvals3(s00, s01, s02, s11, s12, s22)
-        if w2 < min_ratio * w1 or not _eigvec3(s00, s01, s02, s11, s12, s22, w2, d):
-            continue
-        e0, e1, e2 = q[m, 0] - c[0], q[m, 1] - c[1], q[m, 2] - c[2]
-        t = e0 * d[0] + e1 * d[1] + e2 * d[2]
-        e0, e1, e2 = e0 - t * d[0], e1 - t * d[1], e2 - t * d[2]
-        r = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
-        if r < 1e-6:
-            continue
-        n_out[m, 0], n_out[m, 1], n_out[m, 2] = e0 / r, e1 / r, e2 / r
-        c_out[m] = c
-        ok[m] = True
+        if line_row(q[m, 0], q[m, 1], q[m, 2], nbr, d2, map_pts, m, max_d2, min_ratio, c, d, n):
+            n_out[m] = n
+            c_out[m] = c
+            ok[m] = True
     return n_out, c_out, ok
 
 
