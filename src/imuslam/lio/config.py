@@ -127,7 +127,7 @@ class FilterConfig(BaseModel):
     gyro_bias_rw: float = Field(1e-4, ge=0)
     lidar_std: float = Field(0.05, gt=0)
     lidar_dof: float = Field(30.0, gt=0)
-    lidar_model: Literal["dof", "plane"] = "dof"
+    lidar_model: Literal["dof", "plane", "plane_diag"] = "dof"
     lidar_range_std: float = Field(0.02, gt=0)
     max_iterations: int = Field(5, ge=1)
     reassociate: float = Field(0.02, ge=0)

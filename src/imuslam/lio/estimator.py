@@ -61,11 +61,13 @@ def level_rotation(f_b: FloatArray) -> FloatArray:
 @dataclass
 class SharedMapNoise:
     """What ``filter.lidar_model: plane`` needs (``lio.rowcov``): the LiDAR's origin in the IMU frame
-    p_i_l (3,), the inserting scans' LiDAR origins and the range noise 1-sigma, m."""
+    p_i_l (3,), the inserting scans' LiDAR origins and the range noise 1-sigma, m; ``diagonal``
+    (``plane_diag``): the map points' noise on each row's own variance, no sharing between rows."""
 
     p_i_l: FloatArray
     origins: SensorOrigins
     range_std: float
+    diagonal: bool = False
 
 
 class LidarMeasurement:
@@ -138,7 +140,7 @@ class LidarMeasurement:
                 origin = x.R_n_b @ sh.p_i_l + x.p_n
                 self._all, self._s_all, self._G_all = associate_shared(
                     self.map, self.surf_i, self.edge_i, x.R_n_b, x.p_n, self.coarse_gate,
-                    origin, sh.origins, sh.range_std,
+                    origin, sh.origins, sh.range_std, sh.diagonal,
                 )  # fmt: skip
             self._corr, self._at = None, (x.R_n_b.copy(), x.p_n.copy())
             self.n_assoc += 1
@@ -168,7 +170,7 @@ class LidarMeasurement:
             # whole covariance inflated by 1 / w, as scaling its residual and Jacobian by sqrt(w);
             # the metric Huber (0.2 m) would leave the few rows on another surface (a kerb, a corner
             # straddled by the neighbours, 2-3 % beyond 3 sigma) their full weight
-            g2 = np.asarray(self._G.multiply(self._G).sum(axis=1)).ravel()
+            g2 = 0.0 if sh.diagonal else np.asarray(self._G.multiply(self._G).sum(axis=1)).ravel()
             sw = tukey_weights(r / np.sqrt(s * s + g2))
             r, J, D = r * sw, J * sw[:, None], s * s
             U, z = whitened_system(r, J, D, self._G)
@@ -337,12 +339,11 @@ class LioEstimator:
         self.map_cov: MapCovariance | None = None
         self._D = np.zeros((self.layout.dim, self.layout.dim))  # P_abs - P_rel (MapCovariance)
         self.shared: SharedMapNoise | None = None
-        if fc.lidar_model == "plane":
+        if fc.lidar_model != "dof":
             from imuslam.lio.rowcov import SensorOrigins
 
-            self.shared = SharedMapNoise(
-                self.T_i_l[:3, 3].copy(), SensorOrigins(), fc.lidar_range_std
-            )
+            self.shared = SharedMapNoise(self.T_i_l[:3, 3].copy(), SensorOrigins(),
+                                         fc.lidar_range_std, fc.lidar_model == "plane_diag")  # fmt: skip
         self._n_inserted = 0
         self._pose_index = np.r_[self.layout.TH, self.layout.P]  # [theta, p] in the error state
 
