@@ -325,7 +325,9 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
                      map_correlation: str = "full", lidar: tuple[float, float] = (0.05, 30.0),
                      lidar_model: str = "dof", range_std: float = 0.02,
                      split: list[tuple[float, float]] | None = None,
-                     cpu: list[float] | None = None) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
+                     cpu: list[float] | None = None,
+                     start_covariance: bool = False,
+                     deskew_noise: bool = False) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
     """Register ``d``'s scans one by one (calibrated IMU); returns, for the scans after the filter
     start (all scans without the IMU), the NEES of [attitude, position] against the reported 6 x 6
     covariance (NaN without the IMU), the body-frame attitude error (K, 3) rad and the position error
@@ -350,6 +352,8 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
                                         map_correlation=map_correlation,
                                         lidar_std=lidar[0], lidar_dof=lidar[1],
                                         lidar_model=lidar_model, lidar_range_std=range_std,  # type: ignore[arg-type]
+                                        start_covariance=start_covariance,
+                                        deskew_noise=deskew_noise,
                                         **imu_noise),  # type: ignore[arg-type]
                     use_imu=use_imu)  # fmt: skip
     if drift is not None:  # --map-drift: the rates of both front ends replaced
@@ -432,7 +436,9 @@ def consistency_bench(args: Any) -> None:
                                           map_correlation=args.map_correlation, split=split,
                                           lidar=(args.lidar_std, args.lidar_dof),
                                           lidar_model=args.lidar_model,
-                                          range_std=args.range_std, cpu=cpu)  # fmt: skip
+                                          range_std=args.range_std, cpu=cpu,
+                                          start_covariance=args.start_covariance,
+                                          deskew_noise=args.deskew_noise)  # fmt: skip
             cell = f"{np.mean(nees):.2f}"
             if args.split:
                 sp = np.array(split)
@@ -466,7 +472,7 @@ def consistency_bench(args: Any) -> None:
 
 
 def _rowmodel_run(d: LidarDrive, mode: str, map_voxel: float = 0.5,
-                  range_std: float = 0.02) -> dict[str, FloatArr]:  # fmt: skip
+                  range_std: float = 0.02, map_scans: int = 10) -> dict[str, FloatArr]:  # fmt: skip
     """Each scan registered on its own against a map built from the TRUE poses of the scans before it
     (the points keep their range noise; the scan deskewed with the true motion), from the true pose:
     per scan [NEES 6, attitude NEES 3, position NEES 3, |attitude error| deg, |position error| mm] of
@@ -501,7 +507,7 @@ def _rowmodel_run(d: LidarDrive, mode: str, map_voxel: float = 0.5,
         x_l = ((x_w - pe) @ Re - p_i_l) @ R_i_l  # the LiDAR frame at the scan end, true deskew
         surf_l, edge_l = select_points(x_l, t - t.min(), s.ring, fe)
         surf, edge = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
-        if j >= 10:  # a map of ten scans first
+        if j >= map_scans:  # a map of ``map_scans`` scans first (ten by default)
             Rk, pk, _, _, C = gauss_newton_rows(lmap, surf, edge, Re, pe, range_std, origins,
                                                 coarse=False, p_s=p_i_l)  # fmt: skip
             out["plane"].append(row(np.r_[pe - pk, so3_log(Rk.T @ Re)], C))
@@ -532,7 +538,7 @@ def rowmodel_bench(args: Any) -> None:
         d = drive("street", dur, args.cache, seed=seed)
         for mode in ("direct", "features"):
             c0 = time.process_time()
-            res = _rowmodel_run(d, mode, args.map_voxel, args.range_std)
+            res = _rowmodel_run(d, mode, args.map_voxel, args.range_std, args.map_scans)
             cells = [f"{a[:, 0].mean():.2f} ({a[:, 1].mean():.2f}, {a[:, 2].mean():.2f}); "
                      f"{a[:, 3].mean():.4f} deg, {a[:, 4].mean():.2f} mm" for a in (res["plane"], res["dof"])]  # fmt: skip
             n = len(res["plane"])
@@ -578,6 +584,12 @@ def main() -> None:
     ap.add_argument("--lidar-dof", type=float, default=30.0, help="consistency: filter.lidar_dof")
     ap.add_argument("--lidar-model", choices=["dof", "plane", "plane_diag"], default="dof",
                     help="consistency: filter.lidar_model")  # fmt: skip
+    ap.add_argument("--map-scans", type=int, default=10,
+                    help="rowmodel: scans in the map before the first registered one")
+    ap.add_argument("--deskew-noise", action="store_true",
+                    help="consistency: filter.deskew_noise (with a rows' model)")
+    ap.add_argument("--start-covariance", action="store_true",
+                    help="consistency: filter.start_covariance (with a rows' model)")
     ap.add_argument("--range-std", type=float, default=0.02,
                     help="consistency: filter.lidar_range_std, m (the simulated LiDAR's 2 cm)")  # fmt: skip
     ap.add_argument(

@@ -68,6 +68,7 @@ class SharedMapNoise:
     origins: SensorOrigins
     range_std: float
     diagonal: bool = False
+    gyro_noise: float = 0.0  # ``filter.deskew_noise``: the gyro's density in the deskew, rad/s/sqrt(Hz)
 
 
 class LidarMeasurement:
@@ -81,11 +82,14 @@ class LidarMeasurement:
 
     def __init__(self, local_map: LocalMap, surf_i: FloatArray, edge_i: FloatArray, std: float,
                  huber: float, dof: float = np.inf, reassociate: float = 0.0,
-                 reach: float = 20.0, shared: SharedMapNoise | None = None) -> None:  # fmt: skip
+                 reach: float = 20.0, shared: SharedMapNoise | None = None,
+                 tau: tuple[FloatArray, FloatArray] | None = None) -> None:  # fmt: skip
         self.map = local_map
         # ``filter.lidar_model: plane``: the rows' own range noise and the frozen map points' noise they
         # share (``lio.rowcov``) instead of the diagonal std^2 scaled by M / dof
         self.shared = shared
+        self.tau = tau  # each surf / edge point's time before the scan end, s (``deskew_columns``)
+        self._tau = self._tau_all = np.zeros(0)
         self._s = np.zeros(0)
         self._G: sp.csr_matrix | None = None
         self._s_all = np.zeros(0)
@@ -138,16 +142,16 @@ class LidarMeasurement:
                 from imuslam.lio.rowcov import associate_shared
 
                 origin = x.R_n_b @ sh.p_i_l + x.p_n
-                self._all, self._s_all, self._G_all = associate_shared(
+                self._all, self._s_all, self._G_all, self._tau_all = associate_shared(
                     self.map, self.surf_i, self.edge_i, x.R_n_b, x.p_n, self.coarse_gate,
-                    origin, sh.origins, sh.range_std, sh.diagonal,
+                    origin, sh.origins, sh.range_std, sh.diagonal, self.tau,
                 )  # fmt: skip
             self._corr, self._at = None, (x.R_n_b.copy(), x.p_n.copy())
             self.n_assoc += 1
         corr = self._corr
         if corr is None:
             corr = self._all
-            self._s, self._G = self._s_all, self._G_all
+            self._s, self._G, self._tau = self._s_all, self._G_all, self._tau_all
             if self.tight and self.tight_gate < self.coarse_gate:
                 r_all, _ = corr.system(x.R_n_b, x.p_n)
                 keep = np.abs(r_all) < self.tight_gate
@@ -155,12 +159,15 @@ class LidarMeasurement:
                 if sh is not None:
                     assert self._G_all is not None
                     self._s, self._G = self._s_all[keep], self._G_all[np.flatnonzero(keep)]
+                    self._tau = self._tau_all[keep]
             self._corr = corr
         self.n_corr = len(corr)
         self.n_calls += 1
         r, J = corr.system(x.R_n_b, x.p_n)
         if sh is not None:
-            from imuslam.lio.rowcov import tukey_weights, whitened_system
+            import scipy.sparse as sparse
+
+            from imuslam.lio.rowcov import deskew_columns, tukey_weights, whitened_system
 
             assert self._G is not None
             # the rows' own variance (a floor of a tenth of the range noise where the beam grazes the
@@ -170,10 +177,15 @@ class LidarMeasurement:
             # whole covariance inflated by 1 / w, as scaling its residual and Jacobian by sqrt(w);
             # the metric Huber (0.2 m) would leave the few rows on another surface (a kerb, a corner
             # straddled by the neighbours, 2-3 % beyond 3 sigma) their full weight
-            g2 = 0.0 if sh.diagonal else np.asarray(self._G.multiply(self._G).sum(axis=1)).ravel()
+            G = self._G
+            g2 = 0.0 if sh.diagonal else np.asarray(G.multiply(G).sum(axis=1)).ravel()
+            if sh.gyro_noise > 0.0:  # the deskew's gyro noise, shared by the rows (deskew_columns)
+                Gd = deskew_columns(J[:, 3:], self._tau, sh.gyro_noise)
+                g2 = g2 + np.einsum("mk,mk->m", Gd, Gd)
+                G = sparse.hstack([G, sparse.csr_matrix(Gd)], format="csr")
             sw = tukey_weights(r / np.sqrt(s * s + g2))
             r, J, D = r * sw, J * sw[:, None], s * s
-            U, z = whitened_system(r, J, D, self._G)
+            U, z = whitened_system(r, J, D, G)
             Hc = np.zeros((6, layout.dim))
             Hc[:, layout.P], Hc[:, layout.TH] = U[:, :3], U[:, 3:]
             self.last_H, self.last_R = Hc, np.ones(6)
@@ -343,8 +355,10 @@ class LioEstimator:
             from imuslam.lio.rowcov import SensorOrigins
 
             self.shared = SharedMapNoise(self.T_i_l[:3, 3].copy(), SensorOrigins(),
-                                         fc.lidar_range_std, fc.lidar_model == "plane_diag")  # fmt: skip
+                                         fc.lidar_range_std, fc.lidar_model == "plane_diag",
+                                         fc.gyro_noise if fc.deskew_noise else 0.0)  # fmt: skip
         self._n_inserted = 0
+        self._start_covs: list[FloatArray] = []  # the start's registration covariances (last pass)
         self._pose_index = np.r_[self.layout.TH, self.layout.P]  # [theta, p] in the error state
 
     # ------------------------------------------------------------------------------------------
@@ -410,8 +424,11 @@ class LioEstimator:
         vel = self.start_velocity(ts, T1[:, :3, 3])  # the LiDAR origin's, first LiDAR frame
         for _ in range(self.START_PASSES):
             lo = LidarOdometry(self.config.model_copy(update={"use_imu": False}))
-            T1 = np.array([lo.register_scan(pts, t_s, ring, rotation_compensated=True, motion=(T, v))
-                           for (pts, t_s, ring), T, v in zip(self._init_points, T1, vel, strict=True)])  # fmt: skip
+            out, self._start_covs = [], []
+            for (pts, t_s, ring), T, v in zip(self._init_points, T1, vel, strict=True):
+                out.append(lo.register_scan(pts, t_s, ring, rotation_compensated=True, motion=(T, v)))
+                self._start_covs.append(lo.last_cov.copy())  # NaN unless the rows' model refines it
+            T1 = np.array(out)
             v_new = self.start_velocity(ts, T1[:, :3, 3])
             change = float(np.max(np.linalg.norm(v_new - vel, axis=1)))
             vel = v_new
@@ -420,6 +437,35 @@ class LioEstimator:
         self.lidar_only = lo
         self._init_scans = [(t, T) for t, T in zip(ts, T1, strict=True)]
         self._init_points = []
+
+    def _start_map_covariance(self, R_w_i0: FloatArray, R_k: FloatArray, p_k: FloatArray) -> FloatArray:
+        """The start map's error covariance (6, 6) on [theta, p] at the start's last pose
+        (``filter.start_covariance``): each start scan's registration covariance (the rows' model's,
+        ``LidarOdometry.last_cov`` on the LiDAR's [dp, dtheta] in the first LiDAR frame) moved to the
+        IMU's [theta, p] in w, chained along the start as odometry (C_k = J C_(k-1) J^T + Creg_k,
+        J ``MapCovariance.transfer``'s), and the map, made of every start scan, their mean seen from
+        the last pose (fully correlated pieces, ``MapCovariance``). The first scan defines the world."""
+        R_i_l, p_i_l = self.T_i_l[:3, :3], self.T_i_l[:3, 3]
+        R_w_l0 = R_w_i0 @ R_i_l
+        p_l_i = -R_i_l.T @ p_i_l
+        Lx = np.array([[0.0, -p_l_i[2], p_l_i[1]], [p_l_i[2], 0.0, -p_l_i[0]],
+                       [-p_l_i[1], p_l_i[0], 0.0]])  # fmt: skip
+        K = len(R_k)
+        chain = MapCovariance(R_k[0], p_k[0], np.zeros((6, 6)), slots=K + 2)
+        C = np.zeros((6, 6))
+        for k in range(K):
+            Creg = self._start_covs[k] if k < len(self._start_covs) else np.full((6, 6), np.nan)
+            if k > 0:
+                _, _, J = chain.transfer(np.array([k - 1], np.int32), R_k[k], p_k[k])
+                C = J[0] @ C @ J[0].T
+            if np.all(np.isfinite(Creg)):
+                A = np.zeros((6, 6))  # [dp_l, dtheta_l] -> [theta_i, p_i]
+                A[:3, 3:] = R_i_l
+                A[3:, :3] = R_w_l0
+                A[3:, 3:] = -R_k[k] @ R_i_l @ Lx
+                C = C + A @ Creg @ A.T
+            chain.record(R_k[k], p_k[k], C)
+        return chain.covariance(np.arange(K, dtype=np.int32), R_k[-1], p_k[-1])
 
     def _initialise(self, t_end: float) -> None:
         """Start the filter at ``t_end`` from the LiDAR-only poses of the first scans (see module doc)."""
@@ -492,6 +538,8 @@ class LioEstimator:
             drift = np.r_[np.full(3, np.deg2rad(q_deg) ** 2), np.full(3, q_m**2)]
             path0 = float(np.sum(np.linalg.norm(np.diff(p_k, axis=0), axis=1)))
             C0 = np.diag(drift * path0)
+            if rf.start_covariance and self.shared is not None:
+                C0 = C0 + self._start_map_covariance(R_w_i0, R_k, p_k)
             self.map_cov = MapCovariance(
                 R_end, p_end, C0, drift=drift, correlation=cfg.filter.map_correlation
             )
@@ -570,7 +618,8 @@ class LioEstimator:
         surf_i, edge_i = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
         meas = LidarMeasurement(self.map, surf_i, edge_i, self.config.filter.lidar_std, 0.2,
                                 self.config.filter.lidar_dof, self.config.filter.reassociate,
-                                shared=self.shared)  # fmt: skip
+                                shared=self.shared,
+                                tau=None if sel is None else (t_end - t_s[sel[0]], t_end - t_s[sel[1]]))  # fmt: skip
         fc = self.config.filter
         # at least as many rows as states, else the IMU carries the filter through (corridors, fog)
         lin = lambda s: meas.linearize(s, self.layout)  # noqa: E731
