@@ -326,8 +326,7 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
                      lidar_model: str = "dof", range_std: float = 0.02,
                      split: list[tuple[float, float]] | None = None,
                      cpu: list[float] | None = None,
-                     start_covariance: bool = False,
-                     deskew_noise: bool = False) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
+                     start_covariance: bool = False) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
     """Register ``d``'s scans one by one (calibrated IMU); returns, for the scans after the filter
     start (all scans without the IMU), the NEES of [attitude, position] against the reported 6 x 6
     covariance (NaN without the IMU), the body-frame attitude error (K, 3) rad and the position error
@@ -353,7 +352,6 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
                                         lidar_std=lidar[0], lidar_dof=lidar[1],
                                         lidar_model=lidar_model, lidar_range_std=range_std,  # type: ignore[arg-type]
                                         start_covariance=start_covariance,
-                                        deskew_noise=deskew_noise,
                                         **imu_noise),  # type: ignore[arg-type]
                     use_imu=use_imu)  # fmt: skip
     if drift is not None:  # --map-drift: the rates of both front ends replaced
@@ -437,8 +435,7 @@ def consistency_bench(args: Any) -> None:
                                           lidar=(args.lidar_std, args.lidar_dof),
                                           lidar_model=args.lidar_model,
                                           range_std=args.range_std, cpu=cpu,
-                                          start_covariance=args.start_covariance,
-                                          deskew_noise=args.deskew_noise)  # fmt: skip
+                                          start_covariance=args.start_covariance)  # fmt: skip
             cell = f"{np.mean(nees):.2f}"
             if args.split:
                 sp = np.array(split)
@@ -586,8 +583,6 @@ def main() -> None:
                     help="consistency: filter.lidar_model")  # fmt: skip
     ap.add_argument("--map-scans", type=int, default=10,
                     help="rowmodel: scans in the map before the first registered one")
-    ap.add_argument("--deskew-noise", action="store_true",
-                    help="consistency: filter.deskew_noise (with a rows' model)")
     ap.add_argument("--start-covariance", action="store_true",
                     help="consistency: filter.start_covariance (with a rows' model)")
     ap.add_argument("--range-std", type=float, default=0.02,

@@ -53,7 +53,7 @@ def test_plane_fit_error_and_its_sharing_match_monte_carlo() -> None:
     origins.record(0, np.array([0.0, 0.0, 10.0]))
     q = np.array([[0.05, 0.02, 0.0], [0.3, -0.1, 0.0]])
     sigma = 0.02
-    corr, s, G, _ = associate_shared(lmap, q, np.zeros((0, 3)), np.eye(3), np.zeros(3), 0.1,
+    corr, s, G = associate_shared(lmap, q, np.zeros((0, 3)), np.eye(3), np.zeros(3), 0.1,
                                   np.array([0.0, 0.0, 10.0]), origins, sigma)  # fmt: skip
     assert len(corr) == 2 and G.shape == (2, 5)
     np.testing.assert_allclose(s, sigma, rtol=1e-3)  # the beam nearly along the normal

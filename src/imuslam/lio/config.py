@@ -135,7 +135,6 @@ class FilterConfig(BaseModel):
     map_covariance: bool = True
     map_correlation: Literal["full", "independent"] = "full"
     start_covariance: bool = False
-    deskew_noise: bool = False
     map_drift_deg_per_sqrt_m: float | None = Field(None, ge=0)
     map_drift_m_per_sqrt_m: float | None = Field(None, ge=0)
     max_speed: float = Field(60.0, gt=0)

@@ -68,7 +68,6 @@ class SharedMapNoise:
     origins: SensorOrigins
     range_std: float
     diagonal: bool = False
-    gyro_noise: float = 0.0  # ``filter.deskew_noise``: the gyro's density in the deskew, rad/s/sqrt(Hz)
 
 
 class LidarMeasurement:
@@ -82,14 +81,11 @@ class LidarMeasurement:
 
     def __init__(self, local_map: LocalMap, surf_i: FloatArray, edge_i: FloatArray, std: float,
                  huber: float, dof: float = np.inf, reassociate: float = 0.0,
-                 reach: float = 20.0, shared: SharedMapNoise | None = None,
-                 tau: tuple[FloatArray, FloatArray] | None = None) -> None:  # fmt: skip
+                 reach: float = 20.0, shared: SharedMapNoise | None = None) -> None:  # fmt: skip
         self.map = local_map
         # ``filter.lidar_model: plane``: the rows' own range noise and the frozen map points' noise they
         # share (``lio.rowcov``) instead of the diagonal std^2 scaled by M / dof
         self.shared = shared
-        self.tau = tau  # each surf / edge point's time before the scan end, s (``deskew_columns``)
-        self._tau = self._tau_all = np.zeros(0)
         self._s = np.zeros(0)
         self._G: sp.csr_matrix | None = None
         self._s_all = np.zeros(0)
@@ -142,16 +138,16 @@ class LidarMeasurement:
                 from imuslam.lio.rowcov import associate_shared
 
                 origin = x.R_n_b @ sh.p_i_l + x.p_n
-                self._all, self._s_all, self._G_all, self._tau_all = associate_shared(
+                self._all, self._s_all, self._G_all = associate_shared(
                     self.map, self.surf_i, self.edge_i, x.R_n_b, x.p_n, self.coarse_gate,
-                    origin, sh.origins, sh.range_std, sh.diagonal, self.tau,
+                    origin, sh.origins, sh.range_std, sh.diagonal,
                 )  # fmt: skip
             self._corr, self._at = None, (x.R_n_b.copy(), x.p_n.copy())
             self.n_assoc += 1
         corr = self._corr
         if corr is None:
             corr = self._all
-            self._s, self._G, self._tau = self._s_all, self._G_all, self._tau_all
+            self._s, self._G = self._s_all, self._G_all
             if self.tight and self.tight_gate < self.coarse_gate:
                 r_all, _ = corr.system(x.R_n_b, x.p_n)
                 keep = np.abs(r_all) < self.tight_gate
@@ -159,15 +155,12 @@ class LidarMeasurement:
                 if sh is not None:
                     assert self._G_all is not None
                     self._s, self._G = self._s_all[keep], self._G_all[np.flatnonzero(keep)]
-                    self._tau = self._tau_all[keep]
             self._corr = corr
         self.n_corr = len(corr)
         self.n_calls += 1
         r, J = corr.system(x.R_n_b, x.p_n)
         if sh is not None:
-            import scipy.sparse as sparse
-
-            from imuslam.lio.rowcov import deskew_columns, tukey_weights, whitened_system
+            from imuslam.lio.rowcov import tukey_weights, whitened_system
 
             assert self._G is not None
             # the rows' own variance (a floor of a tenth of the range noise where the beam grazes the
@@ -177,15 +170,10 @@ class LidarMeasurement:
             # whole covariance inflated by 1 / w, as scaling its residual and Jacobian by sqrt(w);
             # the metric Huber (0.2 m) would leave the few rows on another surface (a kerb, a corner
             # straddled by the neighbours, 2-3 % beyond 3 sigma) their full weight
-            G = self._G
-            g2 = 0.0 if sh.diagonal else np.asarray(G.multiply(G).sum(axis=1)).ravel()
-            if sh.gyro_noise > 0.0:  # the deskew's gyro noise, shared by the rows (deskew_columns)
-                Gd = deskew_columns(J[:, 3:], self._tau, sh.gyro_noise)
-                g2 = g2 + np.einsum("mk,mk->m", Gd, Gd)
-                G = sparse.hstack([G, sparse.csr_matrix(Gd)], format="csr")
+            g2 = 0.0 if sh.diagonal else np.asarray(self._G.multiply(self._G).sum(axis=1)).ravel()
             sw = tukey_weights(r / np.sqrt(s * s + g2))
             r, J, D = r * sw, J * sw[:, None], s * s
-            U, z = whitened_system(r, J, D, G)
+            U, z = whitened_system(r, J, D, self._G)
             Hc = np.zeros((6, layout.dim))
             Hc[:, layout.P], Hc[:, layout.TH] = U[:, :3], U[:, 3:]
             self.last_H, self.last_R = Hc, np.ones(6)
@@ -355,8 +343,7 @@ class LioEstimator:
             from imuslam.lio.rowcov import SensorOrigins
 
             self.shared = SharedMapNoise(self.T_i_l[:3, 3].copy(), SensorOrigins(),
-                                         fc.lidar_range_std, fc.lidar_model == "plane_diag",
-                                         fc.gyro_noise if fc.deskew_noise else 0.0)  # fmt: skip
+                                         fc.lidar_range_std, fc.lidar_model == "plane_diag")  # fmt: skip
         self._n_inserted = 0
         self._start_covs: list[FloatArray] = []  # the start's registration covariances (last pass)
         self._pose_index = np.r_[self.layout.TH, self.layout.P]  # [theta, p] in the error state
@@ -618,8 +605,7 @@ class LioEstimator:
         surf_i, edge_i = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
         meas = LidarMeasurement(self.map, surf_i, edge_i, self.config.filter.lidar_std, 0.2,
                                 self.config.filter.lidar_dof, self.config.filter.reassociate,
-                                shared=self.shared,
-                                tau=None if sel is None else (t_end - t_s[sel[0]], t_end - t_s[sel[1]]))  # fmt: skip
+                                shared=self.shared)  # fmt: skip
         fc = self.config.filter
         # at least as many rows as states, else the IMU carries the filter through (corridors, fog)
         lin = lambda s: meas.linearize(s, self.layout)  # noqa: E731

@@ -141,20 +141,18 @@ def _row_noise(q: FloatArray, n: FloatArray, c: FloatArray, X: FloatArray, o: Fl
 def associate_shared(
     local_map: LocalMap, surf_i: FloatArray, edge_i: FloatArray, R_w_i: FloatArray, p_w: FloatArray,
     gate: float, origin_w: FloatArray, origins: SensorOrigins, range_std: float,
-    diagonal: bool = False, tau: tuple[FloatArray, FloatArray] | None = None,
-) -> tuple[Correspondences, FloatArray, sp.csr_matrix, FloatArray]:  # fmt: skip
+    diagonal: bool = False,
+) -> tuple[Correspondences, FloatArray, sp.csr_matrix]:  # fmt: skip
     """``LocalMap.associate``'s rows (the same gates) with their noise model: the rows' own range-noise
     standard deviation along the normal s (M,), m, and G (M, N) sparse, the map points' shared noise
     (module doc). ``origin_w`` (3,): the LiDAR's origin at this scan (world); a map point without a
     recorded origin takes it (the query's beam). ``diagonal`` (``filter.lidar_model: plane_diag``):
     the map points' noise kept on each row's own variance only, s^2 = max(s, s_min)^2 + (G G^T)_mm
     with s_min a tenth of the range noise, and G empty (M, 0): the rows taken as independent, no
-    sparse factorisation (the sharing between rows dropped). ``tau``: each surf and edge point's time
-    before the scan end, s; returned per row (zeros without it), for ``deskew_columns``."""
+    sparse factorisation (the sharing between rows dropped)."""
     pr = local_map.params
     parts: list[tuple[Correspondences, FloatArray, FloatArray, NDArray[np.int64]]] = []
     offset = 0
-    parts_tau: list[FloatArray] = []
     for pts, vmap, kind in ((surf_i, local_map.surf, 0), (edge_i, local_map.edge, 1)):
         storage = vmap.storage
         if len(pts) == 0 or len(vmap) < pr.k:
@@ -178,48 +176,23 @@ def associate_shared(
             s = np.sqrt(np.maximum(s, 0.1 * range_std) ** 2 + np.einsum("mk,mk->m", Gv, Gv))
             Gv = Gv[:, :0]
         parts.append((corr, s, Gv, nb.astype(np.int64) + offset))
-        parts_tau.append(np.zeros(len(nk)) if tau is None else np.asarray(tau[kind], float)[ok])
         offset += len(storage)
     if not parts:
         z = np.zeros((0, 3))
         empty = Correspondences(z, z, z, np.zeros(0, np.int8), np.zeros(0, np.int32))
-        return empty, np.zeros(0), sp.csr_matrix((0, 0)), np.zeros(0)
+        return empty, np.zeros(0), sp.csr_matrix((0, 0))
     corr = Correspondences(*(np.concatenate([getattr(p[0], f) for p in parts])
                              for f in ("p_i", "n", "c", "kind", "tag")))  # fmt: skip
     s = np.concatenate([p[1] for p in parts])
     Gv = np.concatenate([p[2] for p in parts])
-    tau_rows = np.concatenate(parts_tau)
     M, k = Gv.shape
     if k == 0:  # diagonal
-        return corr, s, sp.csr_matrix((M, 0)), tau_rows
+        return corr, s, sp.csr_matrix((M, 0))
     cols = np.concatenate([p[3] for p in parts])
     uniq, inv = np.unique(cols, return_inverse=True)
     G = sp.csr_matrix((Gv.ravel(), inv.ravel(), np.arange(0, M * k + 1, k)), shape=(M, len(uniq)))
     G.sum_duplicates()
-    return corr, s, G, tau_rows
-
-
-def deskew_columns(J_att: FloatArray, tau: FloatArray, gyro_noise: float, bins: int = 10) -> FloatArray:
-    """The gyro's white noise in the deskew as the rows' shared noise: G's dense columns (M, 3 bins).
-
-    A point fired tau before the scan end is moved to the scan-end frame by the rotation integrated
-    from the gyro over tau, whose error is a random walk dtheta(tau) with variance N^2 tau per axis
-    (N the gyro's noise density, rad/s/sqrt(Hz); angle random walk, IEEE Std 952-1997, annex C). A
-    rotation error dtheta of the deskewed point p moves it by dtheta x p, so its residual changes by
-    J_att dtheta with J_att (M, 3) the row's attitude Jacobian (the pose's right perturbation at the
-    scan end moves p the same way). The walk over [0, max tau] is cut into ``bins`` independent
-    increments of variance N^2 Delta; row m takes increment b in full where tau_m covers it, a
-    fraction (tau_m - lo_b) / Delta of the one it ends in (the walk interpolated linearly inside a
-    bin). Every row fired at about the same time shares the same error: no row count averages it."""
-    M = len(tau)
-    span = float(np.max(tau)) if M else 0.0
-    if M == 0 or span <= 0.0 or gyro_noise <= 0.0:
-        return np.zeros((M, 0))
-    delta = span / bins
-    lo = delta * np.arange(bins)
-    f = np.clip((tau[:, None] - lo[None, :]) / delta, 0.0, 1.0)  # (M, bins)
-    sig = gyro_noise * np.sqrt(delta)
-    return np.asarray((f[:, :, None] * (sig * J_att)[:, None, :]).reshape(M, 3 * bins))
+    return corr, s, G
 
 
 def whitened_system(
@@ -272,8 +245,8 @@ def gauss_newton_rows(
         it += 1
         n_it += 1
         origin = p.copy() if p_s is None else R @ p_s + p
-        corr, s, G, _ = associate_shared(local_map, surf, edge, R, p, gate, origin, origins, range_std,
-                                         diagonal)  # fmt: skip
+        corr, s, G = associate_shared(local_map, surf, edge, R, p, gate, origin, origins, range_std,
+                                      diagonal)  # fmt: skip
         n = len(corr)
         if n < 6:
             break
