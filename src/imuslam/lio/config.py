@@ -97,8 +97,14 @@ class FilterConfig(BaseModel):
     points, shared by the rows that fit the same points, whitened into an equivalent 6-row update,
     with Tukey weights on the residuals in units of their sigma (``lio.rowcov``; no lidar_dof); it
     gives one scan's covariance right but the filter with it is overconfident (README, LIO
-    covariance) and 4-7x slower; lidar_range_std: the LiDAR's range noise 1-sigma for ``plane``, m
-    (datasheet; the simulated VLP-16's is 0.02);
+    covariance) and about 10x slower a scan; ``plane_diag`` the same rows' noise with the map
+    points' part kept on each row's own variance only (no sharing, no sparse factorisation): about
+    as accurate as ``plane`` at about the default's CPU a scan, as overconfident;
+    lidar_range_std: the LiDAR's range noise 1-sigma for the ``plane`` models, m (datasheet; the
+    simulated VLP-16's is 0.02); start_covariance (the ``plane`` models only): the start map's
+    record (``MapCovariance``, the points from before the filter) carries the LiDAR-only start's
+    covariance, its registrations' covariances with the rows' model chained along the start, instead
+    of zero (every later pose inherits the start's error: without it the NEES is 10x higher);
     max_iterations and the convergence threshold of the iterated update (on |dx|); reassociate: an
     iterate searches the map's neighbours again only when it moved a point 20 m away by more than this
     since the last search, m (0: at every iterate, as FAST-LIO2); map_covariance (default on): the
