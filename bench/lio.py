@@ -581,10 +581,17 @@ def main() -> None:
     ap.add_argument("--lidar-dof", type=float, default=30.0, help="consistency: filter.lidar_dof")
     ap.add_argument("--lidar-model", choices=["dof", "plane", "plane_diag"], default="dof",
                     help="consistency: filter.lidar_model")  # fmt: skip
-    ap.add_argument("--map-scans", type=int, default=10,
-                    help="rowmodel: scans in the map before the first registered one")
-    ap.add_argument("--start-covariance", action="store_true",
-                    help="consistency: filter.start_covariance (with a rows' model)")
+    ap.add_argument(
+        "--map-scans",
+        type=int,
+        default=10,
+        help="rowmodel: scans in the map before the first registered one",
+    )
+    ap.add_argument(
+        "--start-covariance",
+        action="store_true",
+        help="consistency: filter.start_covariance (with a rows' model)",
+    )
     ap.add_argument("--range-std", type=float, default=0.02,
                     help="consistency: filter.lidar_range_std, m (the simulated LiDAR's 2 cm)")  # fmt: skip
     ap.add_argument(

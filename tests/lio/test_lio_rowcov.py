@@ -208,3 +208,12 @@ def test_start_covariance_moves_the_lidar_registrations_to_the_imu_pose() -> Non
     R0, p0 = T0[:3, :3], T0[:3, 3]
     C = est._start_map_covariance(R_w_i0, np.array([R0, R1]), np.array([p0, p1]))
     np.testing.assert_allclose(C, 0.5 * A @ Creg @ A.T, rtol=1e-6, atol=1e-14)
+
+
+def test_start_covariance_without_a_rows_model_is_refused() -> None:
+    """``filter.start_covariance`` with the default ``dof`` model (no registration covariance to
+    carry) is a configuration error naming the field, not a silent no-op."""
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match="filter.start_covariance needs"):
+        FilterConfig(start_covariance=True)

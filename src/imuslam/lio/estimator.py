@@ -229,8 +229,10 @@ class MapCovariance:
     ``drift`` (``filter.map_drift_*``, zero by default) adds a random walk of the map along the
     path for scenes whose registration drifts: a record gains ``drift`` times the path since the
     previous record; the points from before the filter (LiDAR-only, tag -1) carry the drift over the
-    start's path. (Its rates were once fitted to a 0.5-1 deg roll / pitch drift on the simulated
-    street, which was the 1 m association gate's doing, ``MapConfig.max_residual``.)"""
+    start's path, and with ``filter.start_covariance`` the start's own registration covariance
+    (``LioEstimator._start_map_covariance``). (Its rates were once fitted to a 0.5-1 deg roll /
+    pitch drift on the simulated street, which was the 1 m association gate's doing,
+    ``MapConfig.max_residual``.)"""
 
     def __init__(self, R0: FloatArray, p0: FloatArray, C0: FloatArray, slots: int = 4096,
                  drift: FloatArray | None = None,
@@ -413,7 +415,9 @@ class LioEstimator:
             lo = LidarOdometry(self.config.model_copy(update={"use_imu": False}))
             out, self._start_covs = [], []
             for (pts, t_s, ring), T, v in zip(self._init_points, T1, vel, strict=True):
-                out.append(lo.register_scan(pts, t_s, ring, rotation_compensated=True, motion=(T, v)))
+                out.append(
+                    lo.register_scan(pts, t_s, ring, rotation_compensated=True, motion=(T, v))
+                )
                 self._start_covs.append(lo.last_cov.copy())  # NaN unless the rows' model refines it
             T1 = np.array(out)
             v_new = self.start_velocity(ts, T1[:, :3, 3])
@@ -425,7 +429,9 @@ class LioEstimator:
         self._init_scans = [(t, T) for t, T in zip(ts, T1, strict=True)]
         self._init_points = []
 
-    def _start_map_covariance(self, R_w_i0: FloatArray, R_k: FloatArray, p_k: FloatArray) -> FloatArray:
+    def _start_map_covariance(
+        self, R_w_i0: FloatArray, R_k: FloatArray, p_k: FloatArray
+    ) -> FloatArray:
         """The start map's error covariance (6, 6) on [theta, p] at the start's last pose
         (``filter.start_covariance``): each start scan's registration covariance (the rows' model's,
         ``LidarOdometry.last_cov`` on the LiDAR's [dp, dtheta] in the first LiDAR frame) moved to the

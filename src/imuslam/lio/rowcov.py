@@ -101,12 +101,22 @@ def _row_noise(q: FloatArray, n: FloatArray, c: FloatArray, X: FloatArray, o: Fl
                 x, y, z = n1, -n0, 0.0
             r = np.sqrt(x * x + y * y + z * z)
             e1[0], e1[1], e1[2] = x / r, y / r, z / r
-            e2[0], e2[1], e2[2] = n1 * e1[2] - n2 * e1[1], n2 * e1[0] - n0 * e1[2], n0 * e1[1] - n1 * e1[0]
+            e2[0], e2[1], e2[2] = (
+                n1 * e1[2] - n2 * e1[1],
+                n2 * e1[0] - n0 * e1[2],
+                n0 * e1[1] - n1 * e1[0],
+            )
             # A = B^T S B (2 x 2), B = [e1 e2]
-            Se1 = (s00 * e1[0] + s01 * e1[1] + s02 * e1[2], s01 * e1[0] + s11 * e1[1] + s12 * e1[2],
-                   s02 * e1[0] + s12 * e1[1] + s22 * e1[2])
-            Se2 = (s00 * e2[0] + s01 * e2[1] + s02 * e2[2], s01 * e2[0] + s11 * e2[1] + s12 * e2[2],
-                   s02 * e2[0] + s12 * e2[1] + s22 * e2[2])
+            Se1 = (
+                s00 * e1[0] + s01 * e1[1] + s02 * e1[2],
+                s01 * e1[0] + s11 * e1[1] + s12 * e1[2],
+                s02 * e1[0] + s12 * e1[1] + s22 * e1[2],
+            )
+            Se2 = (
+                s00 * e2[0] + s01 * e2[1] + s02 * e2[2],
+                s01 * e2[0] + s11 * e2[1] + s12 * e2[2],
+                s02 * e2[0] + s12 * e2[1] + s22 * e2[2],
+            )
             A11 = e1[0] * Se1[0] + e1[1] * Se1[1] + e1[2] * Se1[2]
             A12 = e1[0] * Se2[0] + e1[1] * Se2[1] + e1[2] * Se2[2]
             A22 = e2[0] * Se2[0] + e2[1] * Se2[1] + e2[2] * Se2[2]
@@ -117,8 +127,11 @@ def _row_noise(q: FloatArray, n: FloatArray, c: FloatArray, X: FloatArray, o: Fl
             w2 = (A11 * aq2 - A12 * aq1) / det
             for j in range(k):
                 a, b, cc = X[m, j, 0] - c[m, 0], X[m, j, 1] - c[m, 1], X[m, j, 2] - c[m, 2]
-                G[m, j] = 1.0 / k + w1 * (a * e1[0] + b * e1[1] + cc * e1[2]) + w2 * (
-                    a * e2[0] + b * e2[1] + cc * e2[2])
+                G[m, j] = (
+                    1.0 / k
+                    + w1 * (a * e1[0] + b * e1[1] + cc * e1[2])
+                    + w2 * (a * e2[0] + b * e2[1] + cc * e2[2])
+                )
         else:
             lam0, lam1, lam2 = _eigvals3(s00, s01, s02, s11, s12, s22)
             if not _eigvec3(s00, s01, s02, s11, s12, s22, lam2, d):
