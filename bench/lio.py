@@ -324,14 +324,17 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
                      map_voxel: float = 0.5, sensor_noise: bool = False,
                      map_correlation: str = "full", lidar: tuple[float, float] = (0.05, 30.0),
                      lidar_model: str = "dof", range_std: float = 0.02,
-                     split: list[tuple[float, float]] | None = None) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
+                     split: list[tuple[float, float]] | None = None,
+                     cpu: list[float] | None = None,
+                     start_covariance: bool = False) -> tuple[FloatArr, FloatArr, FloatArr]:  # fmt: skip
     """Register ``d``'s scans one by one (calibrated IMU); returns, for the scans after the filter
     start (all scans without the IMU), the NEES of [attitude, position] against the reported 6 x 6
     covariance (NaN without the IMU), the body-frame attitude error (K, 3) rad and the position error
     (K, 3) m, in the world of the first IMU pose (the first scan end; the filter's levelling R_w_i0
     applied once), the truth at the first sample at or after each scan end. ``sensor_noise``: the
     filter's IMU noise densities and bias random walks set to the simulated IMU's
-    (``ImuErrorSpec.bwt901cl``: the MPU-9250 datasheet's densities) instead of the config defaults."""
+    (``ImuErrorSpec.bwt901cl``: the MPU-9250 datasheet's densities) instead of the config defaults.
+    ``cpu``: filled with the CPU time of each filter scan (after the start), s."""
     from imuslam.geometry import log as so3_log
     from imuslam.lio.estimator import LioEstimator
     from imuslam.lio.lidar_only import LidarOdometry
@@ -348,6 +351,7 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
                                         map_correlation=map_correlation,
                                         lidar_std=lidar[0], lidar_dof=lidar[1],
                                         lidar_model=lidar_model, lidar_range_std=range_std,  # type: ignore[arg-type]
+                                        start_covariance=start_covariance,
                                         **imu_noise),  # type: ignore[arg-type]
                     use_imu=use_imu)  # fmt: skip
     if drift is not None:  # --map-drift: the rates of both front ends replaced
@@ -366,7 +370,10 @@ def _consistency_run(d: LidarDrive, mode: str, state: str, true_gravity: bool = 
             rows.append((t_end, lo.register_scan(pts, t, s.ring), None))
             continue
         started = est.eskf is not None
+        c0 = time.process_time()
         T = est.register_scan(pts, t, s.ring)
+        if started and cpu is not None:
+            cpu.append(time.process_time() - c0)
         if est.eskf is not None and not started and true_gravity:  # the filter's g set to the truth
             g0 = int(np.searchsorted(d.gt_t_ns, rows[0][0] if rows else t_end))
             R_a = est.T_w_i0[:3, :3] @ d.gt_R_w_b[min(g0, len(d.gt_t_ns) - 1)].T
@@ -420,19 +427,22 @@ def consistency_bench(args: Any) -> None:
         means, n = [], 0
         for mode in modes:
             split: list[tuple[float, float]] = []
+            cpu: list[float] = []
             nees, e_th, e_p = _consistency_run(d, mode, args.state, drift=args.map_drift,
                                           map_covariance=not args.no_map_covariance,
                                           map_voxel=args.map_voxel, sensor_noise=args.sensor_noise,
                                           map_correlation=args.map_correlation, split=split,
                                           lidar=(args.lidar_std, args.lidar_dof),
                                           lidar_model=args.lidar_model,
-                                          range_std=args.range_std)  # fmt: skip
+                                          range_std=args.range_std, cpu=cpu,
+                                          start_covariance=args.start_covariance)  # fmt: skip
             cell = f"{np.mean(nees):.2f}"
             if args.split:
                 sp = np.array(split)
                 cell += (f" (att {sp[:, 0].mean():.2f}, pos {sp[:, 1].mean():.2f}; RMS "
                          f"{np.rad2deg(np.sqrt(np.mean(e_th**2))):.3f} deg, "
-                         f"{1e3 * np.sqrt(np.mean(e_p**2)):.1f} mm)")  # fmt: skip
+                         f"{1e3 * np.sqrt(np.mean(e_p**2)):.1f} mm; filter CPU "
+                         f"{1e3 * np.median(cpu):.0f} ms/scan median)")  # fmt: skip
             means.append(cell)
             n = len(nees)
         lo, hi = chi2.ppf(0.001, 6 * n) / n, chi2.ppf(0.999, 6 * n) / n
@@ -459,7 +469,7 @@ def consistency_bench(args: Any) -> None:
 
 
 def _rowmodel_run(d: LidarDrive, mode: str, map_voxel: float = 0.5,
-                  range_std: float = 0.02) -> dict[str, FloatArr]:  # fmt: skip
+                  range_std: float = 0.02, map_scans: int = 10) -> dict[str, FloatArr]:  # fmt: skip
     """Each scan registered on its own against a map built from the TRUE poses of the scans before it
     (the points keep their range noise; the scan deskewed with the true motion), from the true pose:
     per scan [NEES 6, attitude NEES 3, position NEES 3, |attitude error| deg, |position error| mm] of
@@ -494,7 +504,7 @@ def _rowmodel_run(d: LidarDrive, mode: str, map_voxel: float = 0.5,
         x_l = ((x_w - pe) @ Re - p_i_l) @ R_i_l  # the LiDAR frame at the scan end, true deskew
         surf_l, edge_l = select_points(x_l, t - t.min(), s.ring, fe)
         surf, edge = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
-        if j >= 10:  # a map of ten scans first
+        if j >= map_scans:  # a map of ``map_scans`` scans first (ten by default)
             Rk, pk, _, _, C = gauss_newton_rows(lmap, surf, edge, Re, pe, range_std, origins,
                                                 coarse=False, p_s=p_i_l)  # fmt: skip
             out["plane"].append(row(np.r_[pe - pk, so3_log(Rk.T @ Re)], C))
@@ -525,7 +535,7 @@ def rowmodel_bench(args: Any) -> None:
         d = drive("street", dur, args.cache, seed=seed)
         for mode in ("direct", "features"):
             c0 = time.process_time()
-            res = _rowmodel_run(d, mode, args.map_voxel, args.range_std)
+            res = _rowmodel_run(d, mode, args.map_voxel, args.range_std, args.map_scans)
             cells = [f"{a[:, 0].mean():.2f} ({a[:, 1].mean():.2f}, {a[:, 2].mean():.2f}); "
                      f"{a[:, 3].mean():.4f} deg, {a[:, 4].mean():.2f} mm" for a in (res["plane"], res["dof"])]  # fmt: skip
             n = len(res["plane"])
@@ -569,8 +579,19 @@ def main() -> None:
         "--lidar-std", type=float, default=0.05, help="consistency: filter.lidar_std, m"
     )
     ap.add_argument("--lidar-dof", type=float, default=30.0, help="consistency: filter.lidar_dof")
-    ap.add_argument("--lidar-model", choices=["dof", "plane"], default="dof",
+    ap.add_argument("--lidar-model", choices=["dof", "plane", "plane_diag"], default="dof",
                     help="consistency: filter.lidar_model")  # fmt: skip
+    ap.add_argument(
+        "--map-scans",
+        type=int,
+        default=10,
+        help="rowmodel: scans in the map before the first registered one",
+    )
+    ap.add_argument(
+        "--start-covariance",
+        action="store_true",
+        help="consistency: filter.start_covariance (with a rows' model)",
+    )
     ap.add_argument("--range-std", type=float, default=0.02,
                     help="consistency: filter.lidar_range_std, m (the simulated LiDAR's 2 cm)")  # fmt: skip
     ap.add_argument(

@@ -120,20 +120,100 @@ def test_one_scans_covariance_is_consistent_on_a_held_out_seed() -> None:
 
 
 @pytest.mark.slow
-def test_lio_with_the_rows_model_on_the_street_drive() -> None:
-    """``filter.lidar_model: plane`` end to end (the option, off by default) within the accuracy
-    targets of ``test_lio_sim.test_lio_on_the_street_drive`` (ATE 0.5 % of the path, rotation RMSE
-    0.5 deg) on the seed-11 excerpt."""
+@pytest.mark.parametrize(("model", "start"), [("plane", False), ("plane_diag", True)])
+def test_lio_with_the_rows_model_on_the_street_drive(model: str, start: bool) -> None:
+    """``filter.lidar_model: plane`` / ``plane_diag`` (with ``start_covariance``) end to end (options,
+    off by default) within the accuracy targets of ``test_lio_sim.test_lio_on_the_street_drive`` (ATE
+    0.5 % of the path, rotation RMSE 0.5 deg) on the seed-11 excerpt."""
     d = simulate_lidar_drive("street", 6.0, seed=11)
     a, g = SEED000_ACCEL, SEED000_GYRO
     cal = ImuCalibration(
         TriadModel(a.T, a.K, a.b, a.bias_sign), TriadModel(g.T, g.K, g.b, g.bias_sign)
     )
     cfg = LioConfig(extrinsic=ExtrinsicConfig(p_i_l=tuple(d.T_i_l[:3, 3])),  # type: ignore[arg-type]
-                    frontend=FrontEndConfig(mode="direct"), filter=FilterConfig(lidar_model="plane"))  # fmt: skip
+                    frontend=FrontEndConfig(mode="direct"),
+                    filter=FilterConfig(lidar_model=model, start_covariance=start))  # type: ignore[arg-type]  # fmt: skip
     res = LioPipeline(MemoryDataset(d.scans, cal.correct(d.imu), "sim"), cfg, progress=False).run()
     gt = Trajectory(d.gt_t_ns, d.gt_p_w, d.gt_R_w_b, "truth")
     ev, _, _ = evaluate(gt, res.trajectory, "se3", 1.0, "frames", 0.02)
     assert len(res.trajectory) == len(d.scans)
     assert ev.ape_trans.rmse < 0.005 * gt.path_length
     assert ev.ape_rot_deg.rmse < 0.5
+
+
+def test_diagonal_rows_model_keeps_each_rows_whole_variance() -> None:
+    """``plane_diag``: each row's variance is the full model's diagonal (its own range noise, floored
+    at a tenth of the range noise, plus its plane-fit error (G G^T)_mm), with no shared columns."""
+    pts = np.array([[0.0, 0.0, 0.0], [0.4, 0.05, 0.0], [-0.35, 0.3, 0.0], [0.1, -0.4, 0.0],
+                    [-0.2, -0.25, 0.0]])  # fmt: skip
+    lmap = LocalMap(0.5, 100.0, 5, "ivox", MatchParams(k=5))
+    lmap.insert(pts, np.zeros((0, 3)), np.eye(3), np.zeros(3), tag=0)
+    origins = SensorOrigins()
+    origins.record(0, np.array([3.0, 1.0, 2.0]))  # oblique beams: the floor and G both matter
+    q = np.array([[0.05, 0.02, 0.0], [0.3, -0.1, 0.0], [-0.1, 0.2, 0.0]])
+    args = (lmap, q, np.zeros((0, 3)), np.eye(3), np.zeros(3), 0.1, np.array([5.0, 0.0, 0.3]),
+            origins, 0.02)  # fmt: skip
+    _, s, G = associate_shared(*args)
+    _, s_d, G_d = associate_shared(*args, diagonal=True)
+    assert G_d.shape == (3, 0) and G.shape == (3, 5)
+    expected = np.maximum(s, 0.002) ** 2 + np.asarray(G.multiply(G).sum(axis=1)).ravel()
+    np.testing.assert_allclose(s_d**2, expected, rtol=1e-12)
+
+
+def test_start_covariance_moves_the_lidar_registrations_to_the_imu_pose() -> None:
+    """``filter.start_covariance``: a start of two scans (the first defines the world) whose second
+    registration has covariance Creg on the LiDAR's [dp, dtheta] (first LiDAR frame, rotation on the
+    right): the start map's record is the mean over its two scans, 0 and A Creg A^T, with A the
+    Jacobian of the IMU's [theta, p] in w, here by central differences of the composed poses
+    T_w_i = T_w_l0 T_l0_l1 T_l_i (a rotated, offset LiDAR; a levelled world)."""
+    from imuslam.geometry import exp as so3_exp
+    from imuslam.io.imulog import ImuLog
+    from imuslam.lio.estimator import LioEstimator
+
+    q = np.array([0.9, 0.1, -0.2, 0.3])
+    cfg = LioConfig(extrinsic=ExtrinsicConfig(p_i_l=(0.3, -0.1, 0.5), quat_wxyz_i_l=tuple(q / np.linalg.norm(q))),  # type: ignore[arg-type]
+                    filter=FilterConfig(lidar_model="plane_diag", start_covariance=True))  # fmt: skip
+    n = 20
+    imu = ImuLog(np.arange(n, dtype=np.int64) * 10_000_000, np.tile([0.0, 0.0, 9.8], (n, 1)),
+                 np.zeros((n, 3)), "m/s^2", "rad/s", "test")  # fmt: skip
+    est = LioEstimator(cfg, imu)
+    T_i_l = est.T_i_l
+    R_w_i0 = so3_exp(np.array([0.02, -0.03, 0.0]))
+    T_w_l0 = np.eye(4)
+    T_w_l0[:3, :3] = R_w_i0
+    T_w_l0 = T_w_l0 @ T_i_l
+    R_l1, p_l1 = so3_exp(np.array([0.1, 0.2, 0.7])), np.array([4.0, -1.0, 0.2])
+
+    def imu_pose(e: FloatArray) -> tuple[FloatArray, FloatArray]:
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R_l1 @ so3_exp(e[3:]), p_l1 + e[:3]
+        Tw = T_w_l0 @ T @ np.linalg.inv(T_i_l)
+        return Tw[:3, :3], Tw[:3, 3]
+
+    R1, p1 = imu_pose(np.zeros(6))
+    A = np.zeros((6, 6))
+    h = 1e-6
+    for j in range(6):
+        e = np.zeros(6)
+        e[j] = h
+        Rp, pp = imu_pose(e)
+        Rm, pm = imu_pose(-e)
+        A[:3, j] = (so3_log(R1.T @ Rp) - so3_log(R1.T @ Rm)) / (2 * h)
+        A[3:, j] = (pp - pm) / (2 * h)
+    rng = np.random.default_rng(2)
+    L = rng.normal(size=(6, 6)) * 1e-3
+    Creg = L @ L.T
+    est._start_covs = [np.full((6, 6), np.nan), Creg]
+    T0 = T_w_l0 @ np.linalg.inv(T_i_l)
+    R0, p0 = T0[:3, :3], T0[:3, 3]
+    C = est._start_map_covariance(R_w_i0, np.array([R0, R1]), np.array([p0, p1]))
+    np.testing.assert_allclose(C, 0.5 * A @ Creg @ A.T, rtol=1e-6, atol=1e-14)
+
+
+def test_start_covariance_without_a_rows_model_is_refused() -> None:
+    """``filter.start_covariance`` with the default ``dof`` model (no registration covariance to
+    carry) is a configuration error naming the field, not a silent no-op."""
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match="filter.start_covariance needs"):
+        FilterConfig(start_covariance=True)

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 if TYPE_CHECKING:
     from imuslam.lio.matcher import MatchParams
@@ -97,8 +97,15 @@ class FilterConfig(BaseModel):
     points, shared by the rows that fit the same points, whitened into an equivalent 6-row update,
     with Tukey weights on the residuals in units of their sigma (``lio.rowcov``; no lidar_dof); it
     gives one scan's covariance right but the filter with it is overconfident (README, LIO
-    covariance) and 4-7x slower; lidar_range_std: the LiDAR's range noise 1-sigma for ``plane``, m
-    (datasheet; the simulated VLP-16's is 0.02);
+    covariance) and about 10x slower a scan; ``plane_diag`` the same rows' noise with the map
+    points' part kept on each row's own variance only (no sharing, no sparse factorisation): about
+    as accurate as ``plane`` at about 1.3x the default's CPU a scan, as overconfident;
+    lidar_range_std: the LiDAR's range noise 1-sigma for the ``plane`` models, m (datasheet; the
+    simulated VLP-16's is 0.02); start_covariance (the ``plane`` models only): the start map's
+    record (``MapCovariance``, the points from before the filter) carries the LiDAR-only start's
+    covariance, its registrations' covariances with the rows' model chained along the start, instead
+    of zero (every later pose inherits the start's error: without it the NEES is 5-24x higher; with it
+    still 12-55x above the band, docs/measurements/lio.md);
     max_iterations and the convergence threshold of the iterated update (on |dx|); reassociate: an
     iterate searches the map's neighbours again only when it moved a point 20 m away by more than this
     since the last search, m (0: at every iterate, as FAST-LIO2); map_covariance (default on): the
@@ -127,17 +134,27 @@ class FilterConfig(BaseModel):
     gyro_bias_rw: float = Field(1e-4, ge=0)
     lidar_std: float = Field(0.05, gt=0)
     lidar_dof: float = Field(30.0, gt=0)
-    lidar_model: Literal["dof", "plane"] = "dof"
+    lidar_model: Literal["dof", "plane", "plane_diag"] = "dof"
     lidar_range_std: float = Field(0.02, gt=0)
     max_iterations: int = Field(5, ge=1)
     reassociate: float = Field(0.02, ge=0)
     converge: float = Field(1e-3, gt=0)
     map_covariance: bool = True
     map_correlation: Literal["full", "independent"] = "full"
+    start_covariance: bool = False
     map_drift_deg_per_sqrt_m: float | None = Field(None, ge=0)
     map_drift_m_per_sqrt_m: float | None = Field(None, ge=0)
     max_speed: float = Field(60.0, gt=0)
     g: float = Field(9.80665, gt=0)
+
+    @model_validator(mode="after")
+    def _start_needs_rows_model(self) -> FilterConfig:
+        if self.start_covariance and self.lidar_model == "dof":
+            raise ValueError(
+                "filter.start_covariance needs filter.lidar_model plane or plane_diag (the start's "
+                "registration covariance comes from the rows' model)"
+            )
+        return self
 
 
 class LioConfig(BaseModel):

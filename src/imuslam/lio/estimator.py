@@ -61,11 +61,13 @@ def level_rotation(f_b: FloatArray) -> FloatArray:
 @dataclass
 class SharedMapNoise:
     """What ``filter.lidar_model: plane`` needs (``lio.rowcov``): the LiDAR's origin in the IMU frame
-    p_i_l (3,), the inserting scans' LiDAR origins and the range noise 1-sigma, m."""
+    p_i_l (3,), the inserting scans' LiDAR origins and the range noise 1-sigma, m; ``diagonal``
+    (``plane_diag``): the map points' noise on each row's own variance, no sharing between rows."""
 
     p_i_l: FloatArray
     origins: SensorOrigins
     range_std: float
+    diagonal: bool = False
 
 
 class LidarMeasurement:
@@ -138,7 +140,7 @@ class LidarMeasurement:
                 origin = x.R_n_b @ sh.p_i_l + x.p_n
                 self._all, self._s_all, self._G_all = associate_shared(
                     self.map, self.surf_i, self.edge_i, x.R_n_b, x.p_n, self.coarse_gate,
-                    origin, sh.origins, sh.range_std,
+                    origin, sh.origins, sh.range_std, sh.diagonal,
                 )  # fmt: skip
             self._corr, self._at = None, (x.R_n_b.copy(), x.p_n.copy())
             self.n_assoc += 1
@@ -168,7 +170,7 @@ class LidarMeasurement:
             # whole covariance inflated by 1 / w, as scaling its residual and Jacobian by sqrt(w);
             # the metric Huber (0.2 m) would leave the few rows on another surface (a kerb, a corner
             # straddled by the neighbours, 2-3 % beyond 3 sigma) their full weight
-            g2 = np.asarray(self._G.multiply(self._G).sum(axis=1)).ravel()
+            g2 = 0.0 if sh.diagonal else np.asarray(self._G.multiply(self._G).sum(axis=1)).ravel()
             sw = tukey_weights(r / np.sqrt(s * s + g2))
             r, J, D = r * sw, J * sw[:, None], s * s
             U, z = whitened_system(r, J, D, self._G)
@@ -227,8 +229,10 @@ class MapCovariance:
     ``drift`` (``filter.map_drift_*``, zero by default) adds a random walk of the map along the
     path for scenes whose registration drifts: a record gains ``drift`` times the path since the
     previous record; the points from before the filter (LiDAR-only, tag -1) carry the drift over the
-    start's path. (Its rates were once fitted to a 0.5-1 deg roll / pitch drift on the simulated
-    street, which was the 1 m association gate's doing, ``MapConfig.max_residual``.)"""
+    start's path, and with ``filter.start_covariance`` the start's own registration covariance
+    (``LioEstimator._start_map_covariance``). (Its rates were once fitted to a 0.5-1 deg roll /
+    pitch drift on the simulated street, which was the 1 m association gate's doing,
+    ``MapConfig.max_residual``.)"""
 
     def __init__(self, R0: FloatArray, p0: FloatArray, C0: FloatArray, slots: int = 4096,
                  drift: FloatArray | None = None,
@@ -359,13 +363,13 @@ class LioEstimator:
         self.map_cov: MapCovariance | None = None
         self._D = np.zeros((self.layout.dim, self.layout.dim))  # P_abs - P_rel (MapCovariance)
         self.shared: SharedMapNoise | None = None
-        if fc.lidar_model == "plane":
+        if fc.lidar_model != "dof":
             from imuslam.lio.rowcov import SensorOrigins
 
-            self.shared = SharedMapNoise(
-                self.T_i_l[:3, 3].copy(), SensorOrigins(), fc.lidar_range_std
-            )
+            self.shared = SharedMapNoise(self.T_i_l[:3, 3].copy(), SensorOrigins(),
+                                         fc.lidar_range_std, fc.lidar_model == "plane_diag")  # fmt: skip
         self._n_inserted = 0
+        self._start_covs: list[FloatArray] = []  # the start's registration covariances (last pass)
         self._pose_index = np.r_[self.layout.TH, self.layout.P]  # [theta, p] in the error state
 
     # ------------------------------------------------------------------------------------------
@@ -431,8 +435,13 @@ class LioEstimator:
         vel = self.start_velocity(ts, T1[:, :3, 3])  # the LiDAR origin's, first LiDAR frame
         for _ in range(self.START_PASSES):
             lo = LidarOdometry(self.config.model_copy(update={"use_imu": False}))
-            T1 = np.array([lo.register_scan(pts, t_s, ring, rotation_compensated=True, motion=(T, v))
-                           for (pts, t_s, ring), T, v in zip(self._init_points, T1, vel, strict=True)])  # fmt: skip
+            out, self._start_covs = [], []
+            for (pts, t_s, ring), T, v in zip(self._init_points, T1, vel, strict=True):
+                out.append(
+                    lo.register_scan(pts, t_s, ring, rotation_compensated=True, motion=(T, v))
+                )
+                self._start_covs.append(lo.last_cov.copy())  # NaN unless the rows' model refines it
+            T1 = np.array(out)
             v_new = self.start_velocity(ts, T1[:, :3, 3])
             change = float(np.max(np.linalg.norm(v_new - vel, axis=1)))
             vel = v_new
@@ -441,6 +450,37 @@ class LioEstimator:
         self.lidar_only = lo
         self._init_scans = [(t, T) for t, T in zip(ts, T1, strict=True)]
         self._init_points = []
+
+    def _start_map_covariance(
+        self, R_w_i0: FloatArray, R_k: FloatArray, p_k: FloatArray
+    ) -> FloatArray:
+        """The start map's error covariance (6, 6) on [theta, p] at the start's last pose
+        (``filter.start_covariance``): each start scan's registration covariance (the rows' model's,
+        ``LidarOdometry.last_cov`` on the LiDAR's [dp, dtheta] in the first LiDAR frame) moved to the
+        IMU's [theta, p] in w, chained along the start as odometry (C_k = J C_(k-1) J^T + Creg_k,
+        J ``MapCovariance.transfer``'s), and the map, made of every start scan, their mean seen from
+        the last pose (fully correlated pieces, ``MapCovariance``). The first scan defines the world."""
+        R_i_l, p_i_l = self.T_i_l[:3, :3], self.T_i_l[:3, 3]
+        R_w_l0 = R_w_i0 @ R_i_l
+        p_l_i = -R_i_l.T @ p_i_l
+        Lx = np.array([[0.0, -p_l_i[2], p_l_i[1]], [p_l_i[2], 0.0, -p_l_i[0]],
+                       [-p_l_i[1], p_l_i[0], 0.0]])  # fmt: skip
+        K = len(R_k)
+        chain = MapCovariance(R_k[0], p_k[0], np.zeros((6, 6)), slots=K + 2)
+        C = np.zeros((6, 6))
+        for k in range(K):
+            Creg = self._start_covs[k] if k < len(self._start_covs) else np.full((6, 6), np.nan)
+            if k > 0:
+                _, _, J = chain.transfer(np.array([k - 1], np.int32), R_k[k], p_k[k])
+                C = J[0] @ C @ J[0].T
+            if np.all(np.isfinite(Creg)):
+                A = np.zeros((6, 6))  # [dp_l, dtheta_l] -> [theta_i, p_i]
+                A[:3, 3:] = R_i_l
+                A[3:, :3] = R_w_l0
+                A[3:, 3:] = -R_k[k] @ R_i_l @ Lx
+                C = C + A @ Creg @ A.T
+            chain.record(R_k[k], p_k[k], C)
+        return chain.covariance(np.arange(K, dtype=np.int32), R_k[-1], p_k[-1])
 
     def _initialise(self, t_end: float) -> None:
         """Start the filter at ``t_end`` from the LiDAR-only poses of the first scans (see module doc)."""
@@ -513,6 +553,8 @@ class LioEstimator:
             drift = np.r_[np.full(3, np.deg2rad(q_deg) ** 2), np.full(3, q_m**2)]
             path0 = float(np.sum(np.linalg.norm(np.diff(p_k, axis=0), axis=1)))
             C0 = np.diag(drift * path0)
+            if rf.start_covariance and self.shared is not None:
+                C0 = C0 + self._start_map_covariance(R_w_i0, R_k, p_k)
             self.map_cov = MapCovariance(
                 R_end, p_end, C0, drift=drift, correlation=cfg.filter.map_correlation
             )

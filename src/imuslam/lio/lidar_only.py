@@ -151,13 +151,13 @@ class LidarOdometry:
         else:
             reg = gauss_newton(self.map, surf, edge, T_pred[:3, :3], T_pred[:3, 3],
                                reassociate=self.config.filter.reassociate)  # fmt: skip
-            if self.config.filter.lidar_model == "plane" and reg.n_corr >= 6:
+            if self.config.filter.lidar_model != "dof" and reg.n_corr >= 6:
                 # refined with the rows' noise model (lio.rowcov) at the tight gate
                 from imuslam.lio.rowcov import gauss_newton_rows
 
                 R_r, p_r, n_it, n_c, self.last_cov = gauss_newton_rows(
                     self.map, surf, edge, reg.R_w_s, reg.p_w, self.config.filter.lidar_range_std,
-                    coarse=False,
+                    coarse=False, diagonal=self.config.filter.lidar_model == "plane_diag",
                 )  # fmt: skip
                 reg = Registration(R_r, p_r, reg.iterations + n_it, n_c)
             if reg.n_corr < 6:

@@ -24,13 +24,14 @@ matrix; they are handed to the filter as an equivalent whitened measurement of t
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.linalg import splu
 
 from imuslam.lio.matcher import Correspondences, LocalMap
-from imuslam.lio.residuals import fit_lines, fit_planes
+from imuslam.lio.residuals import _eigvals3, _eigvec3, fit_lines, fit_planes
 
 FloatArray = NDArray[np.float64]
 
@@ -64,18 +65,104 @@ def tukey_weights(z: FloatArray, c: float = 4.685) -> FloatArray:
     return np.asarray(np.clip(1.0 - (z / (c * scale)) ** 2, 0.0, None))
 
 
-def _unit(v: FloatArray) -> FloatArray:
-    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+@numba.njit(cache=True)
+def _row_noise(q: FloatArray, n: FloatArray, c: FloatArray, X: FloatArray, o: FloatArray,
+               origin_w: FloatArray, kind: int, range_std: float) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled  # fmt: skip
+    """Per row m of the queries q (M, 3) with normal n (M, 3), anchor (centroid) c (M, 3), the k
+    neighbours X (M, k, 3) and the LiDAR origins o (M, k, 3) that measured them: the row's own
+    range-noise sigma along the normal s (M,) and G's entries (M, k), g_j sigma_r |n . b_j| with
+    g_j = 1/k + u^T S^-1 u_j in the plane's two in-plane coordinates (kind 0) or the line's
+    along-line one (kind 1) (module doc). Basis-free: the in-plane basis is any orthonormal pair
+    normal to n (S's own eigenvectors for a plane fitted by ``fit_planes``), the line's direction
+    S's largest eigenvector."""
+    M, k = X.shape[0], X.shape[1]
+    s = np.zeros(M)
+    G = np.zeros((M, k))
+    e1, e2, d = np.empty(3), np.empty(3), np.empty(3)
+    for m in range(M):
+        s00 = s01 = s02 = s11 = s12 = s22 = 0.0
+        for j in range(k):
+            a, b, cc = X[m, j, 0] - c[m, 0], X[m, j, 1] - c[m, 1], X[m, j, 2] - c[m, 2]
+            s00 += a * a
+            s01 += a * b
+            s02 += a * cc
+            s11 += b * b
+            s12 += b * cc
+            s22 += cc * cc
+        u0, u1, u2 = q[m, 0] - c[m, 0], q[m, 1] - c[m, 1], q[m, 2] - c[m, 2]
+        n0, n1, n2 = n[m, 0], n[m, 1], n[m, 2]
+        if kind == 0:
+            # e1 normal to n from the axis least along it, e2 = n x e1
+            if abs(n0) <= abs(n1) and abs(n0) <= abs(n2):
+                x, y, z = 0.0, n2, -n1
+            elif abs(n1) <= abs(n2):
+                x, y, z = -n2, 0.0, n0
+            else:
+                x, y, z = n1, -n0, 0.0
+            r = np.sqrt(x * x + y * y + z * z)
+            e1[0], e1[1], e1[2] = x / r, y / r, z / r
+            e2[0], e2[1], e2[2] = (
+                n1 * e1[2] - n2 * e1[1],
+                n2 * e1[0] - n0 * e1[2],
+                n0 * e1[1] - n1 * e1[0],
+            )
+            # A = B^T S B (2 x 2), B = [e1 e2]
+            Se1 = (
+                s00 * e1[0] + s01 * e1[1] + s02 * e1[2],
+                s01 * e1[0] + s11 * e1[1] + s12 * e1[2],
+                s02 * e1[0] + s12 * e1[1] + s22 * e1[2],
+            )
+            Se2 = (
+                s00 * e2[0] + s01 * e2[1] + s02 * e2[2],
+                s01 * e2[0] + s11 * e2[1] + s12 * e2[2],
+                s02 * e2[0] + s12 * e2[1] + s22 * e2[2],
+            )
+            A11 = e1[0] * Se1[0] + e1[1] * Se1[1] + e1[2] * Se1[2]
+            A12 = e1[0] * Se2[0] + e1[1] * Se2[1] + e1[2] * Se2[2]
+            A22 = e2[0] * Se2[0] + e2[1] * Se2[1] + e2[2] * Se2[2]
+            det = max(A11 * A22 - A12 * A12, 1e-24)
+            aq1 = u0 * e1[0] + u1 * e1[1] + u2 * e1[2]
+            aq2 = u0 * e2[0] + u1 * e2[1] + u2 * e2[2]
+            w1 = (A22 * aq1 - A12 * aq2) / det  # A^-1 a_q
+            w2 = (A11 * aq2 - A12 * aq1) / det
+            for j in range(k):
+                a, b, cc = X[m, j, 0] - c[m, 0], X[m, j, 1] - c[m, 1], X[m, j, 2] - c[m, 2]
+                G[m, j] = (
+                    1.0 / k
+                    + w1 * (a * e1[0] + b * e1[1] + cc * e1[2])
+                    + w2 * (a * e2[0] + b * e2[1] + cc * e2[2])
+                )
+        else:
+            lam0, lam1, lam2 = _eigvals3(s00, s01, s02, s11, s12, s22)
+            if not _eigvec3(s00, s01, s02, s11, s12, s22, lam2, d):
+                d[0], d[1], d[2] = 0.0, 0.0, 0.0
+            tq = (u0 * d[0] + u1 * d[1] + u2 * d[2]) / max(lam2, 1e-12)
+            for j in range(k):
+                a, b, cc = X[m, j, 0] - c[m, 0], X[m, j, 1] - c[m, 1], X[m, j, 2] - c[m, 2]
+                G[m, j] = 1.0 / k + tq * (a * d[0] + b * d[1] + cc * d[2])
+        # beams: the query's from this scan's origin, each neighbour's from its inserting scan's
+        bx, by, bz = q[m, 0] - origin_w[0], q[m, 1] - origin_w[1], q[m, 2] - origin_w[2]
+        r = max(np.sqrt(bx * bx + by * by + bz * bz), 1e-12)
+        s[m] = range_std * abs(n0 * bx + n1 * by + n2 * bz) / r
+        for j in range(k):
+            bx, by, bz = X[m, j, 0] - o[m, j, 0], X[m, j, 1] - o[m, j, 1], X[m, j, 2] - o[m, j, 2]
+            r = max(np.sqrt(bx * bx + by * by + bz * bz), 1e-12)
+            G[m, j] *= range_std * abs(n0 * bx + n1 * by + n2 * bz) / r
+    return s, G
 
 
 def associate_shared(
     local_map: LocalMap, surf_i: FloatArray, edge_i: FloatArray, R_w_i: FloatArray, p_w: FloatArray,
     gate: float, origin_w: FloatArray, origins: SensorOrigins, range_std: float,
+    diagonal: bool = False,
 ) -> tuple[Correspondences, FloatArray, sp.csr_matrix]:  # fmt: skip
     """``LocalMap.associate``'s rows (the same gates) with their noise model: the rows' own range-noise
     standard deviation along the normal s (M,), m, and G (M, N) sparse, the map points' shared noise
     (module doc). ``origin_w`` (3,): the LiDAR's origin at this scan (world); a map point without a
-    recorded origin takes it (the query's beam)."""
+    recorded origin takes it (the query's beam). ``diagonal`` (``filter.lidar_model: plane_diag``):
+    the map points' noise kept on each row's own variance only, s^2 = max(s, s_min)^2 + (G G^T)_mm
+    with s_min a tenth of the range noise, and G empty (M, 0): the rows taken as independent, no
+    sparse factorisation (the sharing between rows dropped)."""
     pr = local_map.params
     parts: list[tuple[Correspondences, FloatArray, FloatArray, NDArray[np.int64]]] = []
     offset = 0
@@ -93,29 +180,14 @@ def associate_shared(
         r = np.einsum("mk,mk->m", n, q - c)
         ok &= np.abs(r) < gate
         nb, qk, nk, ck = nbr[ok], q[ok], n[ok], c[ok]
-        X = storage[nb]  # (M, k, 3)
-        E = X - ck[:, None, :]
-        u = qk - ck
-        k = nb.shape[1]
-        S = np.einsum("mki,mkj->mij", E, E)
-        # eigenvalues ascending: a plane's normal first, a line's direction last
-        lam, V = np.linalg.eigh(S)
-        if kind == 0:
-            a_j = np.einsum("mki,mil->mkl", E, V[:, :, 1:])  # in-plane coordinates (M, k, 2)
-            a_q = np.einsum("mi,mil->ml", u, V[:, :, 1:])
-            g = 1.0 / k + np.einsum("ml,mkl->mk", a_q / np.maximum(lam[:, 1:], 1e-12), a_j)
-        else:
-            t_j = np.einsum("mki,mi->mk", E, V[:, :, 2])
-            t_q = np.einsum("mi,mi->m", u, V[:, :, 2])
-            g = 1.0 / k + (t_q / np.maximum(lam[:, 2], 1e-12))[:, None] * t_j
         o = origins.origins(vmap.ids[nb])  # (M, k, 3)
         o = np.where(np.isnan(o), origin_w[None, None, :], o)
-        b_j = _unit(X - o)
-        b_q = _unit(qk - origin_w)
-        s = range_std * np.abs(np.einsum("mi,mi->m", nk, b_q))
-        Gv = g * range_std * np.abs(np.einsum("mki,mi->mk", b_j, nk))
+        s, Gv = _row_noise(qk, nk, ck, storage[nb], o, np.asarray(origin_w, float), kind, range_std)
         corr = Correspondences(pts[ok], nk, ck, np.full(len(nk), kind, np.int8),
                                vmap.ids[nb[:, 0]])  # fmt: skip
+        if diagonal:
+            s = np.sqrt(np.maximum(s, 0.1 * range_std) ** 2 + np.einsum("mk,mk->m", Gv, Gv))
+            Gv = Gv[:, :0]
         parts.append((corr, s, Gv, nb.astype(np.int64) + offset))
         offset += len(storage)
     if not parts:
@@ -126,9 +198,11 @@ def associate_shared(
                              for f in ("p_i", "n", "c", "kind", "tag")))  # fmt: skip
     s = np.concatenate([p[1] for p in parts])
     Gv = np.concatenate([p[2] for p in parts])
+    M, k = Gv.shape
+    if k == 0:  # diagonal
+        return corr, s, sp.csr_matrix((M, 0))
     cols = np.concatenate([p[3] for p in parts])
     uniq, inv = np.unique(cols, return_inverse=True)
-    M, k = Gv.shape
     G = sp.csr_matrix((Gv.ravel(), inv.ravel(), np.arange(0, M * k + 1, k)), shape=(M, len(uniq)))
     G.sum_duplicates()
     return corr, s, G
@@ -163,10 +237,12 @@ def gauss_newton_rows(
     local_map: LocalMap, surf: FloatArray, edge: FloatArray, R_w_s: FloatArray, p_w: FloatArray,
     range_std: float, origins: SensorOrigins | None = None, max_iterations: int = 10,
     converge: float = 1e-3, coarse: bool = True, p_s: FloatArray | None = None,
+    diagonal: bool = False,
 ) -> tuple[FloatArray, FloatArray, int, int, FloatArray]:  # fmt: skip
     """``lidar_only.gauss_newton`` (the same two passes, coarse gate then tight; ``coarse=False``: the
     tight pass alone) with the rows' noise model of this module and Tukey weights on the normalised
-    residuals. ``p_s`` (3,): the sensor's origin in the scan frame (default its origin). Returns R, p,
+    residuals. ``p_s`` (3,): the sensor's origin in the scan frame (default its origin); ``diagonal``:
+    ``associate_shared``'s. Returns R, p,
     iterations, rows, and the pose covariance (6, 6) on [dp, dtheta] (the last iterate's)."""
     from imuslam.geometry import exp
 
@@ -182,7 +258,8 @@ def gauss_newton_rows(
         it += 1
         n_it += 1
         origin = p.copy() if p_s is None else R @ p_s + p
-        corr, s, G = associate_shared(local_map, surf, edge, R, p, gate, origin, origins, range_std)
+        corr, s, G = associate_shared(local_map, surf, edge, R, p, gate, origin, origins, range_std,
+                                      diagonal)  # fmt: skip
         n = len(corr)
         if n < 6:
             break
