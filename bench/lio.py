@@ -181,20 +181,26 @@ def imu_bench(args: Any) -> None:
     d = drive("street", args.duration or LAP_S + 1.0, args.cache)
     gt = truth(d)
     print(f"street loop, {len(d.scans)} scans, {gt.path_length:.0f} m, direct mode")
-    print("| IMU | state | align | KITTI drift % | rotation RMSE deg | ATE m |")
-    print("|---|---|---|---|---|---|")
+    print(
+        "| IMU | state | align | KITTI drift % | rotation RMSE deg | ATE m | largest fading factor |"
+    )
+    print("|---|---|---|---|---|---|---|")
     for imu in ("raw", "cal"):
         for state in ("reduced", "full"):
             for align in ("none", "kf", "stkf", "rwnn"):
                 try:
-                    _, est = run_imuslam(d, "direct", state, align, imu)
+                    res, est = run_imuslam(d, "direct", state, align, imu)
                     m = metrics(gt, est)
+                    # the strong tracking filter's fading factor over the alignment (1: the Kalman filter)
+                    fade = (
+                        "-" if res.alignment is None else f"{float(res.alignment.fading.max()):.3f}"
+                    )
                     print(
-                        f"| {imu} | {state} | {align} | {m['drift_pct']:.3f} | {m['rot_deg']:.3f} | {m['ate_m']:.3f} |"
+                        f"| {imu} | {state} | {align} | {m['drift_pct']:.3f} | {m['rot_deg']:.3f} | {m['ate_m']:.3f} | {fade} |"
                     )
                 except Exception as exc:  # a diverging run is a result of the table
                     print(
-                        f"| {imu} | {state} | {align} | failed: {str(exc).splitlines()[0][:80]} | | |"
+                        f"| {imu} | {state} | {align} | failed: {str(exc).splitlines()[0][:80]} | | | |"
                     )
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +22,9 @@ from imuslam.lio.config import LioConfig
 from imuslam.lio.features import voxel_downsample
 from imuslam.lio.lidar_only import LidarOdometry
 from imuslam.lio.voxelmap import VoxelMap
+
+if TYPE_CHECKING:
+    from imuslam.ins.align import AlignmentResult
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -55,7 +58,8 @@ class ScanStats:
 @dataclass
 class LioResult:
     """Poses of the IMU frame (LiDAR frame when there is no IMU) at each scan end, per-scan statistics,
-    the downsampled global map (world frame), warnings, and the effective configuration."""
+    the downsampled global map (world frame), warnings, the effective configuration, and the start's
+    alignment (``ins.align.AlignmentResult``; None with ``align none`` or without an IMU)."""
 
     trajectory: Trajectory
     stats: list[ScanStats]
@@ -64,6 +68,7 @@ class LioResult:
     warnings: list[str] = field(default_factory=list)
     peak_map_points: int = 0
     wall_s: float = 0.0
+    alignment: AlignmentResult | None = None
 
     @property
     def scans_per_s(self) -> float:
@@ -248,4 +253,5 @@ class LioPipeline:
             np.array(t_ns, np.int64), P[:, :3, 3], P[:, :3, :3], f"imuslam lio {self.dataset.name}"
         )
         return LioResult(traj, stats, gmap.points, self.config, warnings,
-                         getattr(est, "peak_map_points", 0), time.perf_counter() - wall0)  # fmt: skip
+                         getattr(est, "peak_map_points", 0), time.perf_counter() - wall0,
+                         getattr(est, "alignment", None))  # fmt: skip
