@@ -65,6 +65,26 @@ def test_lio_on_the_street_drive(
     assert m["ape_trans"]["rmse"] == pytest.approx(ev.ape_trans.rmse, rel=0.05)
 
 
+def test_lio_after_a_kalman_alignment(street: LidarDrive) -> None:
+    """``align kf`` on the calibrated IMU: the start's alignment is returned with the result (the biases
+    it estimated, finite), and the filter that starts from it keeps the same accuracy bounds as with
+    ``align none`` (a wrong hand-over of attitude, velocity or biases at the window end is not)."""
+    cfg = _config(street, align="kf")
+    res = LioPipeline(
+        MemoryDataset(street.scans, _calibrated(street), "sim"), cfg, progress=False
+    ).run()
+    assert res.alignment is not None and res.alignment.method == "kf"
+    assert np.all(np.isfinite(res.alignment.gyro_bias[-1]))
+    assert np.all(np.isfinite(res.alignment.accel_bias[-1]))
+    gt = _truth(street)
+    ev, _, _ = evaluate(gt, res.trajectory, "se3", 1.0, "frames", 0.02)
+    assert ev.ape_trans.rmse < 0.005 * gt.path_length
+    assert ev.ape_rot_deg.rmse < 0.5
+    none = LioPipeline(MemoryDataset(street.scans, _calibrated(street), "sim"), _config(street),
+                       progress=False).run()  # fmt: skip
+    assert none.alignment is None
+
+
 def test_lidar_only_on_the_street_drive(street: LidarDrive) -> None:
     cfg = _config(street, frontend=FrontEndConfig(mode="direct"), use_imu=False)
     res = LioPipeline(MemoryDataset(street.scans, None, "sim"), cfg, progress=False).run()
