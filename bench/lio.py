@@ -483,7 +483,6 @@ def _rowmodel_run(d: LidarDrive, mode: str, map_voxel: float = 0.5,
     ``lio.rowcov``) and the default (diagonal ``lidar_std``^2 scaled by M / ``lidar_dof``, the metric
     Huber). Isolates one scan's covariance from the filter's prior, its start and the map's pose errors."""
     from imuslam.geometry import log as so3_log
-    from imuslam.geometry.interp import interpolate_poses
     from imuslam.lio.frontend import select_points
     from imuslam.lio.lidar_only import gauss_newton
     from imuslam.lio.matcher import LocalMap, MatchParams, huber_weights
@@ -493,7 +492,6 @@ def _rowmodel_run(d: LidarDrive, mode: str, map_voxel: float = 0.5,
     fe, fc = FrontEndConfig(mode=mode), FilterConfig()  # type: ignore[arg-type]
     lmap = LocalMap(map_voxel, 100.0, 1, "ivox", MatchParams())
     origins = SensorOrigins()
-    gt_t = d.gt_t_ns.astype(float) * 1e-9
     out: dict[str, list[list[float]]] = {"plane": [], "dof": []}
 
     def row(e: FloatArr, C: FloatArr) -> list[float]:  # e, C on [dp, dtheta]
@@ -502,12 +500,7 @@ def _rowmodel_run(d: LidarDrive, mode: str, map_voxel: float = 0.5,
                 float(np.rad2deg(np.linalg.norm(e[3:]))), float(1e3 * np.linalg.norm(e[:3]))]  # fmt: skip
 
     for j, s in enumerate(d.scans):
-        t = s.t_ns * 1e-9 + s.t_offset_s.astype(float)
-        P, R = interpolate_poses(gt_t, d.gt_p_w, d.gt_R_w_b, t)
-        pe, Re = interpolate_poses(gt_t, d.gt_p_w, d.gt_R_w_b, np.array([t.max()]))
-        pe, Re = pe[0], Re[0]
-        x_w = np.einsum("nij,nj->ni", R, s.points_l.astype(float) @ R_i_l.T + p_i_l) + P
-        x_l = ((x_w - pe) @ Re - p_i_l) @ R_i_l  # the LiDAR frame at the scan end, true deskew
+        x_l, t, pe, Re = d.true_deskewed(j)  # the LiDAR frame at the scan end, true deskew
         surf_l, edge_l = select_points(x_l, t - t.min(), s.ring, fe)
         surf, edge = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
         if j >= map_scans:  # a map of ``map_scans`` scans first (ten by default)

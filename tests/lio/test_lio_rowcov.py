@@ -10,7 +10,6 @@ from numpy.typing import NDArray
 
 from imuslam.eval.metrics import evaluate
 from imuslam.geometry import log as so3_log
-from imuslam.geometry.interp import interpolate_poses
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.interfaces import Trajectory
 from imuslam.lio.config import ExtrinsicConfig, FilterConfig, FrontEndConfig, LioConfig
@@ -79,15 +78,9 @@ def _per_scan_nees(d: LidarDrive, mode: str) -> FloatArray:
     R_i_l, p_i_l = d.T_i_l[:3, :3], d.T_i_l[:3, 3]
     lmap = LocalMap(0.5, 100.0, 1, "ivox", MatchParams())
     origins = SensorOrigins()
-    gt_t = d.gt_t_ns.astype(float) * 1e-9
     out = []
     for j, s in enumerate(d.scans):
-        t = s.t_ns * 1e-9 + s.t_offset_s.astype(float)
-        P, R = interpolate_poses(gt_t, d.gt_p_w, d.gt_R_w_b, t)
-        pe, Re = interpolate_poses(gt_t, d.gt_p_w, d.gt_R_w_b, np.array([t.max()]))
-        pe, Re = pe[0], Re[0]
-        x_w = np.einsum("nij,nj->ni", R, s.points_l.astype(float) @ R_i_l.T + p_i_l) + P
-        x_l = ((x_w - pe) @ Re - p_i_l) @ R_i_l
+        x_l, t, pe, Re = d.true_deskewed(j)
         surf_l, edge_l = select_points(x_l, t - t.min(), s.ring, FrontEndConfig(mode=mode))  # type: ignore[arg-type]
         surf, edge = surf_l @ R_i_l.T + p_i_l, edge_l @ R_i_l.T + p_i_l
         if j >= 10:

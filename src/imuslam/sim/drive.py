@@ -48,6 +48,22 @@ class LidarDrive:
         ang = (np.asarray(t_ns) - self.imu.t_ns[0]).astype(float) * 1e-9 * self.platform_rate
         return exp(np.outer(ang, [0.0, 0.0, 1.0]))
 
+    def true_deskewed(self, j: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Scan ``j``'s points moved into the LiDAR frame at the scan end with the true motion (they keep
+        their range noise): ``x_l`` (N, 3), the point times ``t_s`` (N,), s, and the true body pose at
+        the scan end ``p_w`` (3,), ``R_w_b`` (3, 3). Fixed mount only."""
+        from imuslam.geometry.interp import interpolate_poses
+
+        s = self.scans[j]
+        R_i_l, p_i_l = self.T_i_l[:3, :3], self.T_i_l[:3, 3]
+        gt_t = self.gt_t_ns.astype(float) * 1e-9
+        t = s.t_ns * 1e-9 + s.t_offset_s.astype(float)
+        P, R = interpolate_poses(gt_t, self.gt_p_w, self.gt_R_w_b, t)
+        pe, Re = interpolate_poses(gt_t, self.gt_p_w, self.gt_R_w_b, np.array([t.max()]))
+        x_w = np.einsum("nij,nj->ni", R, s.points_l.astype(float) @ R_i_l.T + p_i_l) + P
+        x_l = ((x_w - pe[0]) @ Re[0] - p_i_l) @ R_i_l
+        return x_l, t, pe[0], Re[0]
+
 
 def car_loop_period_s(traj: CarLoop) -> float:
     """Time of one lap of the street loop, s."""
