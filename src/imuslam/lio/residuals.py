@@ -18,7 +18,7 @@ IntArray = NDArray[np.int64]
 
 
 @numba.njit(cache=True, inline="always")
-def _eigvals3(a00: float, a01: float, a02: float, a11: float, a12: float, a22: float) -> tuple[float, float, float]:  # pragma: no cover - compiled  # fmt: skip
+def eigvals3(a00: float, a01: float, a02: float, a11: float, a12: float, a22: float) -> tuple[float, float, float]:  # pragma: no cover - compiled  # fmt: skip
     """Eigenvalues (ascending) of a symmetric 3x3 matrix, closed form (Smith, CACM 4(4), 1961)."""
     p1 = a01 * a01 + a02 * a02 + a12 * a12
     q = (a00 + a11 + a22) / 3.0
@@ -42,7 +42,7 @@ def _eigvals3(a00: float, a01: float, a02: float, a11: float, a12: float, a22: f
 
 
 @numba.njit(cache=True, inline="always")
-def _eigvec3(a00: float, a01: float, a02: float, a11: float, a12: float, a22: float, lam: float, out: FloatArray) -> bool:  # pragma: no cover - compiled  # fmt: skip
+def eigvec3(a00: float, a01: float, a02: float, a11: float, a12: float, a22: float, lam: float, out: FloatArray) -> bool:  # pragma: no cover - compiled  # fmt: skip
     """Unit eigenvector of eigenvalue ``lam`` into ``out``: the longest cross product of two rows of
     ``A - lam I`` (False when the eigenvalue is not simple)."""
     r0x, r0y, r0z = a00 - lam, a01, a02
@@ -104,8 +104,8 @@ def plane_row(nbr: IntArray, d2: FloatArray, map_pts: FloatArray, m: int, max_d2
     if nbr[m, k - 1] < 0 or d2[m, k - 1] > max_d2:
         return False
     s00, s01, s02, s11, s12, s22 = _moments(nbr, map_pts, m, c)
-    w0, w1, w2 = _eigvals3(s00, s01, s02, s11, s12, s22)
-    if not _eigvec3(s00, s01, s02, s11, s12, s22, w0, n):
+    w0, w1, w2 = eigvals3(s00, s01, s02, s11, s12, s22)
+    if not eigvec3(s00, s01, s02, s11, s12, s22, w0, n):
         return False
     for j in range(k):
         p = map_pts[nbr[m, j]]
@@ -126,8 +126,8 @@ def line_row(qx: float, qy: float, qz: float, nbr: IntArray, d2: FloatArray, map
     if nbr[m, k - 1] < 0 or d2[m, k - 1] > max_d2:
         return False
     s00, s01, s02, s11, s12, s22 = _moments(nbr, map_pts, m, c)
-    w0, w1, w2 = _eigvals3(s00, s01, s02, s11, s12, s22)
-    if w2 < min_ratio * w1 or not _eigvec3(s00, s01, s02, s11, s12, s22, w2, d):
+    w0, w1, w2 = eigvals3(s00, s01, s02, s11, s12, s22)
+    if w2 < min_ratio * w1 or not eigvec3(s00, s01, s02, s11, s12, s22, w2, d):
         return False
     e0, e1, e2 = qx - c[0], qy - c[1], qz - c[2]
     t = e0 * d[0] + e1 * d[1] + e2 * d[2]

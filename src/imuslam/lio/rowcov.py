@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from scipy.sparse.linalg import splu
 
 from imuslam.lio.matcher import Correspondences, LocalMap
-from imuslam.lio.residuals import _eigvals3, _eigvec3, fit_lines, fit_planes
+from imuslam.lio.residuals import eigvals3, eigvec3, fit_lines, fit_planes
 
 FloatArray = NDArray[np.float64]
 
@@ -133,8 +133,8 @@ def _row_noise(q: FloatArray, n: FloatArray, c: FloatArray, X: FloatArray, o: Fl
                     + w2 * (a * e2[0] + b * e2[1] + cc * e2[2])
                 )
         else:
-            lam0, lam1, lam2 = _eigvals3(s00, s01, s02, s11, s12, s22)
-            if not _eigvec3(s00, s01, s02, s11, s12, s22, lam2, d):
+            lam0, lam1, lam2 = eigvals3(s00, s01, s02, s11, s12, s22)
+            if not eigvec3(s00, s01, s02, s11, s12, s22, lam2, d):
                 d[0], d[1], d[2] = 0.0, 0.0, 0.0
             tq = (u0 * d[0] + u1 * d[1] + u2 * d[2]) / max(lam2, 1e-12)
             for j in range(k):
