@@ -1,7 +1,7 @@
 """LiDAR-inertial odometry on the simulator against KISS-ICP, measured in the same run.
 
     PYTHONPATH=src python bench/lio.py main      # street loop (4 laps, 137 s): imuslam modes/states vs KISS-ICP
-    PYTHONPATH=src python bench/lio.py imu       # raw vs calibrated IMU x {reduced, full} x {none, kf, stkf, rwnn}
+    PYTHONPATH=src python bench/lio.py imu       # raw vs calibrated IMU x {reduced, full} x {none, kf, stkf, rwnn}, fading factor
     PYTHONPATH=src python bench/lio.py rotating  # IMU and LiDAR on a 10 Hz rotating platform vs fixed mount
     PYTHONPATH=src python bench/lio.py corridor  # LiDAR-only vs LIO in the corridor (degenerate for LiDAR)
     PYTHONPATH=src python bench/lio.py memory    # map size and peak RSS over a 30-minute drive (streamed)
