@@ -53,6 +53,9 @@ VO_BIAS_S = [0.0]
 SIM: dict[str, bool] = {"ground_following": True}
 # ``--separate-vo``: the VO rate and velocity as two independent updates (``VioConfig.vo_joint`` false)
 FILTER: dict[str, object] = {}
+# ``--vo-model relative``: the filter reads each VO pair against a clone of the pose at its start
+# (``VioConfig.vo_model``); the covariance scales are then calibrated with that filter as well
+MODEL: dict[str, object] = {}
 
 
 def _cache_tag() -> str:
@@ -284,7 +287,7 @@ def calibrate_vo_cov(
         nis = {"vo_velocity": [], "vo_rate": []}  # type: dict[str, list[float]]
         for cr, cv in cals:
             r = run_vio(cr, VioConfig(nhc=True, nhc_std=0.002, vo_cov_scale=s_vel, **GATE, **VO_BIAS,
-                                      vo_rate_cov_scale=s_rate, **corr),  # type: ignore[arg-type]
+                                      vo_rate_cov_scale=s_rate, **corr, **MODEL),  # type: ignore[arg-type]
                         vo_run=cv)  # fmt: skip
             for k in nis:
                 nis[k] += [
@@ -848,12 +851,16 @@ def main(argv: list[str]) -> None:
                     "pitching body: the vertical NHC off by 1.2e-3 m/s RMS)")  # fmt: skip
     ap.add_argument("--separate-vo", action="store_true",
                     help="sim, nhc: VO rate and velocity as two independent updates (vo_joint false)")  # fmt: skip
+    ap.add_argument("--vo-model", choices=["rate", "relative"], default="rate",
+                    help="sim, nhc: how the filter reads the VO (VioConfig.vo_model)")  # fmt: skip
     ap.add_argument("--only", choices=["all", "vo", "ekf"], default="all", help="speed: one part")
     a = ap.parse_args(argv)
     GATE["gate_prob"] = a.gate_prob
     SIM["ground_following"] = not a.pitching_robot
     if a.separate_vo:
         FILTER["vo_joint"] = False
+    if a.vo_model != "rate":
+        FILTER["vo_model"] = MODEL["vo_model"] = a.vo_model
     VO_BIAS_S[0] = a.vo_bias
     if a.what == "speed":
         speed(a.only)

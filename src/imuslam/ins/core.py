@@ -87,11 +87,15 @@ class ErrorLayout:
     """Which blocks the error state has and where: always TH (attitude), P, V; optionally BA, BG, G.
 
     Blocks are 3 wide and in the order TH, P, V, BA, BG, G. ``offsets`` (6,) int64 gives each block's
-    first index or -1 (for compiled kernels)."""
+    first index or -1 (for compiled kernels). ``extra`` states follow them (from index ``base_dim``):
+    the propagation leaves them unchanged (identity transition, no process noise) and ``boxplus``
+    ignores them, so their owner keeps their nominal values (e.g. a stochastic clone of an earlier
+    pose, whose covariance with the current state the propagation carries along)."""
 
     accel_bias: bool = True
     gyro_bias: bool = True
     gravity: bool = False
+    extra: int = 0
 
     @property
     def offsets(self) -> IntArray:
@@ -103,8 +107,13 @@ class ErrorLayout:
         return np.array(off, dtype=np.int64)
 
     @property
-    def dim(self) -> int:
+    def base_dim(self) -> int:
+        """The inertial blocks' dimension (without ``extra``)."""
         return 9 + 3 * (int(self.accel_bias) + int(self.gyro_bias) + int(self.gravity))
+
+    @property
+    def dim(self) -> int:
+        return self.base_dim + self.extra
 
     def _slice(self, k: int, name: str) -> slice:
         o = int(self.offsets[k])

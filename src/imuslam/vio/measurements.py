@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.geometry import hat
+from imuslam.geometry import exp, hat, log, right_jacobian
 from imuslam.ins.core import ErrorLayout, InsState
 
 FloatArray = NDArray[np.float64]
@@ -185,3 +185,128 @@ class VoVelocityGivenRate:
         H = H_v.copy()
         H[:, layout.BG] += self.gain  # - G H_w with H_w = -I on the gyro bias
         return r_v - self.gain @ r_w, H, self.cov
+
+
+@dataclass
+class VoClone:
+    """The pose at a frame pair's start kept in the error state (stochastic cloning: Roumeliotis and
+    Burdick, "Stochastic cloning: a generalized framework for processing relative state measurements",
+    ICRA 2002): nominal ``R_n_b`` (3, 3) and ``p_n`` (3,), its error ``[dtheta_c, dp_c]`` at index
+    ``offset`` of the error state (attitude right-perturbed, position additive, as the core's)."""
+
+    R_n_b: FloatArray
+    p_n: FloatArray
+    offset: int
+
+    @property
+    def TH(self) -> slice:
+        return slice(self.offset, self.offset + 3)
+
+    @property
+    def P(self) -> slice:
+        return slice(self.offset + 3, self.offset + 6)
+
+
+def _relative_rotation(
+    omega_b: FloatArray, dt: float, clone: VoClone, x: InsState, layout: ErrorLayout
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Residual (3,) in rate units, Jacobian (3, dim) and the right Jacobian of the measured rotation
+    ``z = omega_b dt`` (its noise ``e`` enters as ``Exp(z + dz) ~ Exp(z) Exp(J_r(z) dz)``)."""
+    dR = clone.R_n_b.T @ x.R_n_b
+    z = omega_b * dt
+    r = log(dR.T @ exp(z)) / dt
+    H = np.zeros((3, layout.dim))
+    H[:, layout.TH] = np.eye(3) / dt
+    H[:, clone.TH] = -dR.T / dt
+    return r, H, right_jacobian(z)
+
+
+@dataclass
+class VoRelativeRotation:
+    """The rotation between a frame pair's two frames from VO (``omega_b`` rad/s, the mean body rate
+    over ``dt`` s, covariance (3, 3)) against the filter's attitude change since the clone taken at the
+    pair's start. With the right perturbation ``R = R_hat Exp(dtheta)``,
+    ``R_c^T R ~ dR_hat Exp(dtheta - dR_hat^T dtheta_c)``, so the residual ``Log(dR_hat^T Exp(omega_b dt))``
+    has ``H_theta = I`` and ``H_theta_c = -dR_hat^T`` (divided by ``dt``: rate units). Unlike
+    :class:`VoRate` it corrects the attitude itself, not only the gyro bias: the gyro's white noise over
+    the interval is process noise of the attitude here, not measurement noise."""
+
+    omega_b: FloatArray
+    cov: FloatArray
+    dt: float
+    clone: VoClone
+    kind: str = "vo_rate"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        r, H, Jr = _relative_rotation(self.omega_b, self.dt, self.clone, x, layout)
+        return r, H, Jr @ self.cov @ Jr.T
+
+
+def _relative_translation(
+    vel_b: FloatArray,
+    omega_b: FloatArray,
+    dt: float,
+    clone: VoClone,
+    x: InsState,
+    layout: ErrorLayout,
+) -> tuple[FloatArray, FloatArray]:
+    """VO's mean velocity over the pair, in the body frame at mid-interval: ``Exp(-z / 2) R_c^T (p - p_c)
+    / dt`` with the measured rotation ``z = omega_b dt``. Residual (3,) and Jacobian (3, dim):
+    ``H_p = A / dt``, ``H_p_c = -A / dt``, ``H_theta_c = Exp(-z / 2) [R_c^T (p - p_c)]x / dt``
+    (``A = Exp(-z / 2) R_c^T``; ``Exp(-dtheta_c) R_c^T d ~ R_c^T d + [R_c^T d]x dtheta_c``)."""
+    d = x.p_n - clone.p_n
+    half = exp(-0.5 * omega_b * dt)
+    A = half @ clone.R_n_b.T
+    H = np.zeros((3, layout.dim))
+    H[:, layout.P] = A / dt
+    H[:, clone.P] = -A / dt
+    H[:, clone.TH] = half @ hat(clone.R_n_b.T @ d) / dt
+    return vel_b - A @ d / dt, H
+
+
+@dataclass
+class VoRelativeTranslation:
+    """VO's mean body velocity over a frame pair (m/s, body frame at mid-interval, covariance (3, 3)) as
+    the translation since the clone at the pair's start (:func:`_relative_translation`), alone."""
+
+    vel_b: FloatArray
+    cov: FloatArray
+    omega_b: FloatArray
+    dt: float
+    clone: VoClone
+    kind: str = "vo_velocity"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        r, H = _relative_translation(self.vel_b, self.omega_b, self.dt, self.clone, x, layout)
+        return r, H, self.cov
+
+
+@dataclass
+class VoRelativeTranslationGivenRotation:
+    """:class:`VoRelativeTranslation` conditioned on the :class:`VoRelativeRotation` of the same pair
+    (applied after it), as :class:`VoVelocityGivenRate` does for the rate form: with the joint noise of
+    ``[J_r e_w, e_v]`` and ``G = C_vw J_r^T (J_r C_ww J_r^T)^-1``, residual ``r_v - G r_w``, Jacobian
+    ``H_v - G H_w``, covariance ``C_vv - G J_r C_wv``; both residuals at the current state."""
+
+    vel_b: FloatArray
+    omega_b: FloatArray
+    cov_ww: FloatArray
+    cov_wv: FloatArray
+    cov_vv: FloatArray
+    dt: float
+    clone: VoClone
+    kind: str = "vo_velocity"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        r_w, H_w, Jr = _relative_rotation(self.omega_b, self.dt, self.clone, x, layout)
+        r_v, H_v = _relative_translation(self.vel_b, self.omega_b, self.dt, self.clone, x, layout)
+        c_wv = Jr @ self.cov_wv
+        G = np.linalg.solve(Jr @ self.cov_ww @ Jr.T, c_wv).T
+        cov = self.cov_vv - G @ c_wv
+        return r_v - G @ r_w, H_v - G @ H_w, 0.5 * (cov + cov.T)

@@ -38,7 +38,16 @@ from imuslam.io.imulog import ImuLog
 from imuslam.io.trajectory import Trajectory
 from imuslam.vio.covcal import apply_vo_cov_correction
 from imuslam.vio.frontend import StereoVO, VoConfig, VoMeasurement, VoStats
-from imuslam.vio.measurements import NonHolonomic, VoRate, VoVelocity, VoVelocityGivenRate
+from imuslam.vio.measurements import (
+    NonHolonomic,
+    VoClone,
+    VoRate,
+    VoRelativeRotation,
+    VoRelativeTranslation,
+    VoRelativeTranslationGivenRotation,
+    VoVelocity,
+    VoVelocityGivenRate,
+)
 
 FloatArray = NDArray[np.float64]
 U8Image = NDArray[np.uint8]
@@ -129,6 +138,14 @@ class VioConfig(BaseModel):
         description="VO rate and velocity of a frame pair as one measurement with their cross-covariance "
         "(the rate update, then the velocity conditioned on the rate; measurements.VoVelocityGivenRate); "
         "False: two independent updates, the cross-covariance dropped",
+    )
+    vo_model: Literal["rate", "relative"] = Field(
+        "rate",
+        description="how the filter reads a frame pair's VO: 'rate', the mean body rate against the mean "
+        "gyro (it observes the gyro bias) and the body velocity at the pair's mid-time (seed 004); "
+        "'relative', the pair's rotation and translation against the pose cloned at the pair's start "
+        "(stochastic cloning, measurements.VoRelativeRotation): the VO then corrects the attitude and "
+        "position themselves. 'relative' runs the Python filter (compiled is ignored)",
     )
     compiled: bool = Field(
         True,
@@ -227,7 +244,15 @@ class VioFilter:
             if sel.sum() > 10:
                 noise = KfNoise.from_log(self.acc[sel], self.gyr[sel], imu.rate_hz, floor=noise)
         self.noise = noise
-        self.kf = Eskf(x0, P=P0, noise=noise, layout=ErrorLayout.full())
+        self.clone: VoClone | None = None
+        if cfg.vo_model == "relative":  # the pose at the pair's start, cloned into the error state
+            lay = ErrorLayout(True, True, False, extra=6)
+            Pa = np.zeros((lay.dim, lay.dim))
+            Pa[: lay.base_dim, : lay.base_dim] = P0
+            self.kf = Eskf(x0, P=Pa, noise=noise, layout=lay)
+            self._clone()
+        else:
+            self.kf = Eskf(x0, P=P0, noise=noise, layout=ErrorLayout.full())
         self.t = t0_s
         self.stats: dict[str, GateStats] = {}
         self._t: list[FloatArray] = [np.array([t0_s])]
@@ -239,6 +264,18 @@ class VioFilter:
         self.next_nhc = t0_s + 1.0 / cfg.nhc_rate_hz
         self.R_b_v = rpy_matrix(cfg.vehicle_rpy_deg)
         self.p_b_v = np.asarray(cfg.vehicle_p_b, float)
+
+    def _clone(self) -> None:
+        """Clone the current attitude and position (their error rows and columns of P, and their nominal
+        values) into the extra states, replacing the former clone."""
+        lay = self.kf.layout
+        o = lay.base_dim
+        idx = np.r_[np.arange(lay.TH.start, lay.TH.stop), np.arange(lay.P.start, lay.P.stop)]
+        P = self.kf.P
+        P[o : o + 6, :] = P[idx, :]
+        P[:, o : o + 6] = P[:, idx]
+        x = self.kf.x
+        self.clone = VoClone(x.R_n_b.copy(), x.p_n.copy(), o)
 
     def sample_at(self, t: float) -> tuple[FloatArray, FloatArray]:
         """Interpolated (accel, gyro) at time t."""
@@ -301,6 +338,10 @@ class VioFilter:
             nis = res.nis
         st.nis.append(nis)
         st.accepted_mask.append(res.accepted)
+        if res.accepted and self.clone is not None:  # the clone's share of the correction
+            c = self.clone
+            c.R_n_b = c.R_n_b @ exp(res.dx[c.TH])
+            c.p_n = c.p_n + res.dx[c.P]
         if res.accepted:
             st.accepted += 1
         else:
@@ -326,15 +367,9 @@ class VioFilter:
         (:class:`~imuslam.vio.measurements.VoVelocityGivenRate`); otherwise it is applied alone. Returns
         whether the velocity update was accepted (True without one). This is the reference (one Python
         call per event); :class:`CompiledVioFilter` does the same in one compiled call."""
-        cfg = self.cfg
-        while cfg.nhc and self.next_nhc < t_s:
-            self.advance(self.next_nhc)
-            gyro = self.sample_at(self.next_nhc)[1]
-            self.update(
-                NonHolonomic(cfg.nhc_std, gyro, self.R_b_v, self.p_b_v, cfg.nhc_std_vertical), 2
-            )
-            self.mark()
-            self.next_nhc += 1.0 / cfg.nhc_rate_hz
+        if self.clone is not None:
+            return self._frame_relative(t_s, vel_b, cov_vel, omega_b, cov_omega, t0_s, t1_s, cov_wv)
+        self._nhc_until(t_s)
         self.advance(t_s)
         ok_v = ok_w = True
         rate = None
@@ -353,6 +388,64 @@ class VioFilter:
                 )  # fmt: skip
             else:
                 ok_v = self.update(VoVelocity(vel_b, cov_vel), 3)
+        self.mark()
+        return ok_v
+
+    def _nhc_until(self, t_s: float) -> None:
+        """The non-holonomic updates due before ``t_s`` (when ``cfg.nhc``), each with a record."""
+        cfg = self.cfg
+        while cfg.nhc and self.next_nhc < t_s:
+            self.advance(self.next_nhc)
+            gyro = self.sample_at(self.next_nhc)[1]
+            self.update(
+                NonHolonomic(cfg.nhc_std, gyro, self.R_b_v, self.p_b_v, cfg.nhc_std_vertical), 2
+            )
+            self.mark()
+            self.next_nhc += 1.0 / cfg.nhc_rate_hz
+
+    def _frame_relative(
+        self,
+        t_s: float,
+        vel_b: FloatArray | None,
+        cov_vel: FloatArray | None,
+        omega_b: FloatArray | None,
+        cov_omega: FloatArray | None,
+        t0_s: float,
+        t1_s: float,
+        cov_wv: FloatArray | None,
+    ) -> bool:
+        """:meth:`frame` with ``vo_model: relative``: to the pair's start ``t0_s`` (clone there), to its
+        end ``t1_s``, then the VO rotation and translation against the clone (the translation
+        conditioned on the rotation when ``cov_wv`` is given). A pair that starts before the filter's
+        current time (the first, whose mid-time starts the filter) only moves the filter to its end.
+        Without a measurement: to ``t_s``."""
+        if omega_b is None and vel_b is None:
+            self._nhc_until(t_s)
+            self.advance(t_s)
+            self.mark()
+            return True
+        usable = self.t <= t0_s + 1e-9
+        if usable:
+            self._nhc_until(t0_s)
+            self.advance(t0_s)
+            self._clone()
+        self._nhc_until(t1_s)
+        self.advance(t1_s)
+        ok_v = ok_w = True
+        if usable:
+            assert self.clone is not None
+            dt = t1_s - t0_s
+            w = omega_b if omega_b is not None else np.zeros(3)
+            if omega_b is not None and cov_omega is not None:
+                ok_w = self.update(VoRelativeRotation(omega_b, cov_omega, dt, self.clone), 3)
+            if vel_b is not None and cov_vel is not None:
+                if omega_b is not None and cov_omega is not None and ok_w and cov_wv is not None:
+                    meas: Measurement = VoRelativeTranslationGivenRotation(
+                        vel_b, omega_b, cov_omega, cov_wv, cov_vel, dt, self.clone
+                    )
+                else:
+                    meas = VoRelativeTranslation(vel_b, cov_vel, w, dt, self.clone)
+                ok_v = self.update(meas, 3)
         self.mark()
         return ok_v
 
@@ -771,9 +864,8 @@ def run_vio(
             P0[lay.BG, lay.BG] = m.cov[:3, :3] + np.eye(3) * (
                 cfg.init_std_bg**2 + cfg.noise.gyro**2 / max(m.dt, 1e-3)
             )
-            filt = (CompiledVioFilter if cfg.compiled else VioFilter)(
-                imu, t_ref, x0, P0, t_mid, cfg
-            )
+            compiled = cfg.compiled and cfg.vo_model == "rate"
+            filt = (CompiledVioFilter if compiled else VioFilter)(imu, t_ref, x0, P0, t_mid, cfg)
             filt.mark()
             # the IMU alone from the same state
             sel = (t_imu > t_mid) & (imu.t_ns <= vo_run.frames[-1][0] + 50_000_000)
