@@ -853,6 +853,8 @@ def main(argv: list[str]) -> None:
                     help="sim, nhc: VO rate and velocity as two independent updates (vo_joint false)")  # fmt: skip
     ap.add_argument("--vo-model", choices=["rate", "relative"], default="rate",
                     help="sim, nhc: how the filter reads the VO (VioConfig.vo_model)")  # fmt: skip
+    ap.add_argument("--init-std-yaw", type=float, default=1.0,
+                    help="husky: the wheel EKF's start yaw sigma, rad")  # fmt: skip
     ap.add_argument("--only", choices=["all", "vo", "ekf"], default="all", help="speed: one part")
     a = ap.parse_args(argv)
     GATE["gate_prob"] = a.gate_prob
@@ -881,7 +883,7 @@ def main(argv: list[str]) -> None:
     else:
         from imuslam.vio.wheel import husky_study
 
-        husky_study(DATA / "robot_localization_husky" / "test1.bag")
+        husky_study(DATA / "robot_localization_husky" / "test1.bag", a.init_std_yaw)
 
 
 if __name__ == "__main__":

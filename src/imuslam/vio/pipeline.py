@@ -156,7 +156,16 @@ class VioConfig(BaseModel):
     level_window_s: float = Field(
         0.5, gt=0, description="IMU averaged for the initial roll and pitch"
     )
-    init_std_theta: float = Field(0.02, gt=0, description="rad (roll, pitch; yaw is free: 1 rad)")
+    init_std_theta: float = Field(0.02, gt=0, description="rad (roll, pitch)")
+    init_std_yaw: float = Field(
+        1e-6,
+        gt=0,
+        description="rad. No measurement here observes the absolute yaw, so the start's yaw defines the "
+        "navigation frame (a gauge, fixed by a near-zero sigma). A large sigma without the matching "
+        "correlation of the velocity (whose start is the first VO velocity rotated by that yaw) lets "
+        "velocity residuals turn the heading: with 1 rad the rendered seeds' mean ATE was 0.0141 m "
+        "(NHC off) / 0.0125 m (on), with 1e-6 0.0116 / 0.0079 m (bench/vio.py nhc)",
+    )
     init_std_ba: float = Field(0.1, gt=0, description="m/s^2")
     init_std_bg: float = Field(
         0.002, gt=0, description="rad/s, added to the first VO rate's covariance (bias change)"
@@ -857,7 +866,7 @@ def run_vio(
             x0 = InsState(np.zeros(3), v0, R0, np.zeros(3), bg0, np.array([0.0, 0.0, -cfg.g]))
             lay = ErrorLayout.full()
             P0 = np.zeros((lay.dim, lay.dim))
-            P0[lay.TH, lay.TH] = np.diag([cfg.init_std_theta**2] * 2 + [1.0])
+            P0[lay.TH, lay.TH] = np.diag([cfg.init_std_theta**2] * 2 + [cfg.init_std_yaw**2])
             P0[lay.P, lay.P] = np.eye(3) * 1e-8
             P0[lay.V, lay.V] = R0 @ m.cov[3:, 3:] @ R0.T + np.eye(3) * 1e-4
             P0[lay.BA, lay.BA] = np.eye(3) * cfg.init_std_ba**2
