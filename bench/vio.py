@@ -853,8 +853,11 @@ def main(argv: list[str]) -> None:
                     help="sim, nhc: VO rate and velocity as two independent updates (vo_joint false)")  # fmt: skip
     ap.add_argument("--vo-model", choices=["rate", "relative"], default="rate",
                     help="sim, nhc: how the filter reads the VO (VioConfig.vo_model)")  # fmt: skip
-    ap.add_argument("--init-std-yaw", type=float, default=1.0,
-                    help="husky: the wheel EKF's start yaw sigma, rad")  # fmt: skip
+    ap.add_argument("--init-std-yaw", type=float, default=None,
+                    help="husky: the wheel EKF's start yaw sigma, rad (default: the filter's)")  # fmt: skip
+    ap.add_argument("--gyro-bias-rw", type=float, default=None,
+                    help="husky: the gyro bias walk, rad/s^2/sqrt(Hz) (default: the study's, "
+                    "vio.wheel.HUSKY_GYRO_BIAS_RW)")  # fmt: skip
     ap.add_argument("--only", choices=["all", "vo", "ekf"], default="all", help="speed: one part")
     a = ap.parse_args(argv)
     GATE["gate_prob"] = a.gate_prob
@@ -881,9 +884,10 @@ def main(argv: list[str]) -> None:
     elif a.what == "sim":
         sim(a.duration, a.rate, a.seed, a.calib_duration, a.calib_seeds, not a.no_correction)
     else:
-        from imuslam.vio.wheel import husky_study
+        from imuslam.vio.wheel import HUSKY_GYRO_BIAS_RW, husky_study
 
-        husky_study(DATA / "robot_localization_husky" / "test1.bag", a.init_std_yaw)
+        rw = HUSKY_GYRO_BIAS_RW if a.gyro_bias_rw is None else a.gyro_bias_rw
+        husky_study(DATA / "robot_localization_husky" / "test1.bag", rw, a.init_std_yaw)
 
 
 if __name__ == "__main__":
