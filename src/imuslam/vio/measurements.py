@@ -18,10 +18,44 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.geometry import exp, hat, log, right_jacobian
+from imuslam.geometry import exp, hat, left_jacobian, log, right_jacobian
 from imuslam.ins.core import ErrorLayout, InsState
 
 FloatArray = NDArray[np.float64]
+
+
+def twist_velocity(
+    omega_b: FloatArray, vel_mean_b: FloatArray, cov: FloatArray, dt: float
+) -> tuple[FloatArray, FloatArray]:
+    """The body velocity of a frame pair under a constant twist, from the VO's mean velocity.
+
+    The front end reports the pair's displacement seen from mid-interval over its duration,
+    ``v_mean = exp(-phi/2) p_01 / dt`` with ``phi = omega_b dt``: the chord of the path, shorter than
+    the arc. A body moving with constant rate ``omega_b`` and constant body velocity ``v_b`` travels
+    ``p_01 = dt J_l(phi) v_b`` (``J_l`` the left Jacobian of SO(3), the integral of ``exp(s phi)`` over
+    s in [0, 1]; Sola et al. 2018, "A micro Lie theory", eq. 145), so
+    ``v_b = J_l(phi)^-1 exp(phi/2) v_mean``, the instantaneous body velocity the filter predicts at the
+    pair's mid-time. The mean differs from it by about ``-|v| (|omega| dt)^2 / 24`` along track: on a
+    turning robot a steady shortfall of speed that integrates into an along-track lag.
+
+    ``cov`` (6, 6) is that of ``[omega_b, vel_mean_b]``; returns ``v_b`` (3,) and the (6, 6) covariance
+    of ``[omega_b, v_b]`` (the map's Jacobian by central differences in ``omega_b``)."""
+
+    def f(w: FloatArray) -> tuple[FloatArray, FloatArray]:
+        phi = w * dt
+        B = np.asarray(np.linalg.solve(left_jacobian(phi), exp(0.5 * phi)), dtype=np.float64)
+        return B @ vel_mean_b, B
+
+    v_b, B = f(omega_b)
+    J = np.eye(6)
+    J[3:, 3:] = B
+    eps = 1e-6
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = eps
+        J[3:, i] = (f(omega_b + d)[0] - f(omega_b - d)[0]) / (2 * eps)
+    out = J @ cov @ J.T
+    return v_b, np.asarray(0.5 * (out + out.T), dtype=np.float64)
 
 
 @dataclass

@@ -47,6 +47,7 @@ from imuslam.vio.measurements import (
     VoRelativeTranslationGivenRotation,
     VoVelocity,
     VoVelocityGivenRate,
+    twist_velocity,
 )
 
 FloatArray = NDArray[np.float64]
@@ -146,6 +147,13 @@ class VioConfig(BaseModel):
         "'relative', the pair's rotation and translation against the pose cloned at the pair's start "
         "(stochastic cloning, measurements.VoRelativeRotation): the VO then corrects the attitude and "
         "position themselves. 'relative' runs the Python filter (compiled is ignored)",
+    )
+    vo_velocity_model: Literal["twist", "mean"] = Field(
+        "twist",
+        description="with vo_model 'rate': 'twist' reads the VO's mean velocity over a pair (the chord "
+        "over the interval) as the constant-twist body velocity at mid-time "
+        "(measurements.twist_velocity); 'mean' takes the chord for the instantaneous velocity, short "
+        "by |v| (|omega| dt)^2 / 24 in turns",
     )
     compiled: bool = Field(
         True,
@@ -898,9 +906,12 @@ def run_vio(
                 m.n_inliers, m.cov_fit, m.var_factor,
             )  # fmt: skip
         cov = vo_cov(m, cfg, M_cov)
+        vel_b = m.vel_b
+        if cfg.vo_model == "rate" and cfg.vo_velocity_model == "twist":
+            vel_b, cov = twist_velocity(m.omega_b, m.vel_b, cov, m.dt)
         args = (
             (m.t_mid_ns - t_ref) * 1e-9,
-            m.vel_b if cfg.vo_velocity else None, cov[3:, 3:],
+            vel_b if cfg.vo_velocity else None, cov[3:, 3:],
             m.omega_b if cfg.vo_rate else None, cov[:3, :3],
             (m.t0_ns - t_ref) * 1e-9, (m.t1_ns - t_ref) * 1e-9,
             cov[:3, 3:] if cfg.vo_joint else None,
