@@ -512,7 +512,7 @@ def nhc_sweep(duration: float, rate: float, seed: int, calib_duration: float) ->
     run, vo_run = _sim_vo(duration, rate, seed)
     truth = run.truth()
     base = {"nhc_std": 0.002, "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate,
-            "vo_cov_correction": M.tolist() if M is not None else None, **GATE}  # fmt: skip
+            "vo_cov_correction": M.tolist() if M is not None else None, **GATE, **FILTER}  # fmt: skip
 
     def one(**kw):  # type: ignore[no-untyped-def]
         res = run_vio(run, VioConfig(**{**base, **kw}), vo_run=vo_run)  # type: ignore[arg-type]
@@ -554,6 +554,38 @@ def nhc_sweep(duration: float, rate: float, seed: int, calib_duration: float) ->
                      f"{res.gating['nhc'].summary()['nis_mean_accepted']:.2f}"))  # fmt: skip
     print(f"seed {seed}: NHC off {off:.4f} m; NHC on with")
     _table(["setting", "ATE NHC on [m]", "NHC cut", "mean NIS nhc (2)"], rows)
+
+
+def white_vo(duration: float, rate: float, seed: int) -> None:
+    """The filter on VO made from the truth with white noise of the covariance it reports (the rendered
+    VO's median 1-sigma: 1.5e-3 m/s, 6e-4 rad/s), three noise draws, NHC off and at several sigmas: the
+    mean NIS per kind and the ATE. The constraint holds exactly on this robot."""
+    from imuslam.eval.vio_compare import compare_tracks
+    from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
+    from imuslam.vio.pipeline import VioConfig, run_vio
+    from imuslam.vio.simvo import truth_vo_run
+
+    run = SimStereoRun(StereoRunConfig(duration_s=duration, image_hz=rate, seed=seed, **SIM))
+    truth = run.truth()
+    draws = (1, 2, 3)
+    vos = [truth_vo_run(run, 1.5e-3, 6e-4, seed=d, skip_every=0) for d in draws]
+    rows = []
+    for sd in (None, 1e-5, 1e-4, 3e-4, 1e-3, 2e-3):
+        cfg = VioConfig(nhc=sd is not None, nhc_std=sd or 0.002, **FILTER)  # type: ignore[arg-type]
+        nis: dict[str, list[str]] = {"nhc": [], "vo_velocity": [], "vo_rate": []}
+        ate = []
+        for vo in vos:
+            res = run_vio(run, cfg, vo_run=vo)
+            ate.append(compare_tracks(truth, {"f": res.fused}, run.t_frames_ns)["f"].ape_trans.rmse)
+            for k in nis:
+                if k in res.gating and res.gating[k].nis:
+                    nis[k].append(f"{res.gating[k].summary()['nis_mean_accepted']:.3f}")
+        rows.append(("off" if sd is None else f"{sd:g}", " / ".join(nis["nhc"]) or "-",
+                     " / ".join(nis["vo_velocity"]), " / ".join(nis["vo_rate"]),
+                     " / ".join(f"{1e3 * a:.2f}" for a in ate)))  # fmt: skip
+    print(f"white VO of known covariance, {duration:g} s at {rate:g} Hz, seed {seed}, noise draws {draws}")
+    _table(["NHC sigma [m/s]", "mean NIS nhc (2)", "mean NIS vo_velocity (3)", "mean NIS vo_rate (3)",
+            "ATE [mm]"], rows)  # fmt: skip
 
 
 def vostats(rate: float, calib_seeds: list[int] | None) -> None:
@@ -834,6 +866,7 @@ def main(argv: list[str]) -> None:
             "trackbias",
             "nhcbias",
             "imgnoise",
+            "whitevo",
         ],
     )
     ap.add_argument("--frames", type=int, default=60, help="trackbias: rendered pairs")
@@ -902,6 +935,8 @@ def main(argv: list[str]) -> None:
         track_bias(a.frames, a.image_noise)
     elif a.what == "imgnoise":
         image_noise()
+    elif a.what == "whitevo":
+        white_vo(a.duration, a.rate, a.seed)
     elif a.what == "sim":
         sim(a.duration, a.rate, a.seed, a.calib_duration, a.calib_seeds, not a.no_correction)
     else:
