@@ -583,7 +583,9 @@ def white_vo(duration: float, rate: float, seed: int) -> None:
         rows.append(("off" if sd is None else f"{sd:g}", " / ".join(nis["nhc"]) or "-",
                      " / ".join(nis["vo_velocity"]), " / ".join(nis["vo_rate"]),
                      " / ".join(f"{1e3 * a:.2f}" for a in ate)))  # fmt: skip
-    print(f"white VO of known covariance, {duration:g} s at {rate:g} Hz, seed {seed}, noise draws {draws}")
+    print(
+        f"white VO of known covariance, {duration:g} s at {rate:g} Hz, seed {seed}, noise draws {draws}"
+    )
     _table(["NHC sigma [m/s]", "mean NIS nhc (2)", "mean NIS vo_velocity (3)", "mean NIS vo_rate (3)",
             "ATE [mm]"], rows)  # fmt: skip
 

@@ -15,10 +15,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.geometry import exp, hat, left_jacobian, log, right_jacobian
+from imuslam.geometry import exp, hat, log, right_jacobian
 from imuslam.ins.core import ErrorLayout, InsState
 
 FloatArray = NDArray[np.float64]
@@ -31,31 +32,61 @@ def twist_velocity(
 
     The front end reports the pair's displacement seen from mid-interval over its duration,
     ``v_mean = exp(-phi/2) p_01 / dt`` with ``phi = omega_b dt``: the chord of the path, shorter than
-    the arc. A body moving with constant rate ``omega_b`` and constant body velocity ``v_b`` travels
-    ``p_01 = dt J_l(phi) v_b`` (``J_l`` the left Jacobian of SO(3), the integral of ``exp(s phi)`` over
-    s in [0, 1]; Sola et al. 2018, "A micro Lie theory", eq. 145), so
-    ``v_b = J_l(phi)^-1 exp(phi/2) v_mean``, the instantaneous body velocity the filter predicts at the
-    pair's mid-time. The mean differs from it by about ``-|v| (|omega| dt)^2 / 24`` along track: on a
-    turning robot a steady shortfall of speed that integrates into an along-track lag.
+    the arc. A body moving with constant rate and constant body velocity ``v_b`` travels
+    ``p_01 = dt J_l(phi) v_b`` (``J_l`` the left Jacobian of SO(3), the mean of ``exp(s phi)`` over s in
+    [0, 1]; Sola et al. 2018, "A micro Lie theory", eq. 145). ``J_l(phi) = exp(phi/2) S`` with ``S`` the
+    mean of ``exp(u phi)`` over u in [-1/2, 1/2], which by Rodrigues' formula is ``I + a [phi]x^2``,
+    ``1 - a theta^2 = sinc(theta/2)``: so ``v_mean = S v_b``, and ``v_b`` keeps the component of
+    ``v_mean`` along the rotation axis and divides the one across it by ``sinc(theta/2)``. The chord
+    is short by about ``|v| (|omega| dt)^2 / 24`` in a turn, a steady shortfall of speed that would
+    integrate into an along-track lag.
 
     ``cov`` (6, 6) is that of ``[omega_b, vel_mean_b]``; returns ``v_b`` (3,) and the (6, 6) covariance
-    of ``[omega_b, v_b]`` (the map's Jacobian by central differences in ``omega_b``)."""
+    of ``[omega_b, v_b]`` through the map's Jacobian (analytic)."""
+    v_b, cov_b = _twist_velocity_nb(
+        np.ascontiguousarray(omega_b, dtype=np.float64),
+        np.ascontiguousarray(vel_mean_b, dtype=np.float64),
+        np.ascontiguousarray(cov, dtype=np.float64),
+        float(dt),
+    )
+    return v_b, cov_b
 
-    def f(w: FloatArray) -> tuple[FloatArray, FloatArray]:
-        phi = w * dt
-        B = np.asarray(np.linalg.solve(left_jacobian(phi), exp(0.5 * phi)), dtype=np.float64)
-        return B @ vel_mean_b, B
 
-    v_b, B = f(omega_b)
+@numba.njit(cache=True)
+def _twist_velocity_nb(
+    w: FloatArray, v: FloatArray, cov: FloatArray, dt: float
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
+    phi = w * dt
+    th2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
+    th = np.sqrt(th2)
+    # v_b = (1 + c) v - d phi (phi . v), c = 1 / sinc(theta/2) - 1, d = c / theta^2
+    if th < 1e-2:  # series (the closed forms lose digits as theta -> 0)
+        c = th2 / 24.0 + 7.0 * th2 * th2 / 5760.0
+        dc_th = 1.0 / 12.0 + 7.0 * th2 / 1440.0  # c'(theta) / theta
+        d = 1.0 / 24.0 + 7.0 * th2 / 5760.0
+        dd_th = 7.0 / 2880.0  # d'(theta) / theta
+    else:
+        h = 0.5 * th
+        sh = np.sin(h)
+        c = h / sh - 1.0
+        dc = 0.5 * (sh - h * np.cos(h)) / (sh * sh)
+        dc_th = dc / th
+        d = c / th2
+        dd_th = (dc / th2 - 2.0 * c / (th2 * th)) / th
+    pv = phi[0] * v[0] + phi[1] * v[1] + phi[2] * v[2]
+    v_b = (1.0 + c) * v - d * pv * phi
     J = np.eye(6)
-    J[3:, 3:] = B
-    eps = 1e-6
-    for i in range(3):
-        d = np.zeros(3)
-        d[i] = eps
-        J[3:, i] = (f(omega_b + d)[0] - f(omega_b - d)[0]) / (2 * eps)
+    for r in range(3):
+        for k in range(3):
+            J[3 + r, 3 + k] = (1.0 + c) * (r == k) - d * phi[r] * phi[k]
+            # d v_b / d phi, times dt for omega
+            J[3 + r, k] = dt * (
+                dc_th * v[r] * phi[k]
+                - d * (pv * (r == k) + phi[r] * v[k])
+                - dd_th * pv * phi[r] * phi[k]
+            )
     out = J @ cov @ J.T
-    return v_b, np.asarray(0.5 * (out + out.T), dtype=np.float64)
+    return v_b, 0.5 * (out + out.T)
 
 
 @dataclass
