@@ -63,6 +63,11 @@ MODEL: dict[str, object] = {}
 # constraint (its NIS 0.35 of 2) lowers the VO velocity's NIS to 2.6-2.75, so a calibration with it
 # shrinks the VO covariance by about 10 % and the NHC-off runs' NIS rise above the band
 NHC: dict[str, object] = {"nhc_std": 0.002, "calib_nhc": False}
+# ``--vo-error fit``: the slowly varying part of the VO velocity error as a Gauss-Markov state, its
+# sigmas and time constant fitted on the calibration seed's errors against its truth
+# (vio.covcal.fit_vo_error); filled by calibrate_vo_cov, read by the filters of sim and nhc
+VO_ERR: dict[str, object] = {}
+VO_ERR_FIT = [False]
 
 
 def _cache_tag() -> str:
@@ -289,12 +294,27 @@ def calibrate_vo_cov(
         print(f"VO covariance shape learnt on seed(s) {cseeds} ({sum(len(e) for e, _ in errs)} "
               f"frames): eigenvalues of M {np.array2string(np.linalg.eigvalsh(M), precision=2)}")  # fmt: skip
     corr = {"vo_cov_correction": M.tolist() if M is not None else None}
+    VO_ERR.clear()
+    if VO_ERR_FIT[0]:
+        from imuslam.vio.covcal import fit_vo_error
+
+        fits = []
+        for cr, cv in cals:
+            ms = [m for _, m in cv.frames if m is not None]
+            fits.append(
+                fit_vo_error(vo_errors(ms, cr.truth)[0], float(np.median([m.dt for m in ms])))
+            )
+        sd = tuple(float(x) for x in np.sqrt(np.mean([np.square(f[0]) for f in fits], axis=0)))
+        VO_ERR.update(vo_error_std=sd, vo_error_tau_s=float(np.mean([f[1] for f in fits])))
+        print(f"VO error's slow part fitted on seed(s) {cseeds}: 1-sigma "
+              f"{np.array2string(np.array(sd), precision=5)} m/s, time constant "
+              f"{VO_ERR['vo_error_tau_s']:.2f} s")  # fmt: skip
     s_vel = s_rate = 1.0
     for _ in range(6):
         nis = {"vo_velocity": [], "vo_rate": []}  # type: dict[str, list[float]]
         for cr, cv in cals:
             r = run_vio(cr, VioConfig(nhc=bool(NHC["calib_nhc"]), nhc_std=NHC["nhc_std"],  # type: ignore[arg-type]
-                                      vo_cov_scale=s_vel, **GATE, **VO_BIAS,
+                                      vo_cov_scale=s_vel, **GATE, **VO_BIAS, **VO_ERR,
                                       vo_rate_cov_scale=s_rate, **corr, **MODEL),  # type: ignore[arg-type]
                         vo_run=cv)  # fmt: skip
             for k in nis:
@@ -332,7 +352,7 @@ def sim(
     # 0.002 m/s is the sigma the study has always used (set for the former robot, whose pitch
     # oscillation of 0.005 rad at 0.3-0.4 m/s made 1.2e-3 m/s RMS of vertical body velocity).
     base = {"nhc_std": NHC["nhc_std"], "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate, **corr,
-            **GATE, **VO_BIAS, **FILTER}  # fmt: skip
+            **GATE, **VO_BIAS, **FILTER, **VO_ERR}  # fmt: skip
     for name, cfg in (
         ("VO + IMU, NHC off", VioConfig(**base)),  # type: ignore[arg-type]
         ("VO + IMU, NHC on", VioConfig(nhc=True, **base)),  # type: ignore[arg-type]
@@ -905,6 +925,9 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--calib-nhc", choices=["on", "off"], default="off",
                     help="sim, nhc, nhcsweep, nhcbias: the NHC in the runs that calibrate the VO "
                     "covariance scales ('on' was the studies' setting before)")  # fmt: skip
+    ap.add_argument("--vo-error", choices=["off", "fit"], default="off",
+                    help="sim, nhc: the VO velocity error's slow part as a Gauss-Markov state fitted "
+                    "on the calibration seed (VioConfig.vo_error_std / vo_error_tau_s; Python filter)")  # fmt: skip
     ap.add_argument("--init-std-yaw", type=float, default=None,
                     help="husky: the wheel EKF's start yaw sigma, rad (default: the filter's)")  # fmt: skip
     ap.add_argument("--gyro-bias-rw", type=float, default=None,
@@ -920,6 +943,7 @@ def main(argv: list[str]) -> None:
         FILTER["vo_model"] = MODEL["vo_model"] = a.vo_model
     if a.vo_velocity_model != "twist":
         FILTER["vo_velocity_model"] = MODEL["vo_velocity_model"] = a.vo_velocity_model
+    VO_ERR_FIT[0] = a.vo_error == "fit"
     NHC["nhc_std"] = a.nhc_std
     NHC["calib_nhc"] = a.calib_nhc == "on"
     VO_BIAS_S[0] = a.vo_bias

@@ -73,3 +73,31 @@ def apply_vo_cov_correction(cov: FloatArray, M: FloatArray) -> FloatArray:
     """``L M L^T`` with ``L L^T = cov`` (6, 6)."""
     L = np.linalg.cholesky(cov)
     return np.asarray(L @ M @ L.T, dtype=np.float64)
+
+
+def fit_vo_error(
+    errors: FloatArray, dt: float, max_lag: int = 4
+) -> tuple[tuple[float, float, float], float]:
+    """A first-order Gauss-Markov model of the slowly varying part of the VO velocity errors: per body
+    axis its 1-sigma (m/s) and one shared time constant (s), from the errors' autocovariance at lags
+    1..``max_lag`` (in frame pairs of ``dt`` s) of ``errors`` (N, 6) ``[omega_b, vel_b]`` against a
+    truth (:func:`vo_errors`, consecutive measurements). The white part shows at lag 0 only; an AR(1)
+    part of variance ``s^2`` and lag-one correlation ``rho`` gives ``s^2 rho^L`` at lag L: ``rho`` on a
+    grid shared by the three axes, ``s^2`` per axis in closed form (least squares, clipped at 0)."""
+    if len(errors) < 10 * max_lag:
+        raise EstimatorError(
+            f"VO error model: {len(errors)} VO measurements with truth; expected at least {10 * max_lag}"
+        )
+    e = errors[:, 3:] - errors[:, 3:].mean(axis=0)
+    lags = np.arange(1, max_lag + 1)
+    c = np.array([np.mean(e[L:] * e[:-L], axis=0) for L in lags])  # (max_lag, 3)
+    best = (np.inf, 0.5, np.zeros(3))
+    for rho in np.linspace(0.2, 0.95, 76):  # a slow part outlives a frame pair
+        g = rho**lags
+        s2 = np.maximum(g @ c / (g @ g), 0.0)
+        cost = float(np.sum((c - np.outer(g, s2)) ** 2))
+        if cost < best[0]:
+            best = (cost, float(rho), s2)
+    _, rho, s2 = best
+    sd = np.sqrt(s2)
+    return (float(sd[0]), float(sd[1]), float(sd[2])), float(-dt / np.log(rho))

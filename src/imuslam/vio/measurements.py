@@ -253,6 +253,34 @@ class VoVelocityGivenRate:
 
 
 @dataclass
+class WithVoError:
+    """A VO velocity measurement (:class:`VoVelocity` or :class:`VoVelocityGivenRate`) whose error has,
+    besides its white part, a slowly varying part ``e`` (3,) m/s, body frame, kept in the error state at
+    index ``offset`` (a first-order Gauss-Markov process, propagated by its owner): the residual is
+    taken against ``v_b + e`` and the Jacobian gains the identity on ``e``.
+
+    The rendered VO's velocity errors are correlated over about three frame pairs (autocorrelation
+    0.05-0.15 at lags of 1-3 pairs, near zero from 5: features tracked through several frames share
+    their sub-pixel errors), which white noise does not describe (Bar-Shalom, Li and Kirubarajan,
+    *Estimation with Applications to Tracking and Navigation*, 2001, sec. 8.2: state augmentation for
+    autocorrelated measurement noise)."""
+
+    inner: VoVelocity | VoVelocityGivenRate
+    error: FloatArray
+    offset: int
+    kind: str = "vo_velocity"
+
+    def linearize(
+        self, x: InsState, layout: ErrorLayout
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        r, H, R = self.inner.linearize(x, layout)
+        H = H.copy()
+        o = self.offset
+        H[:, o : o + 3] += np.eye(3)
+        return r - self.error, H, R
+
+
+@dataclass
 class VoClone:
     """The pose at a frame pair's start kept in the error state (stochastic cloning: Roumeliotis and
     Burdick, "Stochastic cloning: a generalized framework for processing relative state measurements",

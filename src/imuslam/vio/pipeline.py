@@ -20,7 +20,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, NonNegativeFloat
 
 from imuslam.errors import InputError
 from imuslam.geometry import exp
@@ -47,6 +47,7 @@ from imuslam.vio.measurements import (
     VoRelativeTranslationGivenRotation,
     VoVelocity,
     VoVelocityGivenRate,
+    WithVoError,
     twist_velocity,
 )
 
@@ -155,6 +156,18 @@ class VioConfig(BaseModel):
         "(measurements.twist_velocity); 'mean' takes the chord for the instantaneous velocity, short "
         "by |v| (|omega| dt)^2 / 24 in turns",
     )
+    vo_error_std: NonNegativeFloat | tuple[NonNegativeFloat, NonNegativeFloat, NonNegativeFloat] = (
+        Field(
+            0.0,
+            description="with vo_model 'rate': 1-sigma of a slowly varying VO velocity error, m/s, body "
+            "frame, one value or one per body axis (a first-order Gauss-Markov process with time constant "
+            "vo_error_tau_s, three extra states; measurements.WithVoError; vio.covcal.fit_vo_error learns "
+            "it against a truth); 0: off. Runs the Python filter (compiled is ignored)",
+        )
+    )
+    vo_error_tau_s: float = Field(
+        0.6, gt=0, description="time constant of the slowly varying VO velocity error, s"
+    )
     compiled: bool = Field(
         True,
         description="the compiled frame step (vio/kernels.py); False: the Python reference filter",
@@ -262,7 +275,18 @@ class VioFilter:
                 noise = KfNoise.from_log(self.acc[sel], self.gyr[sel], imu.rate_hz, floor=noise)
         self.noise = noise
         self.clone: VoClone | None = None
-        if cfg.vo_model == "relative":  # the pose at the pair's start, cloned into the error state
+        self.vo_error: FloatArray | None = None  # the slowly varying VO velocity error (nominal)
+        self.vo_error_var = np.broadcast_to(np.asarray(cfg.vo_error_std, float) ** 2, (3,)).copy()
+        if cfg.vo_model == "rate" and self.vo_error_var.max() > 0:
+            lay = ErrorLayout(True, True, False, extra=3)
+            Pa = np.zeros((lay.dim, lay.dim))
+            Pa[: lay.base_dim, : lay.base_dim] = P0
+            Pa[lay.base_dim :, lay.base_dim :] = np.diag(self.vo_error_var)
+            self.kf = Eskf(x0, P=Pa, noise=noise, layout=lay)
+            self.vo_error = np.zeros(3)
+        elif (
+            cfg.vo_model == "relative"
+        ):  # the pose at the pair's start, cloned into the error state
             lay = ErrorLayout(True, True, False, extra=6)
             Pa = np.zeros((lay.dim, lay.dim))
             Pa[: lay.base_dim, : lay.base_dim] = P0
@@ -326,6 +350,16 @@ class VioFilter:
         if len(ts) < 2:
             return
         Ps, _, Rs = self.kf.predict(acc, gyr, ts)
+        if (
+            self.vo_error is not None
+        ):  # the Gauss-Markov error's own transition (the core's is identity)
+            o = self.kf.layout.base_dim
+            phi = float(np.exp(-(ts[-1] - ts[0]) / self.cfg.vo_error_tau_s))
+            P = self.kf.P
+            P[o:, :] *= phi
+            P[:, o:] *= phi
+            P[o:, o:] += np.diag(self.vo_error_var) * (1.0 - phi**2)
+            self.vo_error = self.vo_error * phi
         self._t.append(ts[1:-1])
         self._p.append(Ps[1:-1])
         self._R.append(Rs[1:-1])
@@ -345,6 +379,8 @@ class VioFilter:
 
     def update(self, meas: Measurement, dof: int) -> bool:
         """Gated update through the core; returns whether it was accepted."""
+        if self.vo_error is not None and isinstance(meas, VoVelocity | VoVelocityGivenRate):
+            meas = WithVoError(meas, self.vo_error, self.kf.layout.base_dim)
         st = self.stats.setdefault(meas.kind, GateStats(dof))
         if self.cfg.gate_prob is None:  # no gate: the NIS for the statistics, then the update
             r, H, Rm = meas.linearize(self.kf.x, self.kf.layout)
@@ -355,6 +391,9 @@ class VioFilter:
             nis = res.nis
         st.nis.append(nis)
         st.accepted_mask.append(res.accepted)
+        if res.accepted and self.vo_error is not None:  # the VO error's share of the correction
+            o = self.kf.layout.base_dim
+            self.vo_error = self.vo_error + res.dx[o : o + 3]
         if res.accepted and self.clone is not None:  # the clone's share of the correction
             c = self.clone
             c.R_n_b = c.R_n_b @ exp(res.dx[c.TH])
@@ -881,7 +920,7 @@ def run_vio(
             P0[lay.BG, lay.BG] = m.cov[:3, :3] + np.eye(3) * (
                 cfg.init_std_bg**2 + cfg.noise.gyro**2 / max(m.dt, 1e-3)
             )
-            compiled = cfg.compiled and cfg.vo_model == "rate"
+            compiled = cfg.compiled and cfg.vo_model == "rate" and np.max(cfg.vo_error_std) == 0
             filt = (CompiledVioFilter if compiled else VioFilter)(imu, t_ref, x0, P0, t_mid, cfg)
             filt.mark()
             # the IMU alone from the same state
