@@ -241,29 +241,31 @@ def test_twist_velocity_recovers_a_constant_twist() -> None:
     assert np.all(np.abs(emp - cov_b) < tol)
 
 
+def _mean_nis(run: SimStereoRun, vo: VoRun, **kw: object) -> dict[str, tuple[float, float, float]]:
+    """Per measurement kind of one filter run (``VioConfig(**kw)``): the mean NIS of the accepted
+    updates and its 99.9 % chi-square band (2 dof for the NHC, 3 for the VO kinds)."""
+    from scipy.stats import chi2
+
+    out = {}
+    for kind, st in run_vio(run, VioConfig(**kw), vo_run=vo).gating.items():  # type: ignore[arg-type]
+        x = np.asarray(st.nis)[np.asarray(st.accepted_mask, bool)]
+        if len(x):
+            n, d = len(x), {"nhc": 2}.get(kind, 3)
+            lo, hi = chi2.ppf([0.0005, 0.9995], d * n) / n
+            out[kind] = (float(x.mean()), float(lo), float(hi))
+    return out
+
+
 def test_nis_in_band_on_white_vo_with_an_exact_constraint() -> None:
     """VO made from the truth with white noise of the covariance it reports (180 s, 5 Hz, the rendered
     study's sizes): the filter's mean NIS of every kind lies in its 99.9 % chi-square band with the
     NHC off, and with the NHC on at a sigma that matches this exactly holding constraint (1e-5 m/s).
     The study's 0.002 m/s is loose here: the constraint's NIS falls far below its band (that
     looseness is why the VO covariance is calibrated with the NHC off, bench/vio.py)."""
-    from scipy.stats import chi2
-
     run = SimStereoRun(StereoRunConfig(duration_s=180.0, image_hz=5.0, seed=0))
     vo = truth_vo_run(run, 1.5e-3, 6e-4, seed=1, skip_every=0)
-
-    def nis(cfg: VioConfig) -> dict[str, tuple[float, float, float]]:
-        out = {}
-        for kind, st in run_vio(run, cfg, vo_run=vo).gating.items():
-            x = np.asarray(st.nis)[np.asarray(st.accepted_mask, bool)]
-            if len(x):
-                n, d = len(x), {"nhc": 2}.get(kind, 3)
-                lo, hi = chi2.ppf([0.0005, 0.9995], d * n) / n
-                out[kind] = (float(x.mean()), float(lo), float(hi))
-        return out
-
-    off, tight = nis(VioConfig()), nis(VioConfig(nhc=True, nhc_std=1e-5))
-    loose = nis(VioConfig(nhc=True, nhc_std=0.002))
+    off, tight = _mean_nis(run, vo), _mean_nis(run, vo, nhc=True, nhc_std=1e-5)
+    loose = _mean_nis(run, vo, nhc=True, nhc_std=0.002)
     for name, r in (("NHC off", off), ("NHC 1e-5", tight), ("NHC 0.002", loose)):
         print(name, {k: f"{m:.3f} [{lo:.2f}, {hi:.2f}]" for k, (m, lo, hi) in r.items()})
     assert set(off) == {"vo_velocity", "vo_rate"}
@@ -281,8 +283,6 @@ def test_a_slowly_varying_vo_error_modelled_keeps_the_nis_in_band() -> None:
     m/s); with the matching ``vo_error_std`` / ``vo_error_tau_s`` it is inside, and so is the NHC's."""
     from dataclasses import replace
 
-    from scipy.stats import chi2
-
     run = SimStereoRun(StereoRunConfig(duration_s=180.0, image_hz=5.0, seed=0))
     vo = truth_vo_run(run, 1.5e-3, 6e-4, seed=1, skip_every=0)
     rng = np.random.default_rng(101)
@@ -296,19 +296,9 @@ def test_a_slowly_varying_vo_error_modelled_keeps_the_nis_in_band() -> None:
         frames.append((t, m))
     vo = VoRun(frames, vo.stats, vo.seen, vo.unreadable)
 
-    def nis(**kw: object) -> dict[str, tuple[float, float, float]]:
-        out = {}
-        for kind, st in run_vio(run, VioConfig(**kw), vo_run=vo).gating.items():  # type: ignore[arg-type]
-            x = np.asarray(st.nis)[np.asarray(st.accepted_mask, bool)]
-            if len(x):
-                n, d = len(x), {"nhc": 2}.get(kind, 3)
-                lo, hi = chi2.ppf([0.0005, 0.9995], d * n) / n
-                out[kind] = (float(x.mean()), float(lo), float(hi))
-        return out
-
     gm = {"vo_error_std": 1e-3, "vo_error_tau_s": 0.6}
-    white_off, white_on = nis(), nis(nhc=True, nhc_std=1e-5)
-    gm_off, gm_on = nis(**gm), nis(nhc=True, nhc_std=1e-5, **gm)
+    white_off, white_on = _mean_nis(run, vo), _mean_nis(run, vo, nhc=True, nhc_std=1e-5)
+    gm_off, gm_on = _mean_nis(run, vo, **gm), _mean_nis(run, vo, nhc=True, nhc_std=1e-5, **gm)
     for name, r in (("white, NHC off", white_off), ("white, NHC 1e-5", white_on),
                     ("GM, NHC off", gm_off), ("GM, NHC 1e-5", gm_on)):  # fmt: skip
         print(name, {k: f"{m:.3f} [{lo:.2f}, {hi:.2f}]" for k, (m, lo, hi) in r.items()})

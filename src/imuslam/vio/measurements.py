@@ -260,8 +260,8 @@ class WithVoError:
     taken against ``v_b + e`` and the Jacobian gains the identity on ``e``.
 
     The rendered VO's velocity errors are correlated over about three frame pairs (autocorrelation
-    0.05-0.15 at lags of 1-3 pairs, near zero from 5: features tracked through several frames share
-    their sub-pixel errors), which white noise does not describe (Bar-Shalom, Li and Kirubarajan,
+    0.05-0.15 at lags of 1-3 pairs, near zero from 5; features tracked through several frames are one
+    candidate cause, not measured), which white noise does not describe (Bar-Shalom, Li and Kirubarajan,
     *Estimation with Applications to Tracking and Navigation*, 2001, sec. 8.2: state augmentation for
     autocorrelated measurement noise)."""
 
