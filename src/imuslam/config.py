@@ -36,11 +36,18 @@ def load_config(path: str | Path, model: type[ModelT]) -> ModelT:
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        errs = "; ".join(
-            f"field '{'.'.join(map(str, e['loc']))}': {e['msg']} (got {e.get('input')!r:.40})"
-            for e in exc.errors()
-        )
-        raise InputError(f"{p}: {errs}") from None
+        raise InputError(f"{p}: {describe_validation_error(exc)}") from None
+
+
+def describe_validation_error(exc: ValidationError) -> str:
+    """One line for a configuration's validation errors: per error the field and what was expected
+    (a check across fields, which has no field, by its message alone)."""
+    return "; ".join(
+        f"field '{'.'.join(map(str, e['loc']))}': {e['msg']} (got {e.get('input')!r:.40})"
+        if e["loc"]
+        else str(e["msg"]).removeprefix("Value error, ")
+        for e in exc.errors()
+    )
 
 
 def _unknown_keys(data: dict[str, Any], model: type[BaseModel], prefix: str = "") -> list[str]:

@@ -84,6 +84,7 @@ def test_cli_writes_the_results_folder_and_counts_bad_frames(
         ("no_imu_file", r"imu0/data.csv"),
         ("calib_without_cam1", r"cam1/sensor.yaml"),
         ("bad_config", r"config.yaml: .*nhc_std"),
+        ("config_across_fields", r"config.yaml: vo_error_std applies to vo_model 'rate' only"),
         ("bag_without_camchain", r"a bag needs --camchain, --left-topic and --right-topic"),
     ],
 )
@@ -139,6 +140,10 @@ def test_bad_inputs_are_one_line_errors(
     elif case == "bad_config":
         p = tmp_path / "config.yaml"
         p.write_text("nhc_std: -1\n")
+        args += ["--config", str(p)]
+    elif case == "config_across_fields":
+        p = tmp_path / "config.yaml"
+        p.write_text("vo_model: relative\nvo_error_std: 0.001\n")
         args += ["--config", str(p)]
     out = tmp_path / "out"
     code, text = _run(*args, "--out", str(out))

@@ -52,8 +52,10 @@ def register(app: typer.Typer) -> None:
         """Stereo VO + IMU EKF: trajectory.tum (fused), vo.tum, imu.tum, gating.json, plots."""
         import numpy as np
         import yaml
+        from pydantic import ValidationError
         from tqdm import tqdm
 
+        from imuslam.config import describe_validation_error
         from imuslam.errors import InputError
         from imuslam.eval.vio_compare import compare_tracks, plot_vio
         from imuslam.io.atomic import atomic_path
@@ -79,9 +81,8 @@ def register(app: typer.Typer) -> None:
             cfg_d.setdefault("vo", {})["detector"] = detector
         try:
             cfg = VioConfig.model_validate(cfg_d)
-        except Exception as exc:  # pydantic's ValidationError: one line naming the field
-            first = str(exc).splitlines()
-            raise InputError(f"{config or 'options'}: {' '.join(first[1:3]).strip()}") from None
+        except ValidationError as exc:
+            raise InputError(f"{config or 'options'}: {describe_validation_error(exc)}") from None
 
         truth = None
         if dataset == "sim":

@@ -20,7 +20,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, NonNegativeFloat
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, NonNegativeFloat, model_validator
 
 from imuslam.errors import InputError
 from imuslam.geometry import exp
@@ -199,6 +199,14 @@ class VioConfig(BaseModel):
         (0.02, 0.1), description="rad/s, uniform magnitude range"
     )
     outlier_seed: int = 0
+
+    @model_validator(mode="after")
+    def _vo_error_needs_rate(self) -> VioConfig:
+        if self.vo_model != "rate" and np.max(self.vo_error_std) > 0:
+            raise ValueError(
+                f"vo_error_std applies to vo_model 'rate' only (vo_model is '{self.vo_model}')"
+            )
+        return self
 
 
 @dataclass
