@@ -292,9 +292,8 @@ class VioFilter:
             Pa[lay.base_dim :, lay.base_dim :] = np.diag(self.vo_error_var)
             self.kf = Eskf(x0, P=Pa, noise=noise, layout=lay)
             self.vo_error = np.zeros(3)
-        elif (
-            cfg.vo_model == "relative"
-        ):  # the pose at the pair's start, cloned into the error state
+        elif cfg.vo_model == "relative":
+            # the pose at the pair's start, cloned into the error state
             lay = ErrorLayout(True, True, False, extra=6)
             Pa = np.zeros((lay.dim, lay.dim))
             Pa[: lay.base_dim, : lay.base_dim] = P0
@@ -358,9 +357,8 @@ class VioFilter:
         if len(ts) < 2:
             return
         Ps, _, Rs = self.kf.predict(acc, gyr, ts)
-        if (
-            self.vo_error is not None
-        ):  # the Gauss-Markov error's own transition (the core's is identity)
+        if self.vo_error is not None:
+            # the Gauss-Markov error's own transition (the core's is identity)
             o = self.kf.layout.base_dim
             phi = float(np.exp(-(ts[-1] - ts[0]) / self.cfg.vo_error_tau_s))
             P = self.kf.P
