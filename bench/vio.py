@@ -23,6 +23,9 @@
                                          # image; rendered pairs against the true feature positions
     python bench/vio.py imgnoise         # temporal image noise of EuRoC's MT9V034 (consecutive frames of
                                          # the excerpt, at rest) beside the renderer's, same estimator
+    python bench/vio.py frontparts --duration 60 --seeds 1 2 3
+                                         # the front end's error by part: straight / slanted stereo
+                                         # window, shifted / warped tracking, exact disparity or tracks
     python bench/vio.py husky            # wheel odometry + IMU EKF against GPS (robot_localization bag)
 
 The sim study renders every stereo pair (the slow part) once, caches the VO measurements in
@@ -71,7 +74,7 @@ VO_ERR_FIT = [False]
 
 
 def _cache_tag() -> str:
-    return "v3" if SIM["ground_following"] else "v2"
+    return "v4" if SIM["ground_following"] else "v2"
 
 
 def _rate(fn, n: int, repeat: int = 3) -> tuple[float, float]:  # type: ignore[no-untyped-def]
@@ -719,6 +722,96 @@ def vo_error_parts(duration: float, rate: float, seeds: list[int]) -> None:
             "VO velocity NIS, off", "VO velocity NIS, on"], rows)  # fmt: skip
 
 
+def _oracle_vo(duration: float, rate: float, seed: int, vo_cfg, exact: str):  # type: ignore[no-untyped-def]
+    """Render a run and run the front end on it, optionally with the exact disparity (``exact`` holds
+    "depth": ``f b / z`` of the renderer's depth at each matched point) or the exact tracks ("track":
+    each tracked point where its surface point, from the previous frame's depth, projects now). The VO
+    measurements and their errors against the truth."""
+    import imuslam.vio.frontend as fe
+    from imuslam.sim.render import render_stereo
+    from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
+    from imuslam.vio.covcal import vo_errors
+
+    run = SimStereoRun(StereoRunConfig(duration_s=duration, image_hz=rate, seed=seed, **SIM))
+    rect = run.rectification()
+    K, fb = rect.K, rect.K[0, 0] * rect.baseline
+    now: dict[str, np.ndarray] = {}
+
+    def bil(D: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        u0 = np.clip(np.floor(uv[:, 0]).astype(int), 0, D.shape[1] - 2)
+        v0 = np.clip(np.floor(uv[:, 1]).astype(int), 0, D.shape[0] - 2)
+        a, c = uv[:, 0] - u0, uv[:, 1] - v0
+        return ((1 - a) * (1 - c) * D[v0, u0] + a * (1 - c) * D[v0, u0 + 1]
+                + (1 - a) * c * D[v0 + 1, u0] + a * c * D[v0 + 1, u0 + 1])  # fmt: skip
+
+    stereo_match, track = fe.stereo_match, fe.track
+
+    def exact_stereo(left, right, uv, *args):  # type: ignore[no-untyped-def]
+        d, sc = stereo_match(left, right, uv, *args)
+        return np.where(np.isfinite(d), fb / bil(now["D"], uv), d), sc
+
+    def exact_track(p0, p1, c0, c1, uv, *args):  # type: ignore[no-untyped-def]
+        out, sc = track(p0, p1, c0, c1, uv, *args)
+        P = (np.c_[uv, np.ones(len(uv))] @ np.linalg.inv(K).T) * bil(now["D_prev"], uv)[:, None]
+        Pc = (P @ now["R_prev"].T + now["p_prev"] - now["p"]) @ now["R"]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            q = Pc[:, :2] / Pc[:, 2:3] * np.diag(K)[:2] + K[:2, 2]
+        return np.where(np.isfinite(out[:, :1]), q, out), sc
+
+    fe.stereo_match = exact_stereo if "depth" in exact else stereo_match  # type: ignore[assignment]
+    fe.track = exact_track if "track" in exact else track  # type: ignore[assignment]
+    try:
+        vo = fe.StereoVO(rect, vo_cfg)
+        rng = np.random.default_rng(seed + 1_000_003)
+        ms = []
+        for t in run.t_frames_ns:
+            st = run.traj.state(np.array([(t - run.cfg.t0_ns) * 1e-9]))
+            R = st.R_w_b[0] @ run.R_b_c
+            p = st.p_w[0] + st.R_w_b[0] @ run.p_b_c
+            left, right, D = render_stereo(run.world, run.cfg.rig, R, p, rng)
+            now.update(D_prev=now.get("D"), R_prev=now.get("R"), p_prev=now.get("p"), D=D, R=R, p=p)
+            m = vo.process(int(t), left, right)
+            if m is not None:
+                ms.append(m)
+    finally:
+        fe.stereo_match, fe.track = stereo_match, track  # type: ignore[assignment]
+    return ms, *vo_errors(ms, run.truth)[:2]
+
+
+def front_end_parts(duration: float, rate: float, seeds: list[int]) -> None:
+    """Which part of the front end makes the rendered VO's error, and how it is correlated between
+    pairs: the front end with and without the slanted stereo window and the warped tracking, and with
+    the exact disparity or the exact tracks put in (the same renders; errors against the truth)."""
+    from imuslam.vio.frontend import VoConfig
+
+    variants = [
+        ("straight window, shifted patches", VoConfig(warp=False, slanted_stereo=False), ""),
+        ("slanted window, shifted patches", VoConfig(warp=False), ""),
+        ("slanted window, warped patches (default)", VoConfig(), ""),
+        ("default, exact disparity", VoConfig(), "depth"),
+        ("default, exact tracks", VoConfig(), "track"),
+    ]
+    rows = []
+    for name, cfg, exact in variants:
+        rms, acf = [], []
+        for seed in seeds:
+            _, E, C = _oracle_vo(duration, rate, seed, cfg, exact)
+            rms.append(np.sqrt((E**2).mean(axis=0)))
+            Z = E / np.sqrt(np.einsum("nii->ni", C))
+            acf.append(
+                [[np.corrcoef(Z[:-k, j], Z[k:, j])[0, 1] for j in range(6)] for k in (1, 2, 3)]
+            )
+        r, a = np.mean(rms, axis=0), np.mean(acf, axis=0)
+        rows.append((name, f"{1e3 * r[3]:.2f} / {1e3 * r[4]:.2f} / {1e3 * r[5]:.2f}",
+                     f"{1e3 * r[0]:.2f} / {1e3 * r[1]:.2f} / {1e3 * r[2]:.2f}",
+                     " / ".join(f"{a[k, 3:].mean():+.2f}" for k in range(3)),
+                     " / ".join(f"{a[k, :3].mean():+.2f}" for k in range(3))))  # fmt: skip
+    print(f"rendered seeds {seeds}, {duration:g} s at {rate:g} Hz: the VO's errors against the truth "
+          "(autocorrelation of the errors over the reported sigma, mean over the three axes and the seeds)")  # fmt: skip
+    _table(["front end", "velocity RMS x / y / z [1e-3 m/s]", "rate RMS x / y / z [1e-3 rad/s]",
+            "velocity autocorrelation lag 1 / 2 / 3", "rate autocorrelation lag 1 / 2 / 3"], rows)  # fmt: skip
+
+
 def vostats(rate: float, calib_seeds: list[int] | None) -> None:
     """The VO errors of the cached rendered runs against their truth (``sim`` renders them): the
     rate-velocity correlation, the NEES with the shape learnt on ``calib_seeds`` (default 1 and 3, 120 s),
@@ -1000,6 +1093,7 @@ def main(argv: list[str]) -> None:
             "whitevo",
             "asreported",
             "voerrparts",
+            "frontparts",
         ],
     )
     ap.add_argument("--frames", type=int, default=60, help="trackbias: rendered pairs")
@@ -1072,6 +1166,8 @@ def main(argv: list[str]) -> None:
         track_bias(a.frames, a.image_noise)
     elif a.what == "imgnoise":
         image_noise()
+    elif a.what == "frontparts":
+        front_end_parts(a.duration, a.rate, a.seeds)
     elif a.what == "voerrparts":
         vo_error_parts(a.duration, a.rate, a.seeds)
     elif a.what == "asreported":

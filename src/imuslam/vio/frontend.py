@@ -1,8 +1,11 @@
 """Stereo visual odometry on rectified image pairs (seed 004's front end).
 
 Per frame: features of the left image (SIFT keypoints, ORB as an option) are matched into the right
-image along the rectified row by ZNCC and triangulated (``z = f b / d``); on the next frame the features
-are tracked in the left image by ZNCC on a two-level pyramid around a constant-velocity prediction; the
+image along the rectified row by ZNCC and triangulated (``z = f b / d``); the disparity's slopes around
+each point give its local surface, and the disparity is refined with the window slanted by them. On the
+next frame the features are tracked in the left image by ZNCC on a two-level pyramid around a
+constant-velocity prediction, each patch compared through the affine map that its surface and the
+predicted motion give it (a near floor patch grows and shears between frames); the
 motion between the frames comes from RANSAC on the 3D-2D correspondences (``cv2.solvePnPRansac``), then a
 Gauss-Newton refinement in which every point is weighted by its reprojection covariance: tracking noise
 plus its triangulation covariance carried through the projection (far points count less). The inverse
@@ -26,7 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from imuslam.geometry import hat
 from imuslam.geometry.so3_nb import exp_nb, log_nb
 from imuslam.vio.calib import Rectification
-from imuslam.vio.zncc import stereo_match, track
+from imuslam.vio.zncc import disparity_slopes, slanted_disparity, stereo_match, track
 
 FloatArray = NDArray[np.float64]
 log_ = logging.getLogger(__name__)
@@ -57,6 +60,17 @@ class VoConfig(BaseModel):
     pixel_sigma: float = Field(
         0.25, gt=0, description="prior 1-sigma of tracking and stereo matching, px (grows per pair)"
     )
+    warp: bool = Field(
+        True,
+        description="track each patch through the affine map its surface (from the disparity's slopes) "
+        "and the predicted motion give it, instead of a pure shift",
+    )
+    slanted_stereo: bool = Field(
+        True,
+        description="refine each disparity with the window slanted by the disparity's slopes (surfaces "
+        "not facing the camera, such as the floor ahead)",
+    )
+    plane_step_px: int = Field(3, ge=1, description="px; the disparity's slopes span twice this")
     blur_sigma: float = Field(
         1.0,
         ge=0,
@@ -187,8 +201,16 @@ class StereoVO:
         )
         ok = np.isfinite(d) & (d >= c.min_disparity)
         uv, d = uv[ok], d[ok]
+        slopes = np.full((len(d), 2), np.nan)
+        if c.warp or c.slanted_stereo:
+            slopes = disparity_slopes(left, right, uv, d, c.patch_half, c.plane_step_px)
+        if c.slanted_stereo:
+            d = slanted_disparity(left, right, uv, d, slopes, c.patch_half)
+            ok = np.isfinite(d) & (d >= c.min_disparity)
+            uv, d, slopes = uv[ok], d[ok], slopes[ok]
         f, cx, cy, b = r.K[0, 0], r.K[0, 2], r.K[1, 2], r.baseline
         z = f * b / d
+        plane = self._plane(uv, d, slopes) if c.warp else np.zeros((len(d), 3))
         X = np.stack([(uv[:, 0] - cx) * z / f, (uv[:, 1] - cy) * z / r.K[1, 1], z], axis=1)
         # triangulation covariance from (u, v, d) with sigma, sigma, sqrt(2) sigma (d = u_l - u_r)
         s2 = c.pixel_sigma**2
@@ -200,7 +222,26 @@ class StereoVO:
         J[:, 2, 2] = -f * b / d**2
         S = np.diag([s2, s2, 2 * s2])
         cov = J @ S @ np.swapaxes(J, 1, 2)
-        return np.concatenate([uv, X], axis=1), cov
+        return np.concatenate([uv, X, plane], axis=1), cov
+
+    def _plane(self, uv: FloatArray, d: FloatArray, slopes: FloatArray) -> FloatArray:
+        """The local surface of each point as ``m`` (N, 3) with ``m . X = 1`` on it (``m = n / rho`` for
+        the plane ``n . X = rho``), from the disparity's gradient: on a plane the rectified disparity is
+        affine in the pixel, ``d = f b m . K^-1 [u, v, 1]``, so its slopes give ``m_x = d_u / b``,
+        ``m_y = d_v f_y / (f_x b)``. The slopes come from matches ``plane_step_px`` away on either side;
+        where one fails or the slopes are implausible the patch is taken as facing the camera
+        (``m = [0, 0, 1 / z]``)."""
+        r = self.rect
+        fx, fy, cx, cy, b = r.K[0, 0], r.K[1, 1], r.K[0, 2], r.K[1, 2], r.baseline
+        du, dv = slopes[:, 0], slopes[:, 1]
+        m = np.zeros((len(d), 3))
+        m[:, 2] = d / (fx * b)
+        good = np.isfinite(du) & np.isfinite(dv) & (np.abs(du) < 2.0) & (np.abs(dv) < 2.0)
+        mx, my = du / b, dv * fy / (fx * b)
+        m[good, 0] = mx[good]
+        m[good, 1] = my[good]
+        m[good, 2] -= mx[good] * (uv[good, 0] - cx) / fx + my[good] * (uv[good, 1] - cy) / fy
+        return m
 
     # -- motion ---------------------------------------------------------------------------------
     def _refine(
@@ -252,6 +293,25 @@ class StereoVO:
         vf = chi2 / dof
         return R, t, cov, vf
 
+    def _affine(self, uv: FloatArray, m: FloatArray, T: FloatArray) -> FloatArray | None:
+        """Local maps (N, 2, 2) from previous to current pixel offsets around ``uv`` under the predicted
+        motion ``T`` = T_{r_k, r_{k-1}}: the surface ``m . X = 1`` maps by the plane-induced homography
+        ``H = K (R + t m^T) K^-1`` (Hartley & Zisserman, "Multiple View Geometry", 2nd ed., eq. 13.2),
+        whose Jacobian at ``uv`` is ``(H[:2, :2] - q H[2, :2]) / w`` with ``[q w, w] = H [uv, 1]``. None
+        before the first motion is known (no prediction to warp by)."""
+        if np.allclose(T, np.eye(4)):
+            return None
+        K = self.rect.K
+        Hs = K @ (T[:3, :3][None] + T[:3, 3][None, :, None] * m[:, None, :]) @ np.linalg.inv(K)
+        p = np.c_[uv, np.ones(len(uv))]
+        y = np.einsum("nij,nj->ni", Hs, p)
+        w = y[:, 2]
+        q = y[:, :2] / w[:, None]
+        A = (Hs[:, :2, :2] - q[:, :, None] * Hs[:, 2, None, :2]) / w[:, None, None]
+        bad = ~(np.isfinite(A).all(axis=(1, 2)) & (w > 0))
+        A[bad] = np.eye(2)
+        return A
+
     def _to_body(self, T_k_km1: FloatArray, dt: float) -> FloatArray:
         """[omega_b, vel_b] (6,) from the rectified-camera motion T_{r_k, r_{k-1}}."""
         T_bb = self.T_b_r @ _inv(T_k_km1) @ self.T_r_b  # T_{b_{k-1}, b_k}
@@ -289,9 +349,10 @@ class StereoVO:
                 Yp[:, :2] / np.maximum(Yp[:, 2:3], 0.05) * np.diag(K)[:2] + K[:2, 2],
                 prev["uv"],
             )
+            affine = self._affine(prev["uv"], prev["plane"], Tp) if c.warp else None
             uv_new, _ = track(
                 prev["img0"], prev["img1"], left, left1, prev["uv"], pred, c.patch_half,
-                c.patch_half_coarse, c.search_coarse_px, c.search_fine_px, c.min_zncc,
+                c.patch_half_coarse, c.search_coarse_px, c.search_fine_px, c.min_zncc, affine,
             )  # fmt: skip
             ok = np.isfinite(uv_new[:, 0])
             st.tracked.append(int(ok.sum()))
@@ -352,6 +413,6 @@ class StereoVO:
         uvX, covX = self._triangulate(left, right, uv_keep, d_keep)
         self._prev = {
             "t_ns": t_ns, "img0": left, "img1": left1, "uv": uvX[:, :2].copy(),
-            "X": uvX[:, 2:].copy(), "covX": covX,
+            "X": uvX[:, 2:5].copy(), "plane": uvX[:, 5:].copy(), "covX": covX,
         }  # fmt: skip
         return meas

@@ -63,6 +63,41 @@ def _template(
     return True
 
 
+@nb.njit(cache=True)
+def _template_warp(
+    img: F32Array, u: float, v: float, h: int, ainv: FloatArray, out: FloatArray
+) -> bool:  # pragma: no cover - compiled
+    """Like :func:`_template`, sampled at ``(u, v) + ainv @ (du, dv)``: the previous image's patch in the
+    geometry of the current one (``ainv`` the inverse of the local affine map from previous to current
+    pixels)."""
+    H, W = img.shape
+    eu = h * (abs(ainv[0, 0]) + abs(ainv[0, 1]))
+    ev = h * (abs(ainv[1, 0]) + abs(ainv[1, 1]))
+    if u - eu < 0 or v - ev < 0 or u + eu + 1 >= W - 1 or v + ev + 1 >= H - 1:
+        return False
+    s = 0.0
+    k = 0
+    for dv in range(-h, h + 1):
+        for du in range(-h, h + 1):
+            x = _bilinear(
+                img, u + ainv[0, 0] * du + ainv[0, 1] * dv, v + ainv[1, 0] * du + ainv[1, 1] * dv
+            )
+            out[k] = x
+            s += x
+            k += 1
+    m = s / k
+    ss = 0.0
+    for i in range(k):
+        out[i] -= m
+        ss += out[i] * out[i]
+    if ss < 1e-6 * k:
+        return False
+    nrm = np.sqrt(ss)
+    for i in range(k):
+        out[i] /= nrm
+    return True
+
+
 @nb.njit(cache=True, fastmath=True)
 def _score(img: F32Array, U: int, V: int, h: int, tpl: FloatArray) -> float:  # pragma: no cover
     """ZNCC of a normalised template with the integer-centred patch of ``img`` at (U, V)."""
@@ -134,6 +169,85 @@ def _zncc_pair(
     if va_ < 1e-6 * n or vb_ < 1e-6 * n:
         return -1.0
     return (sab - sa * sb / n) / np.sqrt(va_ * vb_)
+
+
+@nb.njit(cache=True, fastmath=True)
+def _zncc_pair_warp(
+    a: F32Array, ua: float, va: float, ainv: FloatArray, b: F32Array, ub: float, vb: float, h: int
+) -> float:  # pragma: no cover - compiled
+    """ZNCC of ``a`` sampled at ``(ua, va) + ainv @ (du, dv)`` with ``b``'s bilinear patch at (ub, vb)."""
+    Ha, Wa = a.shape
+    Hb, Wb = b.shape
+    eu = h * (abs(ainv[0, 0]) + abs(ainv[0, 1]))
+    ev = h * (abs(ainv[1, 0]) + abs(ainv[1, 1]))
+    if ua - eu < 0 or va - ev < 0 or ua + eu + 1 >= Wa - 1 or va + ev + 1 >= Ha - 1:
+        return -2.0
+    if ub - h < 0 or vb - h < 0 or ub + h + 1 >= Wb - 1 or vb + h + 1 >= Hb - 1:
+        return -2.0
+    n = (2 * h + 1) * (2 * h + 1)
+    sa = 0.0
+    sb = 0.0
+    saa = 0.0
+    sbb = 0.0
+    sab = 0.0
+    ib = int(np.floor(ub))
+    jb = int(np.floor(vb))
+    xb = ub - ib
+    yb = vb - jb
+    b00, b01, b10, b11 = (1 - xb) * (1 - yb), xb * (1 - yb), (1 - xb) * yb, xb * yb
+    for dv in range(-h, h + 1):
+        rb = jb + dv
+        for du in range(-h, h + 1):
+            cb = ib + du
+            x = _bilinear(
+                a, ua + ainv[0, 0] * du + ainv[0, 1] * dv, va + ainv[1, 0] * du + ainv[1, 1] * dv
+            )
+            y = (b00 * b[rb, cb] + b01 * b[rb, cb + 1] + b10 * b[rb + 1, cb]
+                 + b11 * b[rb + 1, cb + 1])  # fmt: skip
+            sa += x
+            sb += y
+            saa += x * x
+            sbb += y * y
+            sab += x * y
+    va_ = saa - sa * sa / n
+    vb_ = sbb - sb * sb / n
+    if va_ < 1e-6 * n or vb_ < 1e-6 * n:
+        return -1.0
+    return (sab - sa * sb / n) / np.sqrt(va_ * vb_)
+
+
+@nb.njit(cache=True)
+def _refine_axis_warp(
+    a: F32Array,
+    ua: float,
+    va: float,
+    ainv: FloatArray,
+    b: F32Array,
+    ub: float,
+    vb: float,
+    h: int,
+    axis: int,
+) -> tuple[float, float]:  # pragma: no cover - compiled
+    """:func:`_refine_axis` with ``a`` warped by ``ainv``: an offset o in ``b`` is o/2 there and
+    ``ainv @ (-o/2)`` in ``a``, so the two patches still move symmetrically about the match."""
+    best = -3.0
+    bj = 0
+    sc = np.empty(11)
+    for j in range(11):
+        o = -0.5 + 0.1 * j
+        if axis == 0:
+            sc[j] = _zncc_pair_warp(a, ua - 0.5 * o * ainv[0, 0], va - 0.5 * o * ainv[1, 0], ainv,
+                                    b, ub + 0.5 * o, vb, h)  # fmt: skip
+        else:
+            sc[j] = _zncc_pair_warp(a, ua - 0.5 * o * ainv[0, 1], va - 0.5 * o * ainv[1, 1], ainv,
+                                    b, ub, vb + 0.5 * o, h)  # fmt: skip
+        if sc[j] > best:
+            best = sc[j]
+            bj = j
+    off = -0.5 + 0.1 * bj
+    if 0 < bj < 10 and sc[bj - 1] > -2 and sc[bj + 1] > -2:
+        off += 0.1 * _parabola(sc[bj - 1], best, sc[bj + 1])
+    return (ub if axis == 0 else vb) + off, best
 
 
 @nb.njit(cache=True)
@@ -264,6 +378,114 @@ def stereo_match(
     return disp, best_s
 
 
+@nb.njit(cache=True, fastmath=True)
+def _zncc_slanted(
+    left: F32Array, ul: float, v: float, right: F32Array, ur: float, su: float, sv: float, h: int
+) -> float:  # pragma: no cover - compiled
+    """ZNCC of the left patch at (ul, v) with the right one whose column for the left pixel offset
+    (du, dv) is ``ur + du - (su du + sv dv)``: a window slanted with the disparity's slopes."""
+    H, W = right.shape
+    e = h * (1.0 + abs(su) + abs(sv))
+    if ul - h < 0 or v - h < 0 or ul + h + 1 >= W - 1 or v + h + 1 >= H - 1:
+        return -2.0
+    if ur - e < 0 or ur + e + 1 >= W - 1:
+        return -2.0
+    n = (2 * h + 1) * (2 * h + 1)
+    sa = 0.0
+    sb = 0.0
+    saa = 0.0
+    sbb = 0.0
+    sab = 0.0
+    for dv in range(-h, h + 1):
+        for du in range(-h, h + 1):
+            x = _bilinear(left, ul + du, v + dv)
+            y = _bilinear(right, ur + du - su * du - sv * dv, v + dv)
+            sa += x
+            sb += y
+            saa += x * x
+            sbb += y * y
+            sab += x * y
+    va_ = saa - sa * sa / n
+    vb_ = sbb - sb * sb / n
+    if va_ < 1e-6 * n or vb_ < 1e-6 * n:
+        return -1.0
+    return (sab - sa * sb / n) / np.sqrt(va_ * vb_)
+
+
+@nb.njit(cache=True, parallel=True)
+def slanted_disparity(
+    left: F32Array, right: F32Array, uv: FloatArray, d: FloatArray, slopes: FloatArray, h: int
+) -> FloatArray:  # pragma: no cover - compiled
+    """Disparity (N,) at left points ``uv`` refined within +-1 px of ``d`` with the window slanted by the
+    disparity's ``slopes`` (N, 2): on a surface not facing the camera (the floor ahead of a ground
+    robot) the disparity changes across a straight window, by 0.2 px per row on the rendered floor,
+    and a straight window matches it 0.3-0.5 px off. Offsets o in 0.1 px steps, sampled symmetrically
+    (left at -o/2, right at +o/2, as :func:`_refine_axis`), then a parabola. Where the slopes are NaN
+    the window is straight; NaN where no peak is inside."""
+    n = uv.shape[0]
+    out = np.full(n, np.nan)
+    for i in nb.prange(n):
+        if not np.isfinite(d[i]):
+            continue
+        su = slopes[i, 0]
+        sv = slopes[i, 1]
+        if not (np.isfinite(su) and np.isfinite(sv)):
+            su = 0.0
+            sv = 0.0
+        u = uv[i, 0]
+        v = uv[i, 1]
+        sc = np.empty(21)
+        best = -3.0
+        bj = -1
+        for j in range(21):
+            o = -1.0 + 0.1 * j
+            sc[j] = _zncc_slanted(left, u - 0.5 * o, v, right, u - d[i] + 0.5 * o, su, sv, h)
+            if sc[j] > best:
+                best = sc[j]
+                bj = j
+        if bj <= 0 or bj >= 20 or best <= -1.0:
+            continue
+        off = -1.0 + 0.1 * bj + 0.1 * _parabola(sc[bj - 1], best, sc[bj + 1])
+        out[i] = d[i] - off
+    return out
+
+
+@nb.njit(cache=True, parallel=True)
+def disparity_slopes(
+    left: F32Array, right: F32Array, uv: FloatArray, d: FloatArray, h: int, step: int
+) -> FloatArray:  # pragma: no cover - compiled
+    """Slopes (N, 2) of the disparity across the image, ``[dd/du, dd/dv]``, at left points ``uv`` of
+    disparity ``d``: the disparity ``step`` px to either side along each axis, by ZNCC over whole-pixel
+    steps within +-2 px of ``d`` refined by a parabola, differenced. NaN where a side has no clear
+    peak."""
+    n = uv.shape[0]
+    out = np.full((n, 2), np.nan)
+    for i in nb.prange(n):
+        if not np.isfinite(d[i]):
+            continue
+        dd = np.empty(4)
+        sc = np.empty(5)
+        for k in range(4):
+            du = step if k == 0 else (-step if k == 1 else 0)
+            dv = step if k == 2 else (-step if k == 3 else 0)
+            u = uv[i, 0] + du
+            v = uv[i, 1] + dv
+            best = -3.0
+            bj = -1
+            for j in range(5):
+                sc[j] = _zncc_pair(left, u, v, right, u - d[i] - (j - 2), v, h)
+                if sc[j] > best:
+                    best = sc[j]
+                    bj = j
+            if bj <= 0 or bj >= 4 or best < 0.5:
+                dd[k] = np.nan
+            else:
+                dd[k] = d[i] + (bj - 2) + _parabola(sc[bj - 1], best, sc[bj + 1])
+        out[i, 0] = (dd[0] - dd[1]) / (2 * step)
+        out[i, 1] = (dd[2] - dd[3]) / (2 * step)
+    return out
+
+
 @nb.njit(cache=True)
 def _search(
     img: F32Array, tpl: FloatArray, h: int, U: int, V: int, r: int
@@ -300,7 +522,6 @@ def _search(
     return U - r + bu + ou, V - r + bv + ov, best
 
 
-@nb.njit(cache=True, parallel=True)
 def track(
     prev0: F32Array,
     prev1: F32Array,
@@ -313,13 +534,44 @@ def track(
     r1: int,
     r0: int,
     min_score: float,
-) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
+    affine: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
     """Track points ``uv`` (N, 2) of the previous image into the current one by ZNCC.
 
     Level 1 (half resolution, ``prev1``/``cur1`` from ``cv2.pyrDown``) searches +-``r1`` px around the
-    prediction ``pred`` (N, 2); level 0 refines +-``r0`` px around twice the level-1 peak. Returns the new
-    positions (N, 2) (NaN where lost) and the final scores (N,).
+    prediction ``pred`` (N, 2); level 0 refines +-``r0`` px around twice the level-1 peak. ``affine``
+    (N, 2, 2), optional: the predicted local map from previous to current pixel offsets per point (the
+    patch's scale change and shear under the motion); at full resolution the previous patch is sampled
+    through its inverse, so it is compared in the current image's geometry. Returns the new positions
+    (N, 2) (NaN where lost) and the final scores (N,).
     """
+    n = len(uv)
+    if affine is None:
+        ainv = np.broadcast_to(np.eye(2), (n, 2, 2)).copy()
+    else:
+        ainv = np.linalg.inv(np.asarray(affine, float).reshape(n, 2, 2))
+        bad = ~np.isfinite(ainv).all(axis=(1, 2)) | (np.abs(ainv).max(axis=(1, 2)) > 4.0)
+        ainv[bad] = np.eye(2)
+    return _track(prev0, prev1, cur0, cur1, np.ascontiguousarray(uv, dtype=float),
+                  np.ascontiguousarray(pred, dtype=float), h0, h1, r1, r0, min_score, ainv)  # fmt: skip
+
+
+@nb.njit(cache=True, parallel=True)
+def _track(
+    prev0: F32Array,
+    prev1: F32Array,
+    cur0: F32Array,
+    cur1: F32Array,
+    uv: FloatArray,
+    pred: FloatArray,
+    h0: int,
+    h1: int,
+    r1: int,
+    r0: int,
+    min_score: float,
+    ainv: FloatArray,
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """:func:`track` with the inverse affine maps ``ainv`` (N, 2, 2) given."""
     n = uv.shape[0]
     out = np.full((n, 2), np.nan)
     score = np.full(n, -2.0)
@@ -328,7 +580,12 @@ def track(
         t0 = np.empty((2 * h0 + 1) ** 2)
         if not _template(prev1, 0.5 * uv[i, 0], 0.5 * uv[i, 1], h1, t1):
             continue
-        if not _template(prev0, uv[i, 0], uv[i, 1], h0, t0):
+        ai = ainv[i]
+        warp = max(abs(ai[0, 0] - 1), abs(ai[0, 1]), abs(ai[1, 0]), abs(ai[1, 1] - 1)) * h0 > 0.02
+        if warp:
+            if not _template_warp(prev0, uv[i, 0], uv[i, 1], h0, ai, t0):
+                continue
+        elif not _template(prev0, uv[i, 0], uv[i, 1], h0, t0):
             continue
         pu = pred[i, 0]
         pv = pred[i, 1]
@@ -342,9 +599,14 @@ def track(
             continue
         pu0 = uv[i, 0]
         pv0 = uv[i, 1]
-        u0, _ = _refine_axis(prev0, pu0, pv0, cur0, np.rint(u0), np.rint(v0), h0, 0)
-        v0, _ = _refine_axis(prev0, pu0, pv0, cur0, u0, np.rint(v0), h0, 1)
-        u0, s0 = _refine_axis(prev0, pu0, pv0, cur0, u0, v0, h0, 0)
+        if warp:
+            u0, _ = _refine_axis_warp(prev0, pu0, pv0, ai, cur0, np.rint(u0), np.rint(v0), h0, 0)
+            v0, _ = _refine_axis_warp(prev0, pu0, pv0, ai, cur0, u0, np.rint(v0), h0, 1)
+            u0, s0 = _refine_axis_warp(prev0, pu0, pv0, ai, cur0, u0, v0, h0, 0)
+        else:
+            u0, _ = _refine_axis(prev0, pu0, pv0, cur0, np.rint(u0), np.rint(v0), h0, 0)
+            v0, _ = _refine_axis(prev0, pu0, pv0, cur0, u0, np.rint(v0), h0, 1)
+            u0, s0 = _refine_axis(prev0, pu0, pv0, cur0, u0, v0, h0, 0)
         out[i, 0] = u0
         out[i, 1] = v0
         score[i] = s0
