@@ -421,7 +421,8 @@ def slanted_disparity(
     robot) the disparity changes across a straight window, by 0.2 px per row on the rendered floor,
     and a straight window matches it 0.3-0.5 px off. Offsets o in 0.1 px steps, sampled symmetrically
     (left at -o/2, right at +o/2, as :func:`_refine_axis`), then a parabola. Where the slopes are NaN
-    the window is straight; NaN where no peak is inside."""
+    or shear the window by less than 0.05 px at its edge, ``d`` is returned as it is; NaN where no
+    peak is inside."""
     n = uv.shape[0]
     out = np.full(n, np.nan)
     for i in nb.prange(n):
@@ -429,9 +430,10 @@ def slanted_disparity(
             continue
         su = slopes[i, 0]
         sv = slopes[i, 1]
-        if not (np.isfinite(su) and np.isfinite(sv)):
-            su = 0.0
-            sv = 0.0
+        if not (np.isfinite(su) and np.isfinite(sv)) or h * (abs(su) + abs(sv)) < 0.05:
+            # a window the slopes shear by less than 0.05 px at its edge: the straight match stands
+            out[i] = d[i]
+            continue
         u = uv[i, 0]
         v = uv[i, 1]
         sc = np.empty(21)
