@@ -422,11 +422,13 @@ def sim(
                           max(r["gating"][k]["nis_mean_accepted"] for r in four for k in ("vo_velocity", "vo_rate"))]}  # fmt: skip
 
 
-def nhc_seeds(duration: float, rate: float, seeds: list[int], calib_duration: float) -> None:
+def nhc_seeds(
+    duration: float, rate: float, seeds: list[int], calib_duration: float, correction: bool = True
+) -> None:
     """``sim`` on several evaluated seeds, each with its covariance calibrated on seed + 1
-    (``calib_duration`` s, shape + scales), summarised: the NHC's ATE cut per seed and its mean and
+    (``calib_duration`` s, shape + scales; scales only without ``correction``), summarised: the NHC's ATE cut per seed and its mean and
     spread, good VO rejected (worst of the four filter runs), corrupted rejected, mean NIS in band."""
-    out = {s: sim(duration, rate, s, calib_duration, None, True) for s in seeds}
+    out = {s: sim(duration, rate, s, calib_duration, None, correction) for s in seeds}
     rows = [(f"{s}{' (the README run)' if s == 0 else ''}", f"{r['ate_off']:.4f}", f"{r['ate_on']:.4f}",
              f"{100 * r['nhc_cut']:.1f} %", ", ".join(r["good_rejected_n"]),
              f"{100 * r['good_rejected']:.2f} %", f"{100 * r['corrupted_rejected']:.0f} %",
@@ -434,7 +436,8 @@ def nhc_seeds(duration: float, rate: float, seeds: list[int], calib_duration: fl
             for s, r in out.items()]  # fmt: skip
     cuts = np.array([r["nhc_cut"] for r in out.values()])
     print(f"\nrendered ground robot, {duration:g} s at {rate:g} Hz, seeds {seeds} (calibration: seed + 1, "
-          f"{calib_duration:g} s, shape + scales), gate {GATE['gate_prob']:g}"
+          f"{calib_duration:g} s, {'shape + scales' if correction else 'scales only'}), gate "
+          f"{GATE['gate_prob']:g}"
           + (f", VO bias learnt on the calibration seed's first {VO_BIAS_S[0]:g} s" if VO_BIAS_S[0] else ""))  # fmt: skip
     _table(["seed", "ATE NHC off [m]", "ATE NHC on [m]", "NHC cut", "good VO rejected (off, on, on + "
             "10 %, off + 10 %)", "worst", "corrupted rejected (worst)", "mean NIS in band",
@@ -1110,7 +1113,7 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--calib-seeds", type=int, nargs="+", default=None,
                     help="sim: calibration run seed(s), default seed + 1")  # fmt: skip
     ap.add_argument("--no-correction", action="store_true",
-                    help="sim: block scales only, no learnt covariance shape")  # fmt: skip
+                    help="sim, nhc: block scales only, no learnt covariance shape")  # fmt: skip
     ap.add_argument("--gate-prob", type=float, default=0.999,
                     help="sim, nhc: the filters' chi-square gate probability")  # fmt: skip
     ap.add_argument("--vo-bias", type=float, default=0.0,
@@ -1157,7 +1160,7 @@ def main(argv: list[str]) -> None:
     if a.what == "speed":
         speed(a.only)
     elif a.what == "nhc":
-        nhc_seeds(a.duration, a.rate, a.seeds, a.calib_duration)
+        nhc_seeds(a.duration, a.rate, a.seeds, a.calib_duration, not a.no_correction)
     elif a.what == "nhcsweep":
         nhc_sweep(a.duration, a.rate, a.seed, a.calib_duration)
     elif a.what == "vostats":
