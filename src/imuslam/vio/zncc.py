@@ -418,9 +418,10 @@ def slanted_disparity(
 ) -> FloatArray:  # pragma: no cover - compiled
     """Disparity (N,) at left points ``uv`` refined within +-1 px of ``d`` with the window slanted by the
     disparity's ``slopes`` (N, 2): on a surface not facing the camera (the floor ahead of a ground
-    robot) the disparity changes across a straight window, by 0.2 px per row on the rendered floor,
-    and a straight window matches it 0.3-0.5 px off. Offsets o in 0.1 px steps, sampled symmetrically
-    (left at -o/2, right at +o/2, as :func:`_refine_axis`), then a parabola. Where the slopes are NaN
+    robot) the disparity changes across a straight window, by about 0.2 px per row on the rendered
+    floor, and a straight window matches it about 0.3 px off (median, noise-free). Offsets o in 0.1 px
+    steps, sampled symmetrically (left at -o/2, right at +o/2, as :func:`_refine_axis`), then a
+    parabola. Where the slopes are NaN
     or shear the window by less than 0.05 px at its edge, ``d`` is returned as it is; NaN where no
     peak is inside."""
     n = uv.shape[0]
