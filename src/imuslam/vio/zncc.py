@@ -34,6 +34,34 @@ def _bilinear(img: F32Array, u: float, v: float) -> float:  # pragma: no cover -
     )
 
 
+@nb.njit(cache=True, inline="always")
+def _normalise(out: FloatArray, s: float, k: int) -> bool:  # pragma: no cover - compiled
+    """Make the first ``k`` samples of ``out`` (their sum ``s``) zero-mean and unit-norm; False if flat."""
+    m = s / k
+    ss = 0.0
+    for i in range(k):
+        out[i] -= m
+        ss += out[i] * out[i]
+    if ss < 1e-6 * k:
+        return False
+    nrm = np.sqrt(ss)
+    for i in range(k):
+        out[i] /= nrm
+    return True
+
+
+@nb.njit(cache=True, inline="always")
+def _zncc_sums(
+    sa: float, sb: float, saa: float, sbb: float, sab: float, n: int
+) -> float:  # pragma: no cover - compiled
+    """ZNCC from the sums of two patches of ``n`` samples (-1 if either is flat)."""
+    va_ = saa - sa * sa / n
+    vb_ = sbb - sb * sb / n
+    if va_ < 1e-6 * n or vb_ < 1e-6 * n:
+        return -1.0
+    return (sab - sa * sb / n) / np.sqrt(va_ * vb_)
+
+
 @nb.njit(cache=True)
 def _template(
     img: F32Array, u: float, v: float, h: int, out: FloatArray
@@ -50,17 +78,7 @@ def _template(
             out[k] = x
             s += x
             k += 1
-    m = s / k
-    ss = 0.0
-    for i in range(k):
-        out[i] -= m
-        ss += out[i] * out[i]
-    if ss < 1e-6 * k:
-        return False
-    nrm = np.sqrt(ss)
-    for i in range(k):
-        out[i] /= nrm
-    return True
+    return _normalise(out, s, k)
 
 
 @nb.njit(cache=True)
@@ -85,17 +103,7 @@ def _template_warp(
             out[k] = x
             s += x
             k += 1
-    m = s / k
-    ss = 0.0
-    for i in range(k):
-        out[i] -= m
-        ss += out[i] * out[i]
-    if ss < 1e-6 * k:
-        return False
-    nrm = np.sqrt(ss)
-    for i in range(k):
-        out[i] /= nrm
-    return True
+    return _normalise(out, s, k)
 
 
 @nb.njit(cache=True, fastmath=True)
@@ -164,11 +172,7 @@ def _zncc_pair(
             saa += x * x
             sbb += y * y
             sab += x * y
-    va_ = saa - sa * sa / n
-    vb_ = sbb - sb * sb / n
-    if va_ < 1e-6 * n or vb_ < 1e-6 * n:
-        return -1.0
-    return (sab - sa * sb / n) / np.sqrt(va_ * vb_)
+    return _zncc_sums(sa, sb, saa, sbb, sab, n)
 
 
 @nb.njit(cache=True, fastmath=True)
@@ -209,11 +213,7 @@ def _zncc_pair_warp(
             saa += x * x
             sbb += y * y
             sab += x * y
-    va_ = saa - sa * sa / n
-    vb_ = sbb - sb * sb / n
-    if va_ < 1e-6 * n or vb_ < 1e-6 * n:
-        return -1.0
-    return (sab - sa * sb / n) / np.sqrt(va_ * vb_)
+    return _zncc_sums(sa, sb, saa, sbb, sab, n)
 
 
 @nb.njit(cache=True)
@@ -405,11 +405,7 @@ def _zncc_slanted(
             saa += x * x
             sbb += y * y
             sab += x * y
-    va_ = saa - sa * sa / n
-    vb_ = sbb - sb * sb / n
-    if va_ < 1e-6 * n or vb_ < 1e-6 * n:
-        return -1.0
-    return (sab - sa * sb / n) / np.sqrt(va_ * vb_)
+    return _zncc_sums(sa, sb, saa, sbb, sab, n)
 
 
 @nb.njit(cache=True, parallel=True)
