@@ -8,7 +8,8 @@ constant-velocity prediction, each patch compared through the affine map that it
 predicted motion give it (a near floor patch grows and shears between frames); the
 motion between the frames comes from RANSAC on the 3D-2D correspondences (``cv2.solvePnPRansac``), then a
 Gauss-Newton refinement in which every point is weighted by its reprojection covariance: tracking noise
-plus its triangulation covariance carried through the projection (far points count less). The inverse
+plus its triangulation covariance carried through the projection (far points count less); the inliers
+whose residual is beyond the 99 % quantile of that covariance are dropped and the fit repeated. The inverse
 normal matrix, scaled by the a-posteriori variance factor when that exceeds one, is the pose covariance;
 carried through to the body frame it gives the measurement: mean body angular rate and linear velocity
 over the frame interval with their 6x6 covariance (rotation first).
@@ -56,6 +57,12 @@ class VoConfig(BaseModel):
     min_disparity: float = Field(2.0, ge=0.5, description="px; nearer than f b / this")
     max_disparity: float = Field(120.0, gt=2)
     ransac_px: float = Field(2.0, gt=0)
+    refit: bool = Field(
+        True,
+        description="after the motion fit, drop the RANSAC inliers whose reprojection residual is "
+        "beyond refit_prob of its covariance and fit again",
+    )
+    refit_prob: float = Field(0.99, gt=0.5, lt=1)
     min_inliers: int = Field(12, ge=6)
     pixel_sigma: float = Field(
         0.25, gt=0, description="prior 1-sigma of tracking and stereo matching, px (grows per pair)"
@@ -148,6 +155,7 @@ class StereoVO:
                 nfeatures=2 * c.max_features, fastThreshold=10
             )
         self.stats = VoStats()
+        self._refit_chi2 = -2.0 * np.log(1.0 - c.refit_prob)  # chi-square (2 dof) quantile
         self.T_b_r = _se3(rect.R_b_r, rect.p_b_r)
         self.T_r_b = _inv(self.T_b_r)
         self._prev: dict[str, Any] | None = None
@@ -246,17 +254,17 @@ class StereoVO:
     # -- motion ---------------------------------------------------------------------------------
     def _refine(
         self, X: FloatArray, covX: FloatArray, uv: FloatArray, R: FloatArray, t: FloatArray
-    ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+    ) -> tuple[FloatArray, FloatArray, FloatArray, float, FloatArray]:
         """Weighted Gauss-Newton on T_{r_k, r_{k-1}} (left perturbation [dtheta, dt]); returns R, t, the
-        6x6 covariance of the perturbation at the prior pixel sigma and the a-posteriori variance factor
-        (chi-square over 2 n - 6)."""
+        6x6 covariance of the perturbation at the prior pixel sigma, the a-posteriori variance factor
+        (chi-square over 2 n - 6) and each point's residual chi-square (2 dof) under its covariance."""
         K = self.rect.K
         f = np.array([K[0, 0], K[1, 1]])
         cxy = K[:2, 2]
         s2 = self.cfg.pixel_sigma**2
         n = len(X)
         cov = np.eye(6)
-        chi2 = 0.0
+        q = np.zeros(n)
         for it in range(4):
             Y = X @ R.T + t
             z = Y[:, 2:3]
@@ -274,7 +282,7 @@ class StereoVO:
             JtW = np.swapaxes(Jd, 1, 2) @ W
             A = np.einsum("nij,njk->ik", JtW, Jd)
             g = np.einsum("nij,nj->i", JtW, res)
-            chi2 = float(np.einsum("ni,nij,nj->", res, W, res))
+            q = np.einsum("ni,nij,nj->n", res, W, res)
             try:
                 cov = np.linalg.inv(A)
             except np.linalg.LinAlgError:
@@ -290,8 +298,29 @@ class StereoVO:
         # sigma (blur, weak texture, motion), the covariance grows with them; it never shrinks below the
         # prior, which also covers what the residuals cannot show (sub-pixel biases shared by a frame)
         dof = max(2 * n - 6, 1)
-        vf = chi2 / dof
-        return R, t, cov, vf
+        vf = float(q.sum()) / dof
+        return R, t, cov, vf, q
+
+    def _fit(
+        self,
+        X: FloatArray,
+        covX: FloatArray,
+        uv: FloatArray,
+        ii: NDArray[np.int64],
+        R: FloatArray,
+        t: FloatArray,
+    ) -> tuple[FloatArray, FloatArray, FloatArray, float, NDArray[np.int64]]:
+        """:meth:`_refine` on the points ``ii`` from (R, t); with ``refit``, the points whose residual
+        chi-square is beyond the ``refit_prob`` quantile are dropped and the fit repeated once: RANSAC's
+        pixel threshold lets through tracks several pixel sigmas off, which the weighted fit would
+        trust. Returns R, t, the covariance, the variance factor and the points kept."""
+        c = self.cfg
+        R, t, cov, vf, q = self._refine(X[ii], covX[ii], uv[ii], R, t)
+        keep = q <= self._refit_chi2
+        if c.refit and not keep.all() and keep.sum() >= c.min_inliers:
+            ii = ii[keep]
+            R, t, cov, vf, _ = self._refine(X[ii], covX[ii], uv[ii], R, t)
+        return R, t, cov, vf, ii
 
     def _affine(self, uv: FloatArray, m: FloatArray, T: FloatArray) -> FloatArray | None:
         """Local maps (N, 2, 2) from previous to current pixel offsets around ``uv`` under the predicted
@@ -373,15 +402,12 @@ class StereoVO:
                     st.skipped_few_inliers += 1
                     self._T_rel = np.eye(4)
                 else:
-                    ii = inl.ravel()
+                    ii = inl.ravel().astype(np.int64)
                     R0, _ = cv2.Rodrigues(rvec)
-                    R, t, cov_d, vf = self._refine(
-                        Xo[ii],
-                        covo[ii],
-                        uvo[ii],
-                        np.asarray(R0, float),
-                        np.asarray(tvec, float).ravel(),
+                    R, t, cov_d, vf, ii = self._fit(
+                        Xo, covo, uvo, ii, np.asarray(R0, float), np.asarray(tvec, float).ravel()
                     )
+                    n_in = len(ii)
                     T = _se3(R, t)
                     self._T_rel = T
                     z0 = self._to_body(T, dt)
