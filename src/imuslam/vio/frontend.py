@@ -198,7 +198,8 @@ class StereoVO:
         d_pred: FloatArray,
     ) -> tuple[FloatArray, FloatArray]:
         """Stereo-match and triangulate ``uv`` (N, 2); ``d_pred`` (N,) predicted disparity (NaN: search
-        the whole range). Returns [u, v, X, Y, Z] rows of the matched points and their 3x3 covariances."""
+        the whole range). Returns [u, v, X, Y, Z, m_x, m_y, m_z] rows of the matched points (``m`` the
+        local surface, :meth:`_plane`; zeros without ``warp``) and their 3x3 covariances."""
         c, r = self.cfg, self.rect
         known = np.isfinite(d_pred)
         margin = np.maximum(3.0, 0.2 * np.where(known, d_pred, 0.0))
@@ -316,10 +317,11 @@ class StereoVO:
         trust. Returns R, t, the covariance, the variance factor and the points kept."""
         c = self.cfg
         R, t, cov, vf, q = self._refine(X[ii], covX[ii], uv[ii], R, t)
-        keep = q <= self._refit_chi2
-        if c.refit and not keep.all() and keep.sum() >= c.min_inliers:
-            ii = ii[keep]
-            R, t, cov, vf, _ = self._refine(X[ii], covX[ii], uv[ii], R, t)
+        if c.refit:
+            keep = q <= self._refit_chi2
+            if not keep.all() and keep.sum() >= c.min_inliers:
+                ii = ii[keep]
+                R, t, cov, vf, _ = self._refine(X[ii], covX[ii], uv[ii], R, t)
         return R, t, cov, vf, ii
 
     def _affine(self, uv: FloatArray, m: FloatArray, T: FloatArray) -> FloatArray | None:
