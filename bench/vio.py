@@ -73,6 +73,10 @@ NHC: dict[str, object] = {"nhc_std": 1e-4, "calib_nhc": False}
 # (vio.covcal.fit_vo_error); filled by calibrate_vo_cov, read by the filters of sim and nhc
 VO_ERR: dict[str, object] = {}
 VO_ERR_FIT = [False]
+# ``--uncalibrated``: the evaluated runs start from the front end's covariance as reported (no shape, block
+# scales 1), as on a user's data without truth; with ``--adapt N`` the filters then learn the scales
+# online (VioConfig.vo_cov_adapt_n, set in FILTER)
+UNCAL = [False]
 
 
 def _cache_tag() -> str:
@@ -264,6 +268,23 @@ def _nis_ess_band(nis: np.ndarray, dof: int, max_lag: int = 20) -> tuple[float, 
     return ess, float(chi2.ppf(0.025, ess * dof) / ess), float(chi2.ppf(0.975, ess * dof) / ess)
 
 
+def _held_out_nis(res: object, hold_s: float) -> dict[str, tuple[float, float, float]]:
+    """Per VO kind: the mean NIS of the accepted updates after ``hold_s`` s from the filter's start
+    (the scales held there, ``VioConfig.vo_cov_adapt_s``) and its 95 % chi-square band (3 dof)."""
+    from scipy.stats import chi2
+
+    t_mid = np.array([m.t_mid_ns for m in res.vo_measurements])  # type: ignore[attr-defined]
+    late = t_mid >= res.fused.t_ns[0] + hold_s * 1e9  # type: ignore[attr-defined]
+    out = {}
+    for kind in ("vo_velocity", "vo_rate"):
+        st = res.gating[kind]  # type: ignore[attr-defined]
+        x = np.asarray(st.nis)[late & np.asarray(st.accepted_mask, bool)]
+        n = len(x)
+        out[kind] = (float(x.mean()), float(chi2.ppf(0.025, 3 * n) / n),
+                     float(chi2.ppf(0.975, 3 * n) / n))  # fmt: skip
+    return out
+
+
 def calibrate_vo_cov(
     rate: float, calib_duration: float, cseeds: list[int], correction: bool
 ) -> tuple[np.ndarray | None, float, float]:
@@ -346,7 +367,13 @@ def sim(
     from imuslam.vio.pipeline import VioConfig, run_vio
 
     cseeds = [seed + 1] if not calib_seeds else calib_seeds
-    M, s_vel, s_rate = calibrate_vo_cov(rate, calib_duration, cseeds, correction)
+    if UNCAL[0]:
+        M, s_vel, s_rate = None, 1.0, 1.0
+        print(
+            "VO covariance as the front end reports it (--uncalibrated): no shape, block scales 1"
+        )
+    else:
+        M, s_vel, s_rate = calibrate_vo_cov(rate, calib_duration, cseeds, correction)
     corr = {"vo_cov_correction": M.tolist() if M is not None else None}
     run, vo_run = _sim_vo(duration, rate, seed)
     truth = run.truth()
@@ -406,6 +433,15 @@ def sim(
     g = results["VO + IMU, NHC on"][0].summary()["gating"]
     # the four filter runs with the calibrated covariance: good VO rejected, corrupted rejected, NIS
     four = [results[k][0].summary() for k in list(results)[:4]]
+    hold = FILTER.get("vo_cov_adapt_s")
+    if hold:  # the scales held after the warm-up: the NIS of the updates after it, and their band
+        held = [_held_out_nis(results[k][0], float(hold)) for k in list(results)[:4]]  # type: ignore[arg-type]
+        for r, h in zip(four, held, strict=True):
+            for kind, (m, lo, hi) in h.items():
+                r["gating"][kind] = {**r["gating"][kind], "nis_mean_accepted": m,
+                                     "nis_mean_band_95": [lo, hi]}  # fmt: skip
+        print(f"mean NIS after the {hold:g} s warm-up (scales held): " + "; ".join(
+            f"{k} {m:.2f} [{lo:.2f}, {hi:.2f}]" for k, (m, lo, hi) in held[1].items()) + " (NHC on)")  # fmt: skip
     in_band = sum(
         int(lo <= x["nis_mean_accepted"] <= hi)
         for r in four for x in (r["gating"]["vo_velocity"], r["gating"]["vo_rate"])
@@ -439,7 +475,12 @@ def nhc_seeds(
     print(f"\nrendered ground robot, {duration:g} s at {rate:g} Hz, seeds {seeds} (calibration: seed + 1, "
           f"{calib_duration:g} s, {'shape + scales' if correction else 'scales only'}), gate "
           f"{GATE['gate_prob']:g}"
-          + (f", VO bias learnt on the calibration seed's first {VO_BIAS_S[0]:g} s" if VO_BIAS_S[0] else ""))  # fmt: skip
+          + (f", VO bias learnt on the calibration seed's first {VO_BIAS_S[0]:g} s" if VO_BIAS_S[0] else "")
+          + (", NO calibration: the VO covariance as reported" if UNCAL[0] else "")
+          + (f", VO covariance scales adapted online over ~{FILTER['vo_cov_adapt_n']} updates"
+             if FILTER.get("vo_cov_adapt_n") else "")
+          + (f" during the first {FILTER['vo_cov_adapt_s']:g} s, then held (NIS in band: the updates "
+             "after it)" if FILTER.get("vo_cov_adapt_s") else ""))  # fmt: skip
     _table(["seed", "ATE NHC off [m]", "ATE NHC on [m]", "NHC cut", "good VO rejected (off, on, on + "
             "10 %, off + 10 %)", "worst", "corrupted rejected (worst)", "mean NIS in band",
             "mean NIS range"], rows)  # fmt: skip
@@ -1141,6 +1182,15 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--vo-error", choices=["off", "fit"], default="off",
                     help="sim, nhc: the VO velocity error's slow part as a Gauss-Markov state fitted "
                     "on the calibration seed (VioConfig.vo_error_std / vo_error_tau_s; Python filter)")  # fmt: skip
+    ap.add_argument("--adapt", type=int, default=0,
+                    help="sim, nhc: the filters learn the VO covariance scales online from their NIS "
+                    "over about this many updates (VioConfig.vo_cov_adapt_n); 0: off")  # fmt: skip
+    ap.add_argument("--adapt-s", type=float, default=None,
+                    help="sim, nhc: with --adapt, adapt over the first this many seconds, then hold "
+                    "(VioConfig.vo_cov_adapt_s); the NIS in band then counts the updates after it")  # fmt: skip
+    ap.add_argument("--uncalibrated", action="store_true",
+                    help="sim, nhc: no calibration against a truth: the VO covariance as reported "
+                    "(with --adapt: learnt online only)")  # fmt: skip
     ap.add_argument("--init-std-yaw", type=float, default=None,
                     help="husky: the wheel EKF's start yaw sigma, rad (default: the filter's)")  # fmt: skip
     ap.add_argument("--gyro-bias-rw", type=float, default=None,
@@ -1160,6 +1210,11 @@ def main(argv: list[str]) -> None:
     NHC["nhc_std"] = a.nhc_std if a.nhc_std is not None else (0.002 if a.pitching_robot else 1e-4)
     NHC["calib_nhc"] = a.calib_nhc == "on"
     VO_BIAS_S[0] = a.vo_bias
+    if a.adapt:
+        FILTER["vo_cov_adapt_n"] = a.adapt
+    if a.adapt_s:
+        FILTER["vo_cov_adapt_s"] = a.adapt_s
+    UNCAL[0] = a.uncalibrated
     if a.what == "speed":
         speed(a.only)
     elif a.what == "nhc":

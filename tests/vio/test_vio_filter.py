@@ -50,6 +50,8 @@ def _correlated(vo_run: VoRun, seed: int) -> VoRun:
         {"nhc": False},
         {"nhc": True, "nhc_rate_hz": 33.0, "gate_prob": None, "vehicle_p_b": (-0.2, 0.0, 0.1),
          "vehicle_rpy_deg": (1.0, -2.0, 3.0)},
+        {"nhc": True, "outlier_fraction": 0.1, "outlier_seed": 3, "correlated": True,
+         "vo_cov_adapt_n": 10, "vo_cov_adapt_s": 6.0},
     ],
 )  # fmt: skip
 def test_compiled_filter_equals_reference(sim_case, kw) -> None:  # type: ignore[no-untyped-def]
@@ -77,6 +79,9 @@ def test_compiled_filter_equals_reference(sim_case, kw) -> None:  # type: ignore
         )
         np.testing.assert_allclose(f.nis, g.nis, rtol=1e-9, atol=1e-9)
     assert fast.outliers == ref.outliers
+    np.testing.assert_allclose(fast.vo_scale, ref.vo_scale, rtol=1e-9)
+    if kw.get("vo_cov_adapt_n"):  # the scales moved (the reported covariance is not the noise's)
+        assert np.all(np.abs(np.log(ref.vo_scale)) > 0.05)
     if kw.get("outlier_fraction"):
         assert ref.outliers["corrupted_rejected"] > 0  # the gate was exercised
     # and the fused track follows the truth: VO noise 1 cm/s, uncorrelated, over 12 s is a random
@@ -309,3 +314,54 @@ def test_a_slowly_varying_vo_error_modelled_keeps_the_nis_in_band() -> None:
     for r in (gm_off, gm_on):
         for m, lo, hi in r.values():
             assert lo <= m <= hi
+
+
+def test_online_vo_covariance_scales_learn_a_misstated_covariance() -> None:
+    """VO from the truth with white noise whose reported covariance is misstated by known factors
+    (velocity reported at 1/4 of its variance, rate at 4x: true scales 4 and 1/4). Without adaptation the
+    mean NIS is far outside its band. With ``vo_cov_adapt_n`` = n = 50 during the first 90 s, then held:
+
+    - over the warm-up, the mean NIS of a kind's accepted updates equals 3 + 3 n ln(s_held) / N exactly
+      (the steps ``ln s += (NIS / 3 - 1) / n`` sum up): the identity that makes an adapting filter's
+      mean NIS no test of its consistency;
+    - the held scale is the true one within 4 sigma of the iteration's stationary spread: near the fixed
+      point ``d ln s = lambda (f eps - f d ln s)`` with lambda = 1/n, f <= 1 the share of the
+      innovation variance that is VO noise and eps of variance 2/3, so var(ln s) = lambda / (3 f);
+      f >= 0.3 here (the rate's VO variance 1.0e-6 / 4 against the mean gyro's 1.4e-7 and the bias'
+      share);
+    - after the warm-up the held scales predict the NIS: its mean lies within 3.29 sigma (99.9 %) of 3,
+      sigma combining the mean's chi-square spread (2/3 per update over N2 updates) and the held
+      scale's (f^2 var(ln s) = lambda f / 3 <= lambda / 3)."""
+    from dataclasses import replace
+
+    run = SimStereoRun(StereoRunConfig(duration_s=180.0, image_hz=5.0, seed=0))
+    vo = truth_vo_run(run, 1.5e-3, 1e-3, seed=1, skip_every=0)
+    mis = np.diag([2.0] * 3 + [0.5] * 3)  # the reported covariance: rate x4, velocity x1/4
+    vo = VoRun([(t, None if m is None else replace(m, cov=mis @ m.cov @ mis)) for t, m in vo.frames],
+               vo.stats, vo.seen, vo.unreadable)  # fmt: skip
+    true_scale = np.array([0.25, 4.0])  # [rate, velocity]
+    fixed = _mean_nis(run, vo)
+    assert fixed["vo_velocity"][0] > fixed["vo_velocity"][2]
+    assert fixed["vo_rate"][0] < fixed["vo_rate"][1]
+
+    n, hold = 50, 90.0
+    res = run_vio(run, VioConfig(vo_cov_adapt_n=n, vo_cov_adapt_s=hold), vo_run=vo)
+    t_mid = np.array([m.t_mid_ns for m in res.vo_measurements])
+    late = t_mid >= res.fused.t_ns[0] + hold * 1e9
+    for row, kind in enumerate(("vo_rate", "vo_velocity")):
+        st = res.gating[kind]
+        acc = np.asarray(st.accepted_mask, bool)
+        nis = np.asarray(st.nis)
+        warm = nis[acc & ~late]
+        s_held = res.vo_scale[row]
+        np.testing.assert_allclose(warm.mean(), 3 + 3 * n * np.log(s_held) / len(warm), rtol=1e-9)
+        sd_log = np.sqrt(1 / (3 * 0.3 * n))
+        err = abs(np.log(s_held / true_scale[row]))
+        held = nis[acc & late]
+        sd_mean = np.sqrt(2 / (3 * len(held)) + 1 / (3 * n))
+        print(f"{kind}: mean NIS fixed {fixed[kind][0]:.2f}, scale held {s_held:.3f} (true "
+              f"{true_scale[row]:g}; |ln error| {err:.3f} against {4 * sd_log:.3f}), mean NIS after "
+              f"the warm-up {held.mean():.3f} ({len(held)} updates, 99.9 %: 3 +- "
+              f"{3 * 3.29 * sd_mean:.2f})")  # fmt: skip
+        assert err < 4 * sd_log
+        assert abs(held.mean() / 3 - 1) < 3.29 * sd_mean

@@ -12,7 +12,8 @@ compiled twins of :mod:`imuslam.vio.measurements` (which stay the reference: ``t
 filters and compares them to 1e-9).
 
 State arrays are updated in place: ``p, v (3,)``, ``R (3, 3)``, ``ba, bg, g_n (3,)``, ``P (m, m)``,
-``clock = [t, next_nhc]`` (s since the filter's reference time). Records go to preallocated buffers with
+``clock = [t, next_nhc]`` (s since the filter's reference time), ``vo_scale = [rate, velocity]`` (the
+online VO covariance scales, ones when ``const[C_ADAPT_N]`` is 0). Records go to preallocated buffers with
 counters ``cnt = [track, marks, nhc, vo_velocity, vo_rate]``; measurement kinds are rows 0 (nhc),
 1 (vo_velocity), 2 (vo_rate) of ``nis`` and ``accepted``.
 """
@@ -310,15 +311,26 @@ def update_sparse(
 # layout of frame_step's packed inputs (one array each: fewer arguments to type-check per call)
 M_T, M_VEL, M_COV_V, M_OMEGA, M_COV_W, M_T0, M_T1, M_VEL_ON, M_RATE_ON, M_COV_WV, M_JOINT, M_LEN = (
     0, 1, 4, 13, 16, 25, 26, 27, 28, 29, 38, 39)  # fmt: skip
-C_NHC_ON, C_NHC_STD, C_NHC_DT, C_GYRO_Q, C_GATE_ON, C_THR2, C_THR3, C_NHC_STD_Z, C_LEN = (
-    0, 1, 2, 3, 4, 5, 6, 7, 8)  # fmt: skip
+(C_NHC_ON, C_NHC_STD, C_NHC_DT, C_GYRO_Q, C_GATE_ON, C_THR2, C_THR3, C_NHC_STD_Z, C_ADAPT_N,
+ C_ADAPT_UNTIL, C_LEN) = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10)  # fmt: skip
+# the online VO covariance scale stays within this factor of its start (VioConfig.vo_cov_adapt_n)
+ADAPT_LIMIT = 20.0
+
+
+@numba.njit(cache=True)
+def adapt_scale(scale: float, nis: float, dof: float, n: float) -> float:  # pragma: no cover
+    """One step of the online covariance scale: ``scale * exp((nis / dof - 1) / n)``, a Robbins-Monro
+    stochastic approximation (Robbins and Monro 1951) whose fixed point is E[NIS] = dof, clipped to
+    [1 / ADAPT_LIMIT, ADAPT_LIMIT]."""
+    s = scale * np.exp((nis / dof - 1.0) / n)
+    return min(max(s, 1.0 / ADAPT_LIMIT), ADAPT_LIMIT)
 
 
 @numba.njit(cache=True)
 def frame_step(
     t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
-    P: FloatArray, clock: FloatArray, meas: FloatArray, const: FloatArray,
+    P: FloatArray, clock: FloatArray, vo_scale: FloatArray, meas: FloatArray, const: FloatArray,
     R_b_v: FloatArray, p_b_v: FloatArray, q: FloatArray, off: IntArray,
     tr_t: FloatArray, tr_p: FloatArray, tr_R: FloatArray,
     bias_t: FloatArray, bias: FloatArray, bias_std: FloatArray,
@@ -331,7 +343,8 @@ def frame_step(
     m/s, its covariance (9,), rate (3,) rad/s, its covariance (9,), the interval [t0, t1] s, the two
     flags, the rate-velocity cross-covariance (9,), the joint flag; ``const`` (C_LEN,): NHC on,
     its lateral sigma m/s and period s, gyro density^2, gate on, chi-square thresholds for 2 and 3
-    dof, its vertical sigma m/s.
+    dof, its vertical sigma m/s, the online scales' n (0: off; ``vo_scale`` is then left at ones) and the time
+    after which they are held.
     Returns OK or DIVERGED (the time is in clock[0])."""
     t_target = meas[M_T]
     nhc_on = const[C_NHC_ON] != 0.0
@@ -376,6 +389,9 @@ def frame_step(
     rate_ok = False
     r_w = np.zeros(3)
     Rm_w = np.eye(3)
+    adapt_n = const[C_ADAPT_N] if clock[0] < const[C_ADAPT_UNTIL] else 0.0
+    s_w = vo_scale[0]  # the online scales in force for this frame (ones when off)
+    s_v = vo_scale[1]
     if meas[M_RATE_ON] != 0.0:
         omega_b = meas[M_OMEGA : M_OMEGA + 3]
         cov_w = np.ascontiguousarray(meas[M_COV_W : M_COV_W + 9]).reshape((3, 3))
@@ -384,31 +400,38 @@ def frame_step(
         g_mean = gyro_mean_nb(t_imu, acc, gyr, t0, t1)
         Hc = -np.eye(3)  # on db_g (cols_bg)
         r = omega_b - (g_mean - bg)
-        Rm_w = cov_w + np.eye(3) * (const[C_GYRO_Q] / (t1 - t0))
+        Rm_w = cov_w * s_w + np.eye(3) * (const[C_GYRO_Q] / (t1 - t0))
         st = update_sparse(r, Hc, cols_bg, Rm_w, p, v, R, ba, bg, g_n, P, off, gate_on, thr3,
                            KIND_RATE, nis_buf, acc_buf, cnt)  # fmt: skip
         if st < 0:
             return DIVERGED
         rate_ok = st == 1
+        if rate_ok and adapt_n > 0:
+            vo_scale[0] = adapt_scale(s_w, nis_buf[KIND_RATE, cnt[2 + KIND_RATE] - 1], 3.0, adapt_n)
         r_w = omega_b - (g_mean - bg)  # at the updated gyro bias
     if meas[M_VEL_ON] != 0.0:
         vel_b = meas[M_VEL : M_VEL + 3]
-        cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3))
+        cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3)) * s_v
         vb = R.T @ v
         Hc = np.zeros((3, 9))  # on [dtheta, dv, db_g] (cols_thvbg)
         Hc[:, 0:3] = hat_nb(vb)
         Hc[:, 3:6] = R.T
         r = vel_b - vb
         if rate_ok and meas[M_JOINT] != 0.0:  # conditioned on the rate (VoVelocityGivenRate)
-            C_wv = np.ascontiguousarray(meas[M_COV_WV : M_COV_WV + 9]).reshape((3, 3))
+            C_wv = np.ascontiguousarray(meas[M_COV_WV : M_COV_WV + 9]).reshape((3, 3)) * np.sqrt(
+                s_w * s_v
+            )
             G = np.linalg.solve(Rm_w, C_wv).T
             r = r - G @ r_w
             Hc[:, 6:9] += G
             cov_v = cov_v - G @ C_wv
             cov_v = 0.5 * (cov_v + cov_v.T)
-        if update_sparse(r, Hc, cols_thvbg, cov_v, p, v, R, ba, bg, g_n, P, off, gate_on, thr3,
-                         KIND_VEL, nis_buf, acc_buf, cnt) < 0:  # fmt: skip
+        st = update_sparse(r, Hc, cols_thvbg, cov_v, p, v, R, ba, bg, g_n, P, off, gate_on, thr3,
+                           KIND_VEL, nis_buf, acc_buf, cnt)  # fmt: skip
+        if st < 0:
             return DIVERGED
+        if st == 1 and adapt_n > 0:
+            vo_scale[1] = adapt_scale(s_v, nis_buf[KIND_VEL, cnt[2 + KIND_VEL] - 1], 3.0, adapt_n)
     mark_state(clock[0], p, R, ba, bg, P, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, cnt)
     return OK
 
@@ -417,7 +440,7 @@ def frame_step(
 def run_frames(
     t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
-    P: FloatArray, clock: FloatArray, meas: FloatArray, const: FloatArray,
+    P: FloatArray, clock: FloatArray, vo_scale: FloatArray, meas: FloatArray, const: FloatArray,
     R_b_v: FloatArray, p_b_v: FloatArray, q: FloatArray, off: IntArray,
     tr_t: FloatArray, tr_p: FloatArray, tr_R: FloatArray,
     bias_t: FloatArray, bias: FloatArray, bias_std: FloatArray,
@@ -428,7 +451,7 @@ def run_frames(
     (True without one). The buffers must hold the whole batch. Returns -1, or the index of the frame at
     which the filter diverged."""
     for i in range(meas.shape[0]):
-        if frame_step(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, meas[i], const, R_b_v, p_b_v,
+        if frame_step(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, vo_scale, meas[i], const, R_b_v, p_b_v,
                       q, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, nis_buf, acc_buf,
                       cnt) == DIVERGED:  # fmt: skip
             return i

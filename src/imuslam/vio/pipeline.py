@@ -20,7 +20,15 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, NonNegativeFloat, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    FiniteFloat,
+    NonNegativeFloat,
+    NonNegativeInt,
+    model_validator,
+)
 
 from imuslam.errors import InputError
 from imuslam.geometry import exp
@@ -120,6 +128,24 @@ class VioConfig(BaseModel):
         "calibrated on another run with known truth, e.g. by bench/vio.py sim)",
     )
     vo_rate_cov_scale: float = Field(1.0, gt=0, description="the same for the VO rate covariance")
+    vo_cov_adapt_n: NonNegativeInt = Field(
+        0,
+        description="online scales of the VO rate and velocity covariances, learnt from the filter's "
+        "own innovations (no truth needed): after each accepted VO update of a kind, its scale is "
+        "multiplied by exp((NIS / 3 - 1) / n), a stochastic approximation (Robbins and Monro 1951) of "
+        "E[NIS] = 3, so the scale follows the mean NIS of about the last n updates (innovation-based "
+        "adaptive estimation: Mehra 1970, IEEE TAC 15(2); Mohamed and Schwarz 1999, J. Geodesy 73); "
+        "applied on top of vo_cov_scale / vo_rate_cov_scale and kept within a factor 20 of them; "
+        "0: off. While it adapts, a kind's mean NIS over N updates equals 3 + 3 n ln(s_end / "
+        "s_start) / N exactly (the steps sum up): in band by construction, so it is no test of "
+        "consistency; vo_cov_adapt_s holds the scales after a warm-up, and the NIS after it is one",
+    )
+    vo_cov_adapt_s: float | None = Field(
+        None,
+        gt=0,
+        description="with vo_cov_adapt_n: adapt during this many seconds after the filter's start "
+        "(the first VO pair's mid-time), then hold the scales; None: throughout the run",
+    )
     vo_cov_correction: list[list[float]] | None = Field(
         None,
         description="6x6 second moment of the VO errors whitened by the front end's covariance, learnt "
@@ -261,6 +287,10 @@ def rpy_matrix(rpy_deg: tuple[float, float, float]) -> FloatArray:
     )
 
 
+# the row of VioFilter.vo_scale that a measurement kind's NIS adapts
+_ADAPT_ROW = {"vo_rate": 0, "vo_velocity": 1}
+
+
 class VioFilter:
     """The core's ESKF driven to arbitrary times, with per-kind gating statistics and a recorded track.
 
@@ -310,6 +340,9 @@ class VioFilter:
         self._bias: list[FloatArray] = []
         self._bias_std: list[FloatArray] = []
         self.next_nhc = t0_s + 1.0 / cfg.nhc_rate_hz
+        # the online VO covariance scales [rate, velocity] (cfg.vo_cov_adapt_n; ones when off)
+        self.vo_scale = np.ones(2)
+        self.adapt_until = np.inf if cfg.vo_cov_adapt_s is None else t0_s + cfg.vo_cov_adapt_s
         self.R_b_v = rpy_matrix(cfg.vehicle_rpy_deg)
         self.p_b_v = np.asarray(cfg.vehicle_p_b, float)
 
@@ -406,6 +439,13 @@ class VioFilter:
             c.p_n = c.p_n + res.dx[c.P]
         if res.accepted:
             st.accepted += 1
+            row = _ADAPT_ROW.get(meas.kind)
+            if self.cfg.vo_cov_adapt_n and row is not None and self.t < self.adapt_until:
+                from imuslam.vio.kernels import adapt_scale
+
+                self.vo_scale[row] = adapt_scale(
+                    self.vo_scale[row], nis, 3.0, self.cfg.vo_cov_adapt_n
+                )
         else:
             st.rejected += 1
         return res.accepted
@@ -429,6 +469,11 @@ class VioFilter:
         (:class:`~imuslam.vio.measurements.VoVelocityGivenRate`); otherwise it is applied alone. Returns
         whether the velocity update was accepted (True without one). This is the reference (one Python
         call per event); :class:`CompiledVioFilter` does the same in one compiled call."""
+        if self.cfg.vo_cov_adapt_n:  # the online scales in force now
+            s_w, s_v = self.vo_scale
+            cov_omega = None if cov_omega is None else cov_omega * s_w
+            cov_vel = None if cov_vel is None else cov_vel * s_v
+            cov_wv = None if cov_wv is None else cov_wv * np.sqrt(s_w * s_v)
         if self.clone is not None:
             return self._frame_relative(t_s, vel_b, cov_vel, omega_b, cov_omega, t0_s, t1_s, cov_wv)
         self._nhc_until(t_s)
@@ -578,7 +623,8 @@ class CompiledVioFilter(VioFilter):
         self._const = np.zeros(C_LEN)
         std_z = cfg.nhc_std if cfg.nhc_std_vertical is None else cfg.nhc_std_vertical
         self._const[:] = (float(cfg.nhc), cfg.nhc_std, 1.0 / cfg.nhc_rate_hz, self.noise.gyro**2,
-                          float(self._gate), self._thr2, self._thr3, std_z)  # fmt: skip
+                          float(self._gate), self._thr2, self._thr3, std_z,
+                          float(cfg.vo_cov_adapt_n), self.adapt_until)  # fmt: skip
         self.R_b_v = np.ascontiguousarray(self.R_b_v, dtype=np.float64)
         self.p_b_v = np.ascontiguousarray(self.p_b_v, dtype=np.float64)
 
@@ -666,7 +712,7 @@ class CompiledVioFilter(VioFilter):
         vel_ok = np.ones(n, bool)
         bad = K.run_frames(
             self.t_imu, self.acc, self.gyr, x.p_n, x.v_n, x.R_n_b, x.accel_bias, x.gyro_bias, x.g_n,
-            self.kf.P, self._clock, meas, self._const, self.R_b_v, self.p_b_v, self._q, self._off,
+            self.kf.P, self._clock, self.vo_scale, meas, self._const, self.R_b_v, self.p_b_v, self._q, self._off,
             self._tr_t, self._tr_p, self._tr_R, self._b_t, self._b, self._b_s,
             self._nis, self._acc, self._cnt, vel_ok,
         )  # fmt: skip
@@ -758,9 +804,11 @@ class VioResult:
     vo_measurements: list[VoMeasurement] = field(default_factory=list, repr=False)
     corrupted: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool), repr=False)
     vel_accepted: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool), repr=False)
+    vo_scale: FloatArray = field(default_factory=lambda: np.ones(2), repr=False)
+    """the online VO covariance scales [rate, velocity] at the end (``VioConfig.vo_cov_adapt_n``)"""
 
     def summary(self) -> dict[str, Any]:
-        return {
+        out = {
             "frames": self.frames,
             "vo": {
                 "measurements": self.vo_stats.measurements,
@@ -780,6 +828,12 @@ class VioResult:
                 "gyro": self.bias[-1, 3:].tolist() if len(self.bias) else None,
             },
         }
+        if self.config.vo_cov_adapt_n:
+            out["vo_cov_adapted_scale"] = {
+                "rate": float(self.vo_scale[0]),
+                "velocity": float(self.vo_scale[1]),
+            }
+        return out
 
 
 def vo_cov(m: VoMeasurement, cfg: VioConfig, M: FloatArray | None = None) -> FloatArray:
@@ -995,5 +1049,5 @@ def run_vio(
          "unreadable": unreadable, "used": frames_seen - unreadable},
         {"corrupted": int(cor.sum()), "corrupted_rejected": int((cor & ~va).sum()),
          "good": int((~cor).sum()), "good_rejected": int((~cor & ~va).sum())},
-        bt, b, bs, cfg, meas_all, cor, va,
+        bt, b, bs, cfg, meas_all, cor, va, filt.vo_scale.copy(),
     )  # fmt: skip
