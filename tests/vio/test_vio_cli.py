@@ -85,6 +85,7 @@ def test_cli_writes_the_results_folder_and_counts_bad_frames(
         ("calib_without_cam1", r"cam1/sensor.yaml"),
         ("bad_config", r"config.yaml: .*nhc_std"),
         ("config_across_fields", r"config.yaml: vo_error_std applies to vo_model 'rate' only"),
+        ("config_adapt_hold_alone", r"config.yaml: vo_cov_adapt_s .* needs vo_cov_adapt_n > 0"),
         ("bag_without_camchain", r"a bag needs --camchain, --left-topic and --right-topic"),
     ],
 )
@@ -145,6 +146,10 @@ def test_bad_inputs_are_one_line_errors(
         p = tmp_path / "config.yaml"
         p.write_text("vo_model: relative\nvo_error_std: 0.001\n")
         args += ["--config", str(p)]
+    elif case == "config_adapt_hold_alone":
+        p = tmp_path / "config.yaml"
+        p.write_text("vo_cov_adapt_s: 30\n")
+        args += ["--config", str(p)]
     out = tmp_path / "out"
     code, text = _run(*args, "--out", str(out))
     assert code == 2, text
@@ -153,3 +158,23 @@ def test_bad_inputs_are_one_line_errors(
 
     assert re.search(pattern, " ".join(text.split())), text
     assert not out.exists()
+
+
+def test_cli_reports_the_online_covariance_scales(shared_data: Path, tmp_path: Path) -> None:
+    """With ``vo_cov_adapt_n`` in the config, gating.json carries the learnt scales. On this excerpt the
+    MAV stands still and the front end's covariance over-states the VO's error (mean NIS well below 3
+    with the scales fixed), so both scales must come out below one."""
+    d = _copy(shared_data, tmp_path / "ds", 14)
+    fixed, adapt = tmp_path / "fixed", tmp_path / "adapt"
+    assert _run(str(d), "--out", str(fixed), "--g", "9.81")[0] == 0
+    g0 = json.loads((fixed / "gating.json").read_text())
+    assert "vo_cov_adapted_scale" not in g0
+    assert g0["gating"]["vo_velocity"]["nis_mean_accepted"] < 1.5
+    assert g0["gating"]["vo_rate"]["nis_mean_accepted"] < 1.5
+    cfg = tmp_path / "config.yaml"
+    cfg.write_text("vo_cov_adapt_n: 10\n")
+    code, text = _run(str(d), "--out", str(adapt), "--g", "9.81", "--config", str(cfg))
+    assert code == 0, text
+    s = json.loads((adapt / "gating.json").read_text())["vo_cov_adapted_scale"]
+    print(s)
+    assert 0.05 <= s["rate"] < 1.0 and 0.05 <= s["velocity"] < 1.0

@@ -234,6 +234,14 @@ class VioConfig(BaseModel):
             )
         return self
 
+    @model_validator(mode="after")
+    def _adapt_s_needs_adapt_n(self) -> VioConfig:
+        if self.vo_cov_adapt_s is not None and self.vo_cov_adapt_n == 0:
+            raise ValueError(
+                "vo_cov_adapt_s holds the online scales after a warm-up; it needs vo_cov_adapt_n > 0"
+            )
+        return self
+
 
 @dataclass
 class GateStats:
