@@ -83,7 +83,7 @@ CAL_SE: dict[str, float] = {}
 
 
 def _cache_tag() -> str:
-    return "v5" if SIM["ground_following"] else "v2"
+    return "v6" if SIM["ground_following"] else "v2"
 
 
 def _rate(fn, n: int, repeat: int = 3) -> tuple[float, float]:  # type: ignore[no-untyped-def]
@@ -893,7 +893,8 @@ def front_end_parts(duration: float, rate: float, seeds: list[int]) -> None:
          VoConfig(warp=False, slanted_stereo=False, refit=False), ""),
         ("slanted window, shifted patches, one fit", VoConfig(warp=False, refit=False), ""),
         ("slanted window, warped patches, one fit", VoConfig(refit=False), ""),
-        ("the same, refit without the outliers (default)", VoConfig(), ""),
+        ("the same, refit without the outliers", VoConfig(refit_snooping=False), ""),
+        ("the same, outliers tested against their own covariance (default)", VoConfig(), ""),
         ("default, exact disparity", VoConfig(), "depth"),
         ("default, exact tracks", VoConfig(), "track"),
     ]  # fmt: skip

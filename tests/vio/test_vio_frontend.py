@@ -413,3 +413,50 @@ def test_fit_drops_tracks_that_ransac_let_through() -> None:
             sd = np.sqrt(np.trace(cov[3:, 3:]))
             assert errs[True] < 3 * sd
     assert errs[True] < 0.5 * errs[False]
+
+
+def test_refit_tests_each_residual_against_what_the_fit_leaves_of_it() -> None:
+    """150 far points (5-9 m) and two near ones (0.9-1.0 m) after a known 8 cm step, 0.1 px of noise,
+    the triangulation covariance of the front end (0.25 px on u, v, d). The near points carry the
+    translation; one of them is tracked 2 px off. The fit bends to it, so its residual under C is small
+    and the plain test keeps it: the translation is then off by more than the 99.9 % chi-square(3)
+    quantile of its own covariance. Tested against its own covariance C - J A^-1 J^T (data snooping),
+    exactly that point is dropped and the translation is within that quantile."""
+    from scipy.stats import chi2
+
+    rig = CameraRig()
+    rect = SimRectification(rig.K, rig.baseline, rig.width, rig.height, np.eye(3), np.zeros(3))
+    rng = np.random.default_rng(3)
+    Xf = np.stack([rng.uniform(-4, 4, 150), rng.uniform(-2, 1, 150), rng.uniform(5, 9, 150)], 1)
+    X = np.r_[Xf, [[-0.3, 0.45, 0.9], [0.2, 0.5, 1.0]]]
+    n = len(X)
+    th = 0.01
+    R = np.array([[np.cos(th), 0, np.sin(th)], [0, 1, 0], [-np.sin(th), 0, np.cos(th)]])
+    t = np.array([0.0, 0.0, -0.08])
+    Y = X @ R.T + t
+    uv = Y[:, :2] / Y[:, 2:] * [rig.fx, rig.fy] + [rig.cx, rig.cy] + rng.normal(0, 0.1, (n, 2))
+    uv[-1, 0] += 2.0
+    f, b = rig.fx, rig.baseline
+    d = f * b / X[:, 2]
+    u = X[:, 0] / X[:, 2] * f + rig.cx
+    v = X[:, 1] / X[:, 2] * rig.fy + rig.cy
+    J = np.zeros((n, 3, 3))
+    J[:, 0, 0] = J[:, 1, 1] = b / d
+    J[:, 0, 2] = -(u - rig.cx) * b / d**2
+    J[:, 1, 2] = -(v - rig.cy) * b / d**2
+    J[:, 2, 2] = -f * b / d**2
+    covX = J @ np.diag([0.0625, 0.0625, 0.125]) @ np.swapaxes(J, 1, 2)
+    limit = chi2.ppf(0.999, 3)
+    out = {}
+    for snoop in (False, True):
+        vo = StereoVO(rect, VoConfig(refit_snooping=snoop))
+        _, t1, cov, _, kept = vo._fit(X, covX, uv, np.arange(n), np.eye(3), np.zeros(3))
+        e = t1 - t
+        out[snoop] = (
+            set(range(n)) - set(kept.tolist()),
+            float(e @ np.linalg.solve(cov[3:, 3:], e)),
+        )
+        print(f"snooping {snoop}: dropped {sorted(out[snoop][0])}, translation error "
+              f"{np.round(e * 1e3, 2)} mm, chi-square {out[snoop][1]:.1f} (limit {limit:.1f})")  # fmt: skip
+    assert n - 1 not in out[False][0] and out[False][1] > limit
+    assert out[True][0] == {n - 1} and out[True][1] < limit

@@ -63,6 +63,13 @@ class VoConfig(BaseModel):
         "beyond refit_prob of its covariance and fit again",
     )
     refit_prob: float = Field(0.99, gt=0.5, lt=1)
+    refit_snooping: bool = Field(
+        True,
+        description="test each residual against its own covariance C - J A^-1 J^T, what the fit "
+        "leaves of C (Baarda's data snooping), instead of C: a point with high leverage (few near "
+        "points carry the translation) drags the fit to itself and leaves a small residual that C "
+        "alone would pass",
+    )
     min_inliers: int = Field(12, ge=6)
     pixel_sigma: float = Field(
         0.25, gt=0, description="prior 1-sigma of tracking and stereo matching, px (grows per pair)"
@@ -258,7 +265,8 @@ class StereoVO:
     ) -> tuple[FloatArray, FloatArray, FloatArray, float, FloatArray]:
         """Weighted Gauss-Newton on T_{r_k, r_{k-1}} (left perturbation [dtheta, dt]); returns R, t, the
         6x6 covariance of the perturbation at the prior pixel sigma, the a-posteriori variance factor
-        (chi-square over 2 n - 6) and each point's residual chi-square (2 dof) under its covariance."""
+        (chi-square over 2 n - 6) and each point's residual chi-square (2 dof) under its covariance (with
+        ``refit_snooping``, under the residual's own covariance)."""
         K = self.rect.K
         f = np.array([K[0, 0], K[1, 1]])
         cxy = K[:2, 2]
@@ -300,6 +308,16 @@ class StereoVO:
         # prior, which also covers what the residuals cannot show (sub-pixel biases shared by a frame)
         dof = max(2 * n - 6, 1)
         vf = float(q.sum()) / dof
+        if self.cfg.refit_snooping and n > 6:
+            # each residual under its own covariance C - J A^-1 J^T (Baarda 1968, "A testing procedure
+            # for use in geodetic networks"; the deleted residual's test of Cook and Weisberg 1982):
+            # chi-square(2) for a good point whatever its leverage; where the fit leaves a point
+            # (almost) nothing to test, C itself
+            Qv = C - Jd @ cov @ np.swapaxes(Jd, 1, 2)
+            det = Qv[:, 0, 0] * Qv[:, 1, 1] - Qv[:, 0, 1] * Qv[:, 1, 0]
+            ok = det > 1e-4 * (C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] * C[:, 1, 0])
+            Qi = np.linalg.inv(np.where(ok[:, None, None], Qv, C))
+            q = np.einsum("ni,nij,nj->n", res, Qi, res)
         return R, t, cov, vf, q
 
     def _fit(
