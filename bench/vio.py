@@ -26,7 +26,15 @@
     python bench/vio.py frontparts --duration 60 --seeds 1 2 3
                                          # the front end's error by part: straight / slanted stereo
                                          # window, shifted / warped tracking, one fit / refit without
-                                         # the outliers, exact disparity or tracks
+                                         # the outliers (tested against C or against what the fit
+                                         # leaves of it), exact disparity or tracks
+    python bench/vio.py vonees --seeds 0 1 2 3 4 5 6 7 8 9 10
+                                         # the rendered VO's NEES against the truth per seed: its mean,
+                                         # tail, autocorrelation, the standard error of a run's mean
+                                         # and the spread of the seeds' means
+    python bench/vio.py nhc ... [--adapt N --adapt-s S --uncalibrated]
+                                         # the VO covariance scales learnt online (held after S s);
+                                         # no calibration against a truth
     python bench/vio.py husky            # wheel odometry + IMU EKF against GPS (robot_localization bag)
 
 The sim study renders every stereo pair (the slow part) once, caches the VO measurements in
