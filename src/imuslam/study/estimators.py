@@ -315,6 +315,10 @@ def run_map2d_cell(inp: CellInput) -> Estimate:
         {**o.config, "use_imu": o.use_imu, "use_odometry": o.use_odometry}
     )
     cfg.loop.enabled = o.loop_closure
+    # a cell repeats exactly: the loop search runs inline unless the config asks otherwise (in the
+    # background its constraints join the graph whenever the worker thread is done, so two runs differ)
+    if "background" not in o.config.get("loop", {}):
+        cfg.loop.background = False
     # the robot's scans and wheels over the whole drive (the same for every level of a seed), then the
     # estimation window with the cell's IMU
     sim = simulate_robot2d(
