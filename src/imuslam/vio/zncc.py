@@ -417,9 +417,8 @@ def slanted_disparity(
     robot) the disparity changes across a straight window, by about 0.2 px per row on the rendered
     floor, and a straight window matches it about 0.3 px off (median, noise-free). Offsets o in 0.1 px
     steps, sampled symmetrically (left at -o/2, right at +o/2, as :func:`_refine_axis`), then a
-    parabola. Where the slopes are NaN
-    or shear the window by less than 0.05 px at its edge, ``d`` is returned as it is; NaN where no
-    peak is inside."""
+    parabola. Where the slopes are NaN or shear the window by less than 0.05 px at its edge, ``d`` is
+    returned as it is; NaN where no peak is inside."""
     n = uv.shape[0]
     out = np.full(n, np.nan)
     for i in nb.prange(n):
