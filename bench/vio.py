@@ -71,6 +71,8 @@ SIM: dict[str, bool] = {"ground_following": True}
 # ``--redetect-below F``: the front end's VoConfig.redetect_below (1: the detector runs on every frame
 # that lost a track); the VO caches are then rendered with it and tagged with it
 VO: dict[str, float] = {}
+# ``--calib-pool K``: nhc calibrates each seed's VO covariance on the K seeds after it, pooled (1: seed + 1)
+CALIB_POOL = [1]
 # ``--separate-vo``: the VO rate and velocity as two independent updates (``VioConfig.vo_joint`` false)
 FILTER: dict[str, object] = {}
 # ``--vo-model relative``: the filter reads each VO pair against a clone of the pose at its start
@@ -528,14 +530,20 @@ def nhc_seeds(
     """``sim`` on several evaluated seeds, each with its covariance calibrated on seed + 1
     (``calib_duration`` s, shape + scales; scales only without ``correction``), summarised: the NHC's ATE cut per seed and its mean and
     spread, good VO rejected (worst of the four filter runs), corrupted rejected, mean NIS in band."""
-    out = {s: sim(duration, rate, s, calib_duration, None, correction) for s in seeds}
+    # ``--calib-pool K``: the K seeds after each evaluated one (wrapping within 0-10, the cached
+    # renders), pooled for its calibration
+    pool = CALIB_POOL[0]
+    out = {s: sim(duration, rate, s, calib_duration,
+                  [(s + k) % 11 for k in range(1, pool + 1)] if pool > 1 else None, correction)
+           for s in seeds}  # fmt: skip
     rows = [(f"{s}{' (the README run)' if s == 0 else ''}", f"{r['ate_off']:.4f}", f"{r['ate_on']:.4f}",
              f"{100 * r['nhc_cut']:.1f} %", ", ".join(r["good_rejected_n"]),
              f"{100 * r['good_rejected']:.2f} %", f"{100 * r['corrupted_rejected']:.0f} %",
              f"{r['in_band']}/8", "-" if r["in_band_own"] is None else f"{r['in_band_own']}/8", f"{r['nis_range'][0]:.2f}-{r['nis_range'][1]:.2f}")
             for s, r in out.items()]  # fmt: skip
     cuts = np.array([r["nhc_cut"] for r in out.values()])
-    print(f"\nrendered ground robot, {duration:g} s at {rate:g} Hz, seeds {seeds} (calibration: seed + 1, "
+    cal_txt = f"seeds + 1..{pool} (mod 11) pooled" if pool > 1 else "seed + 1"
+    print(f"\nrendered ground robot, {duration:g} s at {rate:g} Hz, seeds {seeds} (calibration: {cal_txt}, "
           f"{calib_duration:g} s, {'shape + scales' if correction else 'scales only'}), gate "
           f"{GATE['gate_prob']:g}"
           + (f", VO bias learnt on the calibration seed's first {VO_BIAS_S[0]:g} s" if VO_BIAS_S[0] else "")
@@ -1268,6 +1276,8 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--redetect-below", type=float, default=None,
                     help="nhc and the other sim studies: the front end's VoConfig.redetect_below "
                     "(caches tagged with it)")  # fmt: skip
+    ap.add_argument("--calib-pool", type=int, default=1,
+                    help="nhc: calibrate each seed on the K seeds after it (mod 11), pooled")  # fmt: skip
     ap.add_argument("--calib-seeds", type=int, nargs="+", default=None,
                     help="sim: calibration run seed(s), default seed + 1")  # fmt: skip
     ap.add_argument("--no-correction", action="store_true",
@@ -1314,6 +1324,7 @@ def main(argv: list[str]) -> None:
     a = ap.parse_args(argv)
     GATE["gate_prob"] = a.gate_prob
     SIM["ground_following"] = not a.pitching_robot
+    CALIB_POOL[0] = a.calib_pool
     if a.redetect_below is not None:
         VO["redetect_below"] = a.redetect_below
     if a.separate_vo:
