@@ -12,6 +12,9 @@
     python bench/vio.py nhc [--seeds 0 1 2 3 4 --gate-prob 0.9999 --vo-bias 180]
                                          # sim on several seeds (calibration seed + 1): NHC cut per
                                          # seed, its mean and spread, gating and NIS per seed
+    python bench/vio.py nhc ... --calib-pool 10
+                                         # each seed's VO covariance calibrated on the 10 seeds after
+                                         # it (mod 11), pooled, instead of seed + 1 alone
     python bench/vio.py nhc|vonees|... --redetect-below 1
                                          # the sim studies with the front end's VoConfig.redetect_below
                                          # (caches rendered with it, tagged with it)
