@@ -1327,6 +1327,8 @@ def main(argv: list[str]) -> None:
     a = ap.parse_args(argv)
     GATE["gate_prob"] = a.gate_prob
     SIM["ground_following"] = not a.pitching_robot
+    if not 1 <= a.calib_pool <= 10:  # 11 or more would wrap round to the evaluated seed itself
+        ap.error(f"--calib-pool: {a.calib_pool}; expected 1 to 10")
     CALIB_POOL[0] = a.calib_pool
     if a.redetect_below is not None:
         VO["redetect_below"] = a.redetect_below
