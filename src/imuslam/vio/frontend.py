@@ -10,10 +10,10 @@ motion between the frames comes from RANSAC on the 3D-2D correspondences (``cv2.
 Gauss-Newton refinement in which every point is weighted by its reprojection covariance: tracking noise
 plus its triangulation covariance carried through the projection (far points count less); the inliers
 whose residual is beyond the 99 % quantile of its own covariance (what the fit leaves of that one: data
-snooping) are dropped and the fit repeated. The inverse
-normal matrix, scaled by the a-posteriori variance factor when that exceeds one, is the pose covariance;
-carried through to the body frame it gives the measurement: mean body angular rate and linear velocity
-over the frame interval with their 6x6 covariance (rotation first).
+snooping) are dropped and the fit repeated. The inverse normal matrix, scaled by the a-posteriori
+variance factor when that exceeds one, is the pose covariance; carried through to the body frame it
+gives the measurement: mean body angular rate and linear velocity over the frame interval with their
+6x6 covariance (rotation first).
 
 Frames: ``r`` is the rectified left camera (x right, y down, z forward), ``b`` the body (IMU).
 """
