@@ -460,3 +460,64 @@ def test_refit_tests_each_residual_against_what_the_fit_leaves_of_it() -> None:
               f"{np.round(e * 1e3, 2)} mm, chi-square {out[snoop][1]:.1f} (limit {limit:.1f})")  # fmt: skip
     assert n - 1 not in out[False][0] and out[False][1] > limit
     assert out[True][0] == {n - 1} and out[True][1] < limit
+
+
+def test_compiled_fit_terms_equal_numpy() -> None:
+    """The compiled Gauss-Newton terms of the motion fit (:mod:`imuslam.vio.motion_nb`) against the same
+    quantities written with numpy from their definitions: residual ``r = uv - pi(R X + t)``, covariance
+    ``C = s2 I + (Jp R) covX (Jp R)^T``, Jacobian ``[-Jp hat(Y), Jp]`` in the left perturbation (checked
+    by finite differences of the projection), ``A = sum J^T C^-1 J``, ``g = sum J^T C^-1 r``,
+    ``q = r^T C^-1 r`` and the snooped ``r^T (C - J A^-1 J^T)^-1 r``, to 1e-9 relative."""
+    from imuslam.geometry import exp as exp_so3
+    from imuslam.geometry import hat
+    from imuslam.vio.motion_nb import normal_terms, snooped_q
+
+    rng = np.random.default_rng(5)
+    n = 40
+    X = np.stack([rng.uniform(-3, 3, n), rng.uniform(-1, 1, n), rng.uniform(1, 8, n)], 1)
+    L = rng.normal(0, 0.02, (n, 3, 3))
+    covX = L @ np.swapaxes(L, 1, 2) + 1e-6 * np.eye(3)
+    R = exp_so3(np.array([0.02, -0.05, 0.01]))
+    t = np.array([0.03, -0.01, -0.12])
+    fx, fy, cx, cy, s2 = 460.0, 455.0, 370.0, 245.0, 0.0625
+
+    def project(Rm: np.ndarray, tv: np.ndarray) -> np.ndarray:
+        Y = X @ Rm.T + tv
+        return np.c_[fx * Y[:, 0] / Y[:, 2] + cx, fy * Y[:, 1] / Y[:, 2] + cy]
+
+    uv = project(R, t) + rng.normal(0, 0.5, (n, 2))
+    A, g, q, C, Jd, res = normal_terms(X, covX, uv, R, t, fx, fy, cx, cy, s2)
+
+    Y = X @ R.T + t
+    z = Y[:, 2]
+    Jp = np.zeros((n, 2, 3))
+    Jp[:, 0, 0], Jp[:, 0, 2] = fx / z, -fx * Y[:, 0] / z**2
+    Jp[:, 1, 1], Jp[:, 1, 2] = fy / z, -fy * Y[:, 1] / z**2
+    JR = Jp @ R
+    C_ref = s2 * np.eye(2) + JR @ covX @ np.swapaxes(JR, 1, 2)
+    J_ref = np.concatenate([Jp @ -np.stack([hat(y) for y in Y]), Jp], axis=2)
+    # the Jacobian is the projection's derivative in the left perturbation
+    eps = 1e-7
+    for j in range(6):
+        d = np.zeros(6)
+        d[j] = eps
+        dR = exp_so3(d[:3])
+        num = (project(dR @ R, dR @ t + d[3:]) - project(R, t)) / eps
+        assert np.allclose(num, J_ref[:, :, j], rtol=1e-4, atol=1e-3)
+    W = np.linalg.inv(C_ref)
+    res_ref = uv - project(R, t)
+    A_ref = np.einsum("nji,njk,nkl->il", J_ref, W, J_ref)
+    g_ref = np.einsum("nji,njk,nk->i", J_ref, W, res_ref)
+    q_ref = np.einsum("ni,nij,nj->n", res_ref, W, res_ref)
+    for got, want in ((C, C_ref), (Jd, J_ref), (res, res_ref), (A, A_ref), (g, g_ref), (q, q_ref)):
+        assert np.allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+    cov = np.linalg.inv(A_ref)
+    Qv = C_ref - J_ref @ cov @ np.swapaxes(J_ref, 1, 2)
+    qs_ref = np.einsum("ni,nij,nj->n", res_ref, np.linalg.inv(Qv), res_ref)
+    assert np.allclose(snooped_q(C, Jd, res, cov), qs_ref, rtol=1e-9)
+    # a point whose covariance is all the fit's (nothing left to test) is tested against C itself
+    Cz = C.copy()
+    Cz[1] = (Jd @ cov @ np.swapaxes(Jd, 1, 2))[1]
+    qz = snooped_q(Cz, Jd, res, cov)
+    assert np.isclose(qz[1], res[1] @ np.linalg.solve(Cz[1], res[1]), rtol=1e-9)
+    assert np.allclose(qz[2:], qs_ref[2:], rtol=1e-9)

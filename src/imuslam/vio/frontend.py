@@ -28,9 +28,9 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from imuslam.geometry import hat
 from imuslam.geometry.so3_nb import exp_nb, log_nb
 from imuslam.vio.calib import Rectification
+from imuslam.vio.motion_nb import normal_terms, snooped_q
 from imuslam.vio.zncc import disparity_slopes, slanted_disparity, stereo_match, track
 
 FloatArray = NDArray[np.float64]
@@ -267,34 +267,22 @@ class StereoVO:
         """Weighted Gauss-Newton on T_{r_k, r_{k-1}} (left perturbation [dtheta, dt]); returns R, t, the
         6x6 covariance of the perturbation at the prior pixel sigma, the a-posteriori variance factor
         (chi-square over 2 n - 6) and each point's residual chi-square (2 dof) under its covariance (with
-        ``refit_snooping``, under the residual's own covariance)."""
+        ``refit_snooping``, under the residual's own covariance). The per-point terms are compiled
+        (:mod:`imuslam.vio.motion_nb`)."""
         K = self.rect.K
-        f = np.array([K[0, 0], K[1, 1]])
-        cxy = K[:2, 2]
         s2 = self.cfg.pixel_sigma**2
         n = len(X)
-        cov = np.eye(6)
-        q = np.zeros(n)
+        cov: FloatArray = np.eye(6)
+        X = np.ascontiguousarray(X, dtype=float)
+        covX = np.ascontiguousarray(covX, dtype=float)
+        uv = np.ascontiguousarray(uv, dtype=float)
         for it in range(4):
-            Y = X @ R.T + t
-            z = Y[:, 2:3]
-            p = f * Y[:, :2] / z + cxy
-            res = uv - p
-            Jp = np.zeros((n, 2, 3))
-            Jp[:, 0, 0] = f[0] / z[:, 0]
-            Jp[:, 0, 2] = -f[0] * Y[:, 0] / z[:, 0] ** 2
-            Jp[:, 1, 1] = f[1] / z[:, 0]
-            Jp[:, 1, 2] = -f[1] * Y[:, 1] / z[:, 0] ** 2
-            JR = Jp @ R
-            C = s2 * np.eye(2) + JR @ covX @ np.swapaxes(JR, 1, 2)
-            W = np.linalg.inv(C)
-            Jd = np.concatenate([Jp @ -hat(Y), Jp], axis=2)  # (n, 2, 6): d p / d [dtheta, dt]
-            JtW = np.swapaxes(Jd, 1, 2) @ W
-            A = np.einsum("nij,njk->ik", JtW, Jd)
-            g = np.einsum("nij,nj->i", JtW, res)
-            q = np.einsum("ni,nij,nj->n", res, W, res)
+            A, g, q, C, Jd, res = normal_terms(
+                X, covX, uv, np.ascontiguousarray(R, dtype=float), np.ascontiguousarray(t, dtype=float),
+                K[0, 0], K[1, 1], K[0, 2], K[1, 2], s2,
+            )  # fmt: skip
             try:
-                cov = np.linalg.inv(A)
+                cov = np.asarray(np.linalg.inv(A), dtype=np.float64)
             except np.linalg.LinAlgError:
                 break
             if it == 3:
@@ -314,11 +302,7 @@ class StereoVO:
             # for use in geodetic networks"; the deleted residual's test of Cook and Weisberg 1982):
             # chi-square(2) for a good point whatever its leverage; where the fit leaves a point
             # (almost) nothing to test, C itself
-            Qv = C - Jd @ cov @ np.swapaxes(Jd, 1, 2)
-            det = Qv[:, 0, 0] * Qv[:, 1, 1] - Qv[:, 0, 1] * Qv[:, 1, 0]
-            ok = det > 1e-4 * (C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] * C[:, 1, 0])
-            Qi = np.linalg.inv(np.where(ok[:, None, None], Qv, C))
-            q = np.einsum("ni,nij,nj->n", res, Qi, res)
+            q = snooped_q(C, Jd, res, cov)
         return R, t, cov, vf, q
 
     def _fit(
