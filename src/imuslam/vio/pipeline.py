@@ -113,7 +113,8 @@ class VioConfig(BaseModel):
         gt=0.5,
         lt=1.0,
         description="chi-square gate; None: off. 99.99 %: the VO errors have a heavier tail than "
-        "chi-square, and 99.9 % rejected up to 1.1 % of good VO on the rendered robot (bench/vio.py nhc)",
+        "chi-square; 99.9 % rejected up to 0.48 % of good VO on the rendered robot (1.1-1.56 % with "
+        "earlier front ends; bench/vio.py nhc)",
     )
     vo_cov_model: Literal["prior_floor", "residual"] = Field(
         "prior_floor",
