@@ -39,7 +39,8 @@
     python bench/vio.py vonees --seeds 0 1 2 3 4 5 6 7 8 9 10
                                          # the rendered VO's NEES against the truth per seed: its mean,
                                          # tail, autocorrelation, the standard error of a run's mean
-                                         # and the spread of the seeds' means
+                                         # and the spread of the seeds' means; the error RMS per
+                                         # pair and of the errors' 10 s means (their slow part)
     python bench/vio.py nhc ... [--adapt N --adapt-s S --uncalibrated]
                                          # the VO covariance scales learnt online (held after S s);
                                          # no calibration against a truth
