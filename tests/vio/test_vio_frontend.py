@@ -520,4 +520,4 @@ def test_compiled_fit_terms_equal_numpy() -> None:
     Cz[1] = (Jd @ cov @ np.swapaxes(Jd, 1, 2))[1]
     qz = snooped_q(Cz, Jd, res, cov)
     assert np.isclose(qz[1], res[1] @ np.linalg.solve(Cz[1], res[1]), rtol=1e-9)
-    assert np.allclose(qz[2:], qs_ref[2:], rtol=1e-9)
+    assert np.allclose(np.delete(qz, 1), np.delete(qs_ref, 1), rtol=1e-9)

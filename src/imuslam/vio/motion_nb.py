@@ -105,6 +105,7 @@ def snooped_q(
     n = C.shape[0]
     q = np.empty(n)
     JP = np.empty((2, 6))
+    h = np.empty((2, 2))
     for k in range(n):
         for i in range(2):
             for b in range(6):
@@ -112,7 +113,6 @@ def snooped_q(
                 for a in range(6):
                     s += Jd[k, i, a] * cov[a, b]
                 JP[i, b] = s
-        h = np.empty((2, 2))
         for i in range(2):
             for j in range(2):
                 s = 0.0
