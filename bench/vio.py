@@ -206,6 +206,7 @@ def speed(only: str) -> None:
     from imuslam.vio.frontend import StereoVO, VoConfig
 
     rows = []
+    parts: list[tuple[str, ...]] = []  # the front end's time per frame by part, last pass of a row
     if only in ("all", "vo"):
         ds = EurocStereo(DATA / "euroc_V1_01_micro_kimera")
         rect = ds.rectification()
@@ -239,21 +240,33 @@ def speed(only: str) -> None:
                 rendered[hz] = (r, list(r.frames()))
             run, rpairs = rendered[hz]
 
+            last: dict[str, Any] = {}
+
             def run_rendered(
-                cfg: VoConfig = cfg, run: SimStereoRun = run, rpairs: Any = rpairs
+                cfg: VoConfig = cfg, run: SimStereoRun = run, rpairs: Any = rpairs, last: Any = last
             ) -> None:
                 v = StereoVO(run.rectification(), cfg)
                 for t, a, b in rpairs:
                     v.process(t, a, b)
+                last["stats"] = v.stats
 
             run_rendered()  # compile
             w, c = _rate(run_rendered, len(rpairs))
-            rows.append((f"VO (sift), rendered ground robot at {hz:g} Hz{label}", f"{w:.1f}", f"{c:.1f}",
-                         "stereo frames/s", ">= 30"))  # fmt: skip
+            name = f"rendered ground robot at {hz:g} Hz{label}"
+            rows.append((f"VO (sift), {name}", f"{w:.1f}", f"{c:.1f}", "stereo frames/s", ">= 30"))
+            st = last["stats"]
+            parts.append((name, *(f"{1e3 * x / st.frames:.1f}" for x in st.seconds.values())))
     if only in ("all", "ekf"):
         rows += ekf_speed()
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     _table(["quantity", "wall clock", "per CPU second", "unit", "target"], rows)
+    if parts:
+        from imuslam.vio.frontend import VoStats
+
+        print(
+            "\nthe front end's wall time per frame by part [ms] (VoStats.seconds; last pass of each row)"
+        )
+        _table(["VO (sift)", *VoStats().seconds], parts)
 
 
 def _table(cols: list[str], rows: list[tuple[str, ...]]) -> None:

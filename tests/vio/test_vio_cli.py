@@ -193,7 +193,10 @@ def test_example_config_sets_the_front_end(tmp_path: Path) -> None:
         assert code == 0, text
         written = yaml.safe_load((tmp_path / name / "config.yaml").read_text())
         assert written["vo"]["redetect_below"] == (1.0 if name == "every" else 0.7)
-        tracked[name] = json.loads((tmp_path / name / "gating.json").read_text())["vo"][
-            "mean_tracked"
-        ]
+        vo = json.loads((tmp_path / name / "gating.json").read_text())["vo"]
+        tracked[name] = vo["mean_tracked"]
+        # where the front end's time went, by part (no timing is asserted: only that each part is there)
+        parts = vo["ms_per_frame"]
+        assert set(parts) == {"images", "track", "motion", "detect", "stereo"}
+        assert all(np.isfinite(x) and x > 0 for x in parts.values()), parts
     assert tracked["every"] > 1.1 * tracked["default"]

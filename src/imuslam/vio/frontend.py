@@ -21,6 +21,7 @@ Frames: ``r`` is the rectified left camera (x right, y down, z forward), ``b`` t
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -132,6 +133,21 @@ class VoStats:
     skipped_few_inliers: int = 0
     tracked: list[int] = field(default_factory=list)
     inliers: list[int] = field(default_factory=list)
+    # wall-clock seconds spent per part of :meth:`StereoVO.process`, summed over the run: "images"
+    # (conversion, blur, pyramid), "track" (prediction, warp maps, ZNCC tracking), "motion" (RANSAC,
+    # the fit, the body rates and their covariance), "detect", "stereo" (matching, triangulation)
+    seconds: dict[str, float] = field(
+        default_factory=lambda: dict.fromkeys(
+            ("images", "track", "motion", "detect", "stereo"), 0.0
+        )
+    )
+
+
+def _lap(seconds: dict[str, float], part: str, tic: float) -> float:
+    """Add the time since ``tic`` to ``seconds[part]``; returns now."""
+    now = time.perf_counter()
+    seconds[part] += now - tic
+    return now
 
 
 def _se3(R: FloatArray, t: FloatArray) -> FloatArray:
@@ -363,12 +379,15 @@ class StereoVO:
         c = self.cfg
         st = self.stats
         st.frames += 1
+        sec = st.seconds
+        tic = time.perf_counter()
         left: Any = left_u8.astype(np.float32)
         right: Any = right_u8.astype(np.float32)
         if c.blur_sigma > 0:
             left = cv2.GaussianBlur(left, (0, 0), c.blur_sigma)
             right = cv2.GaussianBlur(right, (0, 0), c.blur_sigma)
         left1 = cv2.pyrDown(left)
+        tic = _lap(sec, "images", tic)
         meas: VoMeasurement | None = None
         uv_keep = np.zeros((0, 2))
         d_keep = np.zeros(0)
@@ -388,6 +407,7 @@ class StereoVO:
                 prev["img0"], prev["img1"], left, left1, prev["uv"], pred, c.patch_half,
                 c.patch_half_coarse, c.search_coarse_px, c.search_fine_px, c.min_zncc, affine,
             )  # fmt: skip
+            tic = _lap(sec, "track", tic)
             ok = np.isfinite(uv_new[:, 0])
             st.tracked.append(int(ok.sum()))
             dt = (t_ns - prev["t_ns"]) * 1e-9
@@ -435,13 +455,16 @@ class StereoVO:
                     uv_keep = uv_new[keep]
                     z_pred = X[keep] @ R[2] + t[2]
                     d_keep = self.rect.f * self.rect.baseline / np.maximum(z_pred, 1e-3)
+            tic = _lap(sec, "motion", tic)
         # next frame's features: the tracked inliers plus new detections, triangulated here
         if len(uv_keep) < c.redetect_below * c.max_features:
             new = self._detect(left_u8, uv_keep, c.max_features - len(uv_keep))
             if len(new):
                 uv_keep = np.concatenate([uv_keep, new])
                 d_keep = np.concatenate([d_keep, np.full(len(new), np.nan)])
+            tic = _lap(sec, "detect", tic)
         uvX, covX = self._triangulate(left, right, uv_keep, d_keep)
+        _lap(sec, "stereo", tic)
         self._prev = {
             "t_ns": t_ns, "img0": left, "img1": left1, "uv": uvX[:, :2].copy(),
             "X": uvX[:, 2:5].copy(), "plane": uvX[:, 5:].copy(), "covX": covX,

@@ -829,6 +829,12 @@ class VioResult:
                 "mean_inliers": float(np.mean(self.vo_stats.inliers))
                 if self.vo_stats.inliers
                 else 0.0,
+                # where the front end's time went, per frame (VO runs pickled before the timing
+                # existed have none)
+                "ms_per_frame": {
+                    k: 1e3 * v / max(self.vo_stats.frames, 1)
+                    for k, v in getattr(self.vo_stats, "seconds", {}).items()
+                },
             },
             "gating": {k: v.summary() for k, v in self.gating.items()},
             "outliers": self.outliers,
