@@ -41,6 +41,9 @@
                                          # tail, autocorrelation, the standard error of a run's mean
                                          # and the spread of the seeds' means; the error RMS per
                                          # pair and of the errors' 10 s means (their slow part)
+    python bench/vio.py vocheck --seeds 0 1 2 [--redetect-below 1]
+                                         # render the seeds again and compare the current front end's
+                                         # VO with the cached measurements (do the caches still hold?)
     python bench/vio.py nhc ... [--adapt N --adapt-s S --uncalibrated]
                                          # the VO covariance scales learnt online (held after S s);
                                          # no calibration against a truth
@@ -1270,6 +1273,50 @@ def image_noise() -> None:
     _table(["images", "temporal noise 1-sigma, median [grey levels]", "range over pairs"], rows)
 
 
+def vo_check(duration: float, rate: float, seeds: list[int]) -> None:
+    """Render each seed again and run the current front end on it; compare with its cached VO
+    measurements (the caches the sim studies read): the pairs measured, the inlier counts, the largest
+    difference in rate and velocity and the largest relative difference in covariance. A cache that no
+    longer matches the code shows here."""
+    from tqdm import tqdm
+
+    from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
+    from imuslam.vio.frontend import VoConfig
+    from imuslam.vio.pipeline import compute_vo
+
+    rows = []
+    for seed in seeds:
+        run = SimStereoRun(StereoRunConfig(duration_s=duration, image_hz=rate, seed=seed, **SIM))
+        # this duration's cache, or the shortest longer one (its first pairs are this run's)
+        found = sorted(
+            (float(p.name.split("_")[2][:-1]), p)
+            for p in CACHE.glob(f"vo_sim_*s_{rate:g}hz_seed{seed}_{_cache_tag()}.pkl")
+            if float(p.name.split("_")[2][:-1]) >= duration
+        )
+        if not found:
+            rows.append(
+                (str(seed), f"none for {duration:g} s, tag {_cache_tag()}", "", "", "", "", "")
+            )
+            continue
+        cache = found[0][1]
+        ref = pickle.loads(cache.read_bytes())
+        with tqdm(total=len(run), unit="frame", desc=f"render + VO, seed {seed}") as bar:
+            new = compute_vo(run, VoConfig(**VO), bar.update)  # type: ignore[arg-type]
+        both = [
+            (m, r) for (_, m), (_, r) in zip(new.frames, ref.frames[: len(new.frames)], strict=True)
+        ]
+        same_pairs = all((m is None) == (r is None) for m, r in both)
+        meas = [(m, r) for m, r in both if m is not None and r is not None]
+        d_z = max(float(np.abs(np.r_[m.omega_b, m.vel_b] - np.r_[r.omega_b, r.vel_b]).max())
+                  for m, r in meas)  # fmt: skip
+        d_c = max(float(np.abs(m.cov - r.cov).max() / np.abs(r.cov).max()) for m, r in meas)
+        same_in = all(m.n_inliers == r.n_inliers for m, r in meas)
+        rows.append((str(seed), cache.name, str(len(meas)), "yes" if same_pairs else "NO",
+                     "yes" if same_in else "NO", f"{d_z:.1e}", f"{d_c:.1e}"))  # fmt: skip
+    _table(["seed", "cache", "pairs", "same pairs measured", "same inliers",
+            "max |d rate, velocity|", "max rel. d covariance"], rows)  # fmt: skip
+
+
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument(
@@ -1289,6 +1336,7 @@ def main(argv: list[str]) -> None:
             "voerrparts",
             "frontparts",
             "vonees",
+            "vocheck",
         ],
     )
     ap.add_argument("--frames", type=int, default=60, help="trackbias: rendered pairs")
@@ -1390,6 +1438,8 @@ def main(argv: list[str]) -> None:
         front_end_parts(a.duration, a.rate, a.seeds)
     elif a.what == "voerrparts":
         vo_error_parts(a.duration, a.rate, a.seeds)
+    elif a.what == "vocheck":
+        vo_check(a.duration, a.rate, a.seeds)
     elif a.what == "vonees":
         vo_nees(a.duration, a.rate, a.seeds)
     elif a.what == "asreported":
