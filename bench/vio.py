@@ -1302,10 +1302,9 @@ def vo_check(duration: float, rate: float, seeds: list[int]) -> None:
         ref = pickle.loads(cache.read_bytes())
         with tqdm(total=len(run), unit="frame", desc=f"render + VO, seed {seed}") as bar:
             new = compute_vo(run, VoConfig(**VO), bar.update)  # type: ignore[arg-type]
-        both = [
-            (m, r) for (_, m), (_, r) in zip(new.frames, ref.frames[: len(new.frames)], strict=True)
-        ]
-        same_pairs = all((m is None) == (r is None) for m, r in both)
+        pairs = list(zip(new.frames, ref.frames[: len(new.frames)], strict=True))
+        both = [(m, r) for (_, m), (_, r) in pairs]
+        same_pairs = all(t == tr and (m is None) == (r is None) for (t, m), (tr, r) in pairs)
         meas = [(m, r) for m, r in both if m is not None and r is not None]
         d_z = max(float(np.abs(np.r_[m.omega_b, m.vel_b] - np.r_[r.omega_b, r.vel_b]).max())
                   for m, r in meas)  # fmt: skip
