@@ -280,6 +280,15 @@ def _table(cols: list[str], rows: list[tuple[str, ...]]) -> None:
         print(" | ".join(x.ljust(w[i]) for i, x in enumerate(r)))
 
 
+def _vo_caches(rate: float, seed: int) -> list[tuple[float, Path]]:
+    """The cached VO runs of ``seed`` at ``rate`` under the current cache tag, (duration, path),
+    shortest first."""
+    return sorted(
+        (float(p.name.split("_")[2][:-1]), p)
+        for p in CACHE.glob(f"vo_sim_*s_{rate:g}hz_seed{seed}_{_cache_tag()}.pkl")
+    )
+
+
 def _sim_vo(duration: float, rate: float, seed: int):  # type: ignore[no-untyped-def]
     """The rendered run and its VO measurements (cached in bench/.cache: rendering is the slow part)."""
     from tqdm import tqdm
@@ -293,11 +302,7 @@ def _sim_vo(duration: float, rate: float, seed: int):  # type: ignore[no-untyped
     cache = CACHE / f"vo_sim_{duration:g}s_{rate:g}hz_seed{seed}_{_cache_tag()}.pkl"
     # a longer run of the same seed renders the same images first (the image noise is drawn frame by
     # frame), so its VO measurements cut to this duration are this run's (the IMU noise differs)
-    longer = sorted(
-        (float(p.name.split("_")[2][:-1]), p)
-        for p in CACHE.glob(f"vo_sim_*s_{rate:g}hz_seed{seed}_{_cache_tag()}.pkl")
-        if float(p.name.split("_")[2][:-1]) > duration
-    )
+    longer = [(d, p) for d, p in _vo_caches(rate, seed) if d > duration]
     if cache.is_file():
         vo_run = pickle.loads(cache.read_bytes())
         print(f"VO measurements from {cache}")
@@ -1288,11 +1293,7 @@ def vo_check(duration: float, rate: float, seeds: list[int]) -> None:
     for seed in seeds:
         run = SimStereoRun(StereoRunConfig(duration_s=duration, image_hz=rate, seed=seed, **SIM))
         # this duration's cache, or the shortest longer one (its first pairs are this run's)
-        found = sorted(
-            (float(p.name.split("_")[2][:-1]), p)
-            for p in CACHE.glob(f"vo_sim_*s_{rate:g}hz_seed{seed}_{_cache_tag()}.pkl")
-            if float(p.name.split("_")[2][:-1]) >= duration
-        )
+        found = [(d, p) for d, p in _vo_caches(rate, seed) if d >= duration]
         if not found:
             rows.append(
                 (str(seed), f"none for {duration:g} s, tag {_cache_tag()}", "", "", "", "", "")
@@ -1306,9 +1307,10 @@ def vo_check(duration: float, rate: float, seeds: list[int]) -> None:
         both = [(m, r) for (_, m), (_, r) in pairs]
         same_pairs = all(t == tr and (m is None) == (r is None) for (t, m), (tr, r) in pairs)
         meas = [(m, r) for m, r in both if m is not None and r is not None]
-        d_z = max(float(np.abs(np.r_[m.omega_b, m.vel_b] - np.r_[r.omega_b, r.vel_b]).max())
-                  for m, r in meas)  # fmt: skip
-        d_c = max(float(np.abs(m.cov - r.cov).max() / np.abs(r.cov).max()) for m, r in meas)
+        d_z = max((float(np.abs(np.r_[m.omega_b, m.vel_b] - np.r_[r.omega_b, r.vel_b]).max())
+                   for m, r in meas), default=float("nan"))  # fmt: skip
+        d_c = max((float(np.abs(m.cov - r.cov).max() / np.abs(r.cov).max()) for m, r in meas),
+                  default=float("nan"))  # fmt: skip
         same_in = all(m.n_inliers == r.n_inliers for m, r in meas)
         rows.append((str(seed), cache.name, str(len(meas)), "yes" if same_pairs else "NO",
                      "yes" if same_in else "NO", f"{d_z:.1e}", f"{d_c:.1e}"))  # fmt: skip
