@@ -15,9 +15,12 @@
     python bench/vio.py nhc ... --calib-pool 10
                                          # each seed's VO covariance calibrated on the 10 seeds after
                                          # it (mod 11), pooled, instead of seed + 1 alone
-    python bench/vio.py nhc|vonees|... --redetect-below 1
+    python bench/vio.py nhc|vonees|... --redetect-below 1 | --refit-huber-k 2
                                          # the sim studies with the front end's VoConfig.redetect_below
-                                         # (caches rendered with it, tagged with it)
+                                         # or refit_huber_k (caches rendered with it, tagged with it)
+    python bench/vio.py nhc ... --calib-nhc matched
+                                         # each filter's VO covariance scales calibrated with its own
+                                         # NHC setting (default: with the NHC off, for every filter)
     python bench/vio.py nhcsweep [--seed 0]
                                          # one seed: the error budget of NHC off / on and the NHC cut
                                          # for other constraint noises, rates, vo_joint, bias walk
@@ -39,8 +42,10 @@
     python bench/vio.py vonees --seeds 0 1 2 3 4 5 6 7 8 9 10
                                          # the rendered VO's NEES against the truth per seed: its mean,
                                          # tail, autocorrelation, the standard error of a run's mean
-                                         # and the spread of the seeds' means; the error RMS per
-                                         # pair and of the errors' 10 s means (their slow part)
+                                         # and the spread of the seeds' means; the NEES by what the
+                                         # front end knows of a pair (inliers, turn rate, speed, new
+                                         # detections); the error RMS per pair and of the errors' 10 s
+                                         # means (their slow part)
     python bench/vio.py vocheck --seeds 0 1 2 [--redetect-below 1]
                                          # render the seeds again and compare the current front end's
                                          # VO with the cached measurements (do the caches still hold?)
@@ -76,7 +81,8 @@ VO_BIAS_S = [0.0]
 # (the robot of the README's tables before the ground-following one; its VO caches are "v2")
 SIM: dict[str, bool] = {"ground_following": True}
 # ``--redetect-below F``: the front end's VoConfig.redetect_below (1: the detector runs on every frame
-# that lost a track); the VO caches are then rendered with it and tagged with it
+# that lost a track); ``--refit-huber-k K``: its refit_huber_k (the Huber-weighted refit); the VO caches
+# are then rendered with them and tagged with them
 VO: dict[str, float] = {}
 # ``--calib-pool K``: nhc calibrates each seed's VO covariance on the K seeds after it, pooled (1: seed + 1)
 CALIB_POOL = [1]
@@ -92,7 +98,7 @@ MODEL: dict[str, object] = {}
 # (``--pitching-robot``), whose pitch made 1.2e-3 m/s RMS of vertical body velocity. ``--calib-nhc``:
 # whether the runs that calibrate the VO covariance scales apply the NHC. Off by default: the scales are
 # the VO's, and a calibration with a loose constraint shrinks the VO covariance by about 10 %
-NHC: dict[str, object] = {"nhc_std": 1e-4, "calib_nhc": False}
+NHC: dict[str, object] = {"nhc_std": 1e-4, "calib_nhc": "off"}
 # ``--vo-error fit``: the slowly varying part of the VO velocity error as a Gauss-Markov state, its
 # sigmas and time constant fitted on the calibration seed's errors against its truth
 # (vio.covcal.fit_vo_error); filled by calibrate_vo_cov, read by the filters of sim and nhc
@@ -360,10 +366,13 @@ def _held_out_nis(res: object, hold_s: float) -> dict[str, tuple[float, float, f
 
 
 def calibrate_vo_cov(
-    rate: float, calib_duration: float, cseeds: list[int], correction: bool
+    rate: float, calib_duration: float, cseeds: list[int], correction: bool, nhc: bool | None = None
 ) -> tuple[np.ndarray | None, float, float]:
     """The VO covariance's shape ``M`` (None without ``correction``) and block scales (velocity, rate)
-    learnt on the rendered calibration run(s) ``cseeds`` against their truth."""
+    learnt on the rendered calibration run(s) ``cseeds`` against their truth; the scales with the
+    filters' NHC ``nhc`` (None: ``--calib-nhc``, off unless 'on')."""
+    if nhc is None:
+        nhc = NHC["calib_nhc"] == "on"
     from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
     from imuslam.vio.pipeline import VioConfig, run_vio
 
@@ -413,7 +422,7 @@ def calibrate_vo_cov(
     for _ in range(6):
         nis = {"vo_velocity": [], "vo_rate": []}  # type: dict[str, list[float]]
         for cr, cv in cals:
-            r = run_vio(cr, VioConfig(nhc=bool(NHC["calib_nhc"]), nhc_std=NHC["nhc_std"],  # type: ignore[arg-type]
+            r = run_vio(cr, VioConfig(nhc=nhc, nhc_std=NHC["nhc_std"],  # type: ignore[arg-type]
                                       vo_cov_scale=s_vel, **GATE, **VO_BIAS, **VO_ERR,
                                       vo_rate_cov_scale=s_rate, **corr, **MODEL),  # type: ignore[arg-type]
                         vo_run=cv)  # fmt: skip
@@ -426,7 +435,8 @@ def calibrate_vo_cov(
         s_rate *= cal["vo_rate"] / 3.0
     # the calibration's own sampling error: the scale is a mean NIS over n updates
     sd = {k: float(np.std(v) / np.sqrt(_nis_ess_band(np.asarray(v), 3)[0])) for k, v in nis.items()}
-    print(f"VO covariance scales calibrated on seed(s) {cseeds} ({calib_duration:g} s each): "
+    print(f"VO covariance scales calibrated on seed(s) {cseeds} ({calib_duration:g} s each, NHC "
+          f"{'on' if nhc else 'off'}): "
           f"velocity {s_vel:.3f}, rate {s_rate:.3f} (mean NIS there {cal['vo_velocity']:.2f} "
           f"+- {sd['vo_velocity']:.2f}, {cal['vo_rate']:.2f} +- {sd['vo_rate']:.2f}, 1-sigma of the "
           "calibration's mean: carried into this run's mean NIS as well)")  # fmt: skip
@@ -450,6 +460,15 @@ def sim(
         )
     else:
         M, s_vel, s_rate = calibrate_vo_cov(rate, calib_duration, cseeds, correction)
+    # ``--calib-nhc matched``: the NHC-on filters get scales calibrated with the NHC on (the shape M
+    # does not depend on the filter); with the NHC off the filter's velocity follows the VO's slowly
+    # varying error a little, which lowers its innovations, and with the NHC on it cannot sideways
+    cal_se = {"off": dict(CAL_SE), "on": dict(CAL_SE)}
+    scales_on = (s_vel, s_rate)
+    if NHC["calib_nhc"] == "matched" and not UNCAL[0]:
+        _, sv_on, sr_on = calibrate_vo_cov(rate, calib_duration, cseeds, correction, nhc=True)
+        scales_on = (sv_on, sr_on)
+        cal_se["on"] = dict(CAL_SE)
     corr = {"vo_cov_correction": M.tolist() if M is not None else None}
     run, vo_run = _sim_vo(duration, rate, seed)
     truth = run.truth()
@@ -461,11 +480,12 @@ def sim(
     # 1.2e-3 m/s RMS of vertical body velocity (0.002 m/s with --pitching-robot).
     base = {"nhc_std": NHC["nhc_std"], "vo_cov_scale": s_vel, "vo_rate_cov_scale": s_rate, **corr,
             **GATE, **VO_BIAS, **FILTER, **VO_ERR}  # fmt: skip
+    base_on = {**base, "vo_cov_scale": scales_on[0], "vo_rate_cov_scale": scales_on[1]}
     for name, cfg in (
         ("VO + IMU, NHC off", VioConfig(**base)),  # type: ignore[arg-type]
-        ("VO + IMU, NHC on", VioConfig(nhc=True, **base)),  # type: ignore[arg-type]
+        ("VO + IMU, NHC on", VioConfig(nhc=True, **base_on)),  # type: ignore[arg-type]
         ("VO + IMU, NHC on, 10 % VO corrupted",
-         VioConfig(nhc=True, outlier_fraction=0.1, outlier_seed=seed, **base)),  # type: ignore[arg-type]
+         VioConfig(nhc=True, outlier_fraction=0.1, outlier_seed=seed, **base_on)),  # type: ignore[arg-type]
         ("VO + IMU, NHC off, 10 % VO corrupted",
          VioConfig(outlier_fraction=0.1, outlier_seed=seed, **base)),  # type: ignore[arg-type]
         ("NHC on, VO covariance as reported (scale 1)",
@@ -535,7 +555,8 @@ def sim(
                 st = results[k][0].gating[kind]
                 x = np.asarray(st.nis)[np.asarray(st.accepted_mask, bool)]
                 se = float(np.std(x) / np.sqrt(_nis_ess_band(x, 3)[0]))
-                half = 1.96 * np.hypot(se, CAL_SE.get(kind, 0.0) if not UNCAL[0] else 0.0)
+                cse = cal_se["on" if "NHC on" in k else "off"].get(kind, 0.0)
+                half = 1.96 * np.hypot(se, cse if not UNCAL[0] else 0.0)
                 in_band_own += int(abs(x.mean() - 3.0) <= half)  # type: ignore[operator]
     return {"nhc_cut": 1 - b / a, "ate_off": a, "ate_on": b,
             "nis_vel": g["vo_velocity"]["nis_mean_accepted"],
@@ -767,18 +788,38 @@ def vo_nees(duration: float, rate: float, seeds: list[int]) -> None:
     the mean that follows; over the seeds, the spread of the means. If the seeds' means differ by about
     their standard errors, the run-to-run scatter of a mean NIS is sampling, not a different error level."""
     from imuslam.vio.covcal import vo_errors
+    from imuslam.vio.frontend import VoConfig
 
     rows, means, ses = [], {"velocity": [], "rate": []}, {"velocity": [], "rate": []}  # type: ignore[var-annotated]
     errs = []
+    # per pair, for the table by condition: each seed's NEES over its own mean, and what the front end
+    # knows of the pair without truth
+    cfg = VoConfig(**VO)
+    n_refill = cfg.redetect_below * cfg.max_features
+    rel: dict[str, list[np.ndarray]] = {"velocity": [], "rate": []}
+    cond: dict[str, list[np.ndarray]] = {"RANSAC inliers": [], "measured yaw rate [rad/s]": [],
+                                         "measured speed [m/s]": []}  # fmt: skip
+    fresh = []
     for seed in seeds:
         run, vo_run = _sim_vo(duration, rate, seed)
         ms = [m for _, m in vo_run.frames if m is not None]
         E, C = vo_errors(ms, run.truth)
         errs.append(E)
+        n_in = np.array([m.n_inliers for m in ms], float)
+        cond["RANSAC inliers"].append(n_in)
+        cond["measured yaw rate [rad/s]"].append(np.array([abs(m.omega_b[2]) for m in ms]))
+        cond["measured speed [m/s]"].append(np.array([np.linalg.norm(m.vel_b) for m in ms]))
+        # the detector ran after a pair that kept fewer inliers than the refill threshold, or after a
+        # pair that gave no measurement: the next pair's points include new detections
+        prev_ok = np.array(
+            [True] + [a.t1_ns == b.t0_ns for a, b in zip(ms[:-1], ms[1:], strict=True)]
+        )
+        fresh.append(~prev_ok | (np.r_[0.0, n_in[:-1]] < n_refill))
         cells = []
         for name, sl in (("velocity", slice(3, 6)), ("rate", slice(0, 3))):
             e = E[:, sl]
             x = np.einsum("ni,nij,nj->n", e, np.linalg.inv(C[:, sl, sl]), e)
+            rel[name].append(x / x.mean())
             ess = _nis_ess_band(x, 3)[0]
             se = float(np.std(x) / np.sqrt(ess))
             means[name].append(float(x.mean()))
@@ -796,6 +837,11 @@ def vo_nees(duration: float, rate: float, seeds: list[int]) -> None:
         print(f"{name}: spread of the seeds' means (sd) {m.std(ddof=1):.3f} ({100 * m.std(ddof=1) / m.mean():.1f} %), "
               f"mean standard error within a seed {np.mean(ses[name]):.3f}; a chi-square(3) mean over the "
               f"same pairs would have {m.mean() * np.sqrt(2 / 3) / np.sqrt(len(ms)):.3f}")  # fmt: skip
+    _nees_by_condition(
+        {k: np.concatenate(v) for k, v in rel.items()},
+        {k: np.concatenate(v) for k, v in cond.items()},
+        np.concatenate(fresh),
+    )
     rms = np.sqrt(np.mean(np.concatenate(errs) ** 2, axis=0)) * 1e3
     print(f"error RMS over the seeds' pairs: velocity x / y / z {rms[3]:.2f} / {rms[4]:.2f} / {rms[5]:.2f} "
           f"1e-3 m/s, rate {rms[0]:.3f} / {rms[1]:.3f} / {rms[2]:.3f} 1e-3 rad/s (body axes)")  # fmt: skip
@@ -810,6 +856,31 @@ def vo_nees(duration: float, rate: float, seeds: list[int]) -> None:
           f"{rw[5]:.2f} 1e-3 m/s, rate {rw[0]:.3f} / {rw[1]:.3f} / {rw[2]:.3f} 1e-3 rad/s; white errors "
           f"of the same RMS would give {rms[4] / np.sqrt(n_w):.2f} (velocity y) and "
           f"{rms[2] / np.sqrt(n_w):.3f} (rate z)")  # fmt: skip
+
+
+def _nees_by_condition(
+    rel: dict[str, np.ndarray], cond: dict[str, np.ndarray], fresh: np.ndarray
+) -> None:
+    """The NEES (each seed's over its own mean) in quintiles of what the front end knows of a pair
+    without truth, and for pairs with and without new detections: its mean there and its spread against
+    a chi-square's. A covariance conditioned on one of them can move the means to 1; if the spread
+    stays above 1 in every bin, the tails are not what that condition predicts."""
+
+    def cell(m: np.ndarray) -> str:
+        xv, xr = rel["velocity"][m], rel["rate"][m]
+        sd = lambda x: np.std(x) / (x.mean() * np.sqrt(2 / 3))  # noqa: E731
+        return f"{xv.mean():.2f} ({sd(xv):.2f}) / {xr.mean():.2f} ({sd(xr):.2f})"
+
+    rows = []
+    for name, f in cond.items():
+        q = np.quantile(f, np.linspace(0, 1, 6))
+        bins = np.clip(np.searchsorted(q, f, side="right") - 1, 0, 4)
+        rows.append((name, *(f"{q[b]:.3g}-{q[b + 1]:.3g}: {cell(bins == b)}" for b in range(5))))
+    rows.append(("new detections in the pair", f"with ({100 * fresh.mean():.0f} %): {cell(fresh)}",
+                 f"without: {cell(~fresh)}", "", "", ""))  # fmt: skip
+    print("NEES by condition: velocity mean (sd / chi-square's) / rate mean (sd / chi-square's), "
+          "each seed's NEES over its own mean")  # fmt: skip
+    _table(["condition", "quintile 1", "2", "3", "4", "5"], rows)
 
 
 def as_reported(duration: float, rate: float, seeds: list[int]) -> None:
@@ -1350,6 +1421,10 @@ def main(argv: list[str]) -> None:
     ap.add_argument(
         "--calib-duration", type=float, default=60.0, help="sim: the calibration run, s"
     )
+    ap.add_argument("--refit-huber-k", type=float, default=None,
+                    help="nhc, vonees, ...: the front end's VoConfig.refit_huber_k (the Huber-weighted "
+                    "refit; 0, the default, off); the VO caches are then rendered with it and tagged "
+                    "with it")  # fmt: skip
     ap.add_argument("--redetect-below", type=float, default=None,
                     help="nhc and the other sim studies: the front end's VoConfig.redetect_below "
                     "(caches tagged with it)")  # fmt: skip
@@ -1377,9 +1452,10 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--nhc-std", type=float, default=None,
                     help="sim, nhc: the constraint's sigma, m/s (VioConfig.nhc_std); default 1e-4, "
                     "0.002 with --pitching-robot (0.002 was the default before)")  # fmt: skip
-    ap.add_argument("--calib-nhc", choices=["on", "off"], default="off",
+    ap.add_argument("--calib-nhc", choices=["on", "off", "matched"], default="off",
                     help="sim, nhc, nhcsweep, nhcbias: the NHC in the runs that calibrate the VO "
-                    "covariance scales ('on' was the studies' setting before)")  # fmt: skip
+                    "covariance scales ('on' was the studies' setting before); 'matched' (sim, nhc): "
+                    "each filter's scales calibrated with its own NHC setting")  # fmt: skip
     ap.add_argument("--vo-error", choices=["off", "fit"], default="off",
                     help="sim, nhc: the VO velocity error's slow part as a Gauss-Markov state fitted "
                     "on the calibration seed (VioConfig.vo_error_std / vo_error_tau_s; Python filter)")  # fmt: skip
@@ -1406,6 +1482,8 @@ def main(argv: list[str]) -> None:
     CALIB_POOL[0] = a.calib_pool
     if a.redetect_below is not None:
         VO["redetect_below"] = a.redetect_below
+    if a.refit_huber_k is not None:
+        VO["refit_huber_k"] = a.refit_huber_k
     if a.separate_vo:
         FILTER["vo_joint"] = False
     if a.vo_model != "rate":
@@ -1414,7 +1492,7 @@ def main(argv: list[str]) -> None:
         FILTER["vo_velocity_model"] = MODEL["vo_velocity_model"] = a.vo_velocity_model
     VO_ERR_FIT[0] = a.vo_error == "fit"
     NHC["nhc_std"] = a.nhc_std if a.nhc_std is not None else (0.002 if a.pitching_robot else 1e-4)
-    NHC["calib_nhc"] = a.calib_nhc == "on"
+    NHC["calib_nhc"] = a.calib_nhc
     VO_BIAS_S[0] = a.vo_bias
     if a.adapt:
         FILTER["vo_cov_adapt_n"] = a.adapt

@@ -10,7 +10,9 @@ The fit is Gauss-Newton on ``T = (R, t)`` mapping previous-frame points ``X`` to
 
 :func:`normal_terms` sums ``A = sum Jd^T C^-1 Jd`` and ``g = sum Jd^T C^-1 r`` and returns each point's
 ``q = r^T C^-1 r``; :func:`snooped_q` tests each residual against what the fit leaves of its covariance,
-``C - Jd A^-1 Jd^T`` (Baarda 1968). ``tests/vio/test_vio_frontend.py`` checks both against numpy.
+``C - Jd A^-1 Jd^T`` (Baarda 1968); :func:`huber_terms` weighs each point's terms by Huber's weight
+(Huber 1964, "Robust estimation of a location parameter") for the iteratively reweighted fit.
+``tests/vio/test_vio_frontend.py`` checks them against numpy.
 """
 
 from __future__ import annotations
@@ -127,3 +129,34 @@ def snooped_q(
         r0, r1 = res[k, 0], res[k, 1]
         q[k] = (r0 * (h[1, 1] * r0 - h[0, 1] * r1) + r1 * (-h[1, 0] * r0 + h[0, 0] * r1)) / detq
     return q
+
+
+@numba.njit(cache=True)
+def huber_terms(
+    C: FloatArray, Jd: FloatArray, res: FloatArray, q: FloatArray, k: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """Huber-weighted Gauss-Newton terms: with ``w = min(1, k / sqrt(q))`` per point (its residual's
+    Mahalanobis norm ``sqrt(q)`` beyond ``k`` weighed down), ``A = sum w Jd^T C^-1 Jd``,
+    ``g = sum w Jd^T C^-1 r`` and ``B = sum w^2 Jd^T C^-1 Jd``, so that ``A^-1 B A^-1`` is the
+    estimate's covariance under ``C`` (the sandwich of M-estimation, Huber 1967)."""
+    n = C.shape[0]
+    A = np.zeros((6, 6))
+    g = np.zeros(6)
+    B = np.zeros((6, 6))
+    JtW = np.empty((6, 2))
+    for k_ in range(n):
+        r = np.sqrt(q[k_])
+        w = 1.0 if r <= k else k / r
+        c00, c01, c10, c11 = C[k_, 0, 0], C[k_, 0, 1], C[k_, 1, 0], C[k_, 1, 1]
+        det = c00 * c11 - c01 * c10
+        w00, w01, w10, w11 = c11 / det, -c01 / det, -c10 / det, c00 / det
+        for a in range(6):
+            JtW[a, 0] = Jd[k_, 0, a] * w00 + Jd[k_, 1, a] * w10
+            JtW[a, 1] = Jd[k_, 0, a] * w01 + Jd[k_, 1, a] * w11
+        for a in range(6):
+            for b in range(6):
+                h = JtW[a, 0] * Jd[k_, 0, b] + JtW[a, 1] * Jd[k_, 1, b]
+                A[a, b] += w * h
+                B[a, b] += w * w * h
+            g[a] += w * (JtW[a, 0] * res[k_, 0] + JtW[a, 1] * res[k_, 1])
+    return A, g, B
