@@ -52,6 +52,10 @@
     python bench/vio.py nhc ... [--adapt N --adapt-s S --uncalibrated]
                                          # the VO covariance scales learnt online (held after S s);
                                          # no calibration against a truth
+    python bench/vio.py nisref --seeds 0 1 2 3 4 5 6 7 8 9 [--draws 5]
+                                         # nhc's "mean NIS in band" count for VO of exactly its
+                                         # covariance (the cached VO's pairs, truth + Gaussian noise
+                                         # of its covariance): what a consistent filter scores
     python bench/vio.py husky            # wheel odometry + IMU EKF against GPS (robot_localization bag)
 
 The sim study renders every stereo pair (the slow part) once, caches the VO measurements in
@@ -781,6 +785,53 @@ def white_vo(duration: float, rate: float, seed: int) -> None:
             "ATE [mm]"], rows)  # fmt: skip
 
 
+def nis_reference(duration: float, rate: float, seeds: list[int], draws: int) -> None:
+    """What ``nhc``'s "mean NIS in band" count is for a filter whose VO covariance is exactly right: each
+    cached rendered VO measurement replaced by the truth plus Gaussian noise drawn from its own
+    reported covariance (same pairs, times and covariances; errors Gaussian and white), then the
+    same four filter runs per seed (NHC off / on, each with and without 10 % corrupted), the same
+    bands. The four runs of a seed read the same VO, so the 8 cells of a seed move together and the
+    count scatters more than 80 independent cells would; ``draws`` noise draws give its spread."""
+    import dataclasses
+
+    from imuslam.vio.covcal import vo_errors
+    from imuslam.vio.pipeline import VioConfig, VoRun, run_vio
+
+    base = {"nhc_std": NHC["nhc_std"], **GATE, **FILTER}
+    counts = []
+    loaded = {seed: _sim_vo(duration, rate, seed) for seed in seeds}
+    for d in range(draws):
+        rng = np.random.default_rng(1000 + d)
+        n_in = 0
+        for seed, (run, vo_run) in loaded.items():
+            ms = [m for _, m in vo_run.frames if m is not None]
+            E, C = vo_errors(ms, run.truth)
+            Lc = np.linalg.cholesky(C)
+            e = np.einsum("nij,nj->ni", Lc, rng.normal(0.0, 1.0, (len(ms), 6)))
+            new = iter(
+                dataclasses.replace(m, omega_b=m.omega_b - E[k, :3] + e[k, :3],
+                                    vel_b=m.vel_b - E[k, 3:] + e[k, 3:])
+                for k, m in enumerate(ms)
+            )  # fmt: skip
+            frames = [(t, None if m is None else next(new)) for t, m in vo_run.frames]
+            white = VoRun(frames, vo_run.stats, vo_run.seen, vo_run.unreadable)
+            for kw in ({}, {"nhc": True}, {"nhc": True, "outlier_fraction": 0.1, "outlier_seed": seed},
+                       {"outlier_fraction": 0.1, "outlier_seed": seed}):  # fmt: skip
+                g = run_vio(run, VioConfig(**{**base, **kw}), vo_run=white).summary()["gating"]  # type: ignore[arg-type]
+                for kind in ("vo_velocity", "vo_rate"):
+                    lo, hi = g[kind]["nis_mean_band_95"]
+                    n_in += int(lo <= g[kind]["nis_mean_accepted"] <= hi)
+        counts.append(n_in)
+        print(
+            f"draw {d}: mean NIS in its chi-square 95 % band on {n_in}/{8 * len(seeds)}", flush=True
+        )
+    c = np.array(counts)
+    sd = f"{c.std(ddof=1):.1f}" if draws > 1 else "-"
+    print(f"VO of exactly its covariance (Gaussian, white), seeds {seeds}, {draws} draws: in band "
+          f"{c.mean():.1f} of {8 * len(seeds)} on average (sd {sd}, range {c.min()}-{c.max()}); "
+          f"counts {sorted(counts)}")  # fmt: skip
+
+
 def vo_nees(duration: float, rate: float, seeds: list[int]) -> None:
     """The rendered VO's errors against the truth, per seed: the NEES of its velocity and rate (3 dof
     each, under the covariance the front end reports), their mean, their spread against a chi-square's
@@ -1404,6 +1455,7 @@ def main(argv: list[str]) -> None:
             "nhcbias",
             "imgnoise",
             "whitevo",
+            "nisref",
             "asreported",
             "voerrparts",
             "frontparts",
@@ -1415,6 +1467,7 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--image-noise", type=float, default=None,
                     help="trackbias: image noise, grey levels (default the rig's 2)")  # fmt: skip
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="nhc: seeds")
+    ap.add_argument("--draws", type=int, default=5, help="nisref: noise draws")
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--rate", type=float, default=5.0)
     ap.add_argument("--seed", type=int, default=0)
@@ -1480,6 +1533,8 @@ def main(argv: list[str]) -> None:
     if not 1 <= a.calib_pool <= 10:  # 11 or more would wrap round to the evaluated seed itself
         ap.error(f"--calib-pool: {a.calib_pool}; expected 1 to 10")
     CALIB_POOL[0] = a.calib_pool
+    if a.draws < 1:
+        ap.error(f"--draws: {a.draws}; expected 1 or more")
     if a.redetect_below is not None:
         VO["redetect_below"] = a.redetect_below
     if a.refit_huber_k is not None:
@@ -1525,6 +1580,8 @@ def main(argv: list[str]) -> None:
         as_reported(a.duration, a.rate, a.seeds)
     elif a.what == "whitevo":
         white_vo(a.duration, a.rate, a.seed)
+    elif a.what == "nisref":
+        nis_reference(a.duration, a.rate, a.seeds, a.draws)
     elif a.what == "sim":
         sim(a.duration, a.rate, a.seed, a.calib_duration, a.calib_seeds, not a.no_correction)
     else:
