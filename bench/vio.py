@@ -785,6 +785,26 @@ def white_vo(duration: float, rate: float, seed: int) -> None:
             "ATE [mm]"], rows)  # fmt: skip
 
 
+def _white_errors(run, vo, rng: np.random.Generator):  # type: ignore[no-untyped-def]
+    """The VO run ``vo`` of the rendered ``run`` with each measurement's error against the truth
+    replaced by Gaussian noise drawn from the covariance it reports (rate-velocity correlation
+    included; the same frames, skips, covariances and motion)."""
+    from dataclasses import replace
+
+    from imuslam.vio.covcal import vo_errors
+    from imuslam.vio.pipeline import VoRun
+
+    E = vo_errors([m for _, m in vo.frames if m is not None], run.truth)[0]
+    frames, k = [], 0
+    for t, m in vo.frames:
+        if m is not None:
+            z = np.r_[m.omega_b, m.vel_b] - E[k] + np.linalg.cholesky(m.cov) @ rng.normal(size=6)
+            k += 1
+            m = replace(m, omega_b=z[:3], vel_b=z[3:])
+        frames.append((t, m))
+    return VoRun(frames, vo.stats, vo.seen, vo.unreadable)
+
+
 def nis_reference(duration: float, rate: float, seeds: list[int], draws: int) -> None:
     """What ``nhc``'s "mean NIS in band" count is for a filter whose VO covariance is exactly right: each
     cached rendered VO measurement replaced by the truth plus Gaussian noise drawn from its own
@@ -792,10 +812,7 @@ def nis_reference(duration: float, rate: float, seeds: list[int], draws: int) ->
     same four filter runs per seed (NHC off / on, each with and without 10 % corrupted), the same
     bands. The four runs of a seed read the same VO, so the 8 cells of a seed move together and the
     count scatters more than 80 independent cells would; ``draws`` noise draws give its spread."""
-    import dataclasses
-
-    from imuslam.vio.covcal import vo_errors
-    from imuslam.vio.pipeline import VioConfig, VoRun, run_vio
+    from imuslam.vio.pipeline import VioConfig, run_vio
 
     base = {"nhc_std": NHC["nhc_std"], **GATE, **FILTER}
     counts = []
@@ -804,17 +821,7 @@ def nis_reference(duration: float, rate: float, seeds: list[int], draws: int) ->
         rng = np.random.default_rng(1000 + d)
         n_in = 0
         for seed, (run, vo_run) in loaded.items():
-            ms = [m for _, m in vo_run.frames if m is not None]
-            E, C = vo_errors(ms, run.truth)
-            Lc = np.linalg.cholesky(C)
-            e = np.einsum("nij,nj->ni", Lc, rng.normal(0.0, 1.0, (len(ms), 6)))
-            new = iter(
-                dataclasses.replace(m, omega_b=m.omega_b - E[k, :3] + e[k, :3],
-                                    vel_b=m.vel_b - E[k, 3:] + e[k, 3:])
-                for k, m in enumerate(ms)
-            )  # fmt: skip
-            frames = [(t, None if m is None else next(new)) for t, m in vo_run.frames]
-            white = VoRun(frames, vo_run.stats, vo_run.seen, vo_run.unreadable)
+            white = _white_errors(run, vo_run, rng)
             for kw in ({}, {"nhc": True}, {"nhc": True, "outlier_fraction": 0.1, "outlier_seed": seed},
                        {"outlier_fraction": 0.1, "outlier_seed": seed}):  # fmt: skip
                 g = run_vio(run, VioConfig(**{**base, **kw}), vo_run=white).summary()["gating"]  # type: ignore[arg-type]
@@ -939,31 +946,15 @@ def as_reported(duration: float, rate: float, seeds: list[int]) -> None:
     covariance the front end reports for that frame (rate-velocity correlation included; the same
     frames, skips and motion): what the NHC and the NIS give when the VO's errors are what its
     covariance says. No covariance calibration (scales 1), NHC off, at 0.002 and at 1e-4 m/s."""
-    from dataclasses import replace
-
     from imuslam.eval.vio_compare import compare_tracks
-    from imuslam.vio.covcal import vo_errors
-    from imuslam.vio.pipeline import VioConfig, VoRun, run_vio
+    from imuslam.vio.pipeline import VioConfig, run_vio
 
     rows = []
     cuts: dict[float, list[float]] = {0.002: [], 1e-4: []}
     for seed in seeds:
         run, vo = _sim_vo(duration, rate, seed)
         truth = run.truth()
-        E = vo_errors([m for _, m in vo.frames if m is not None], run.truth)[0]
-        rng = np.random.default_rng(1000 + seed)
-        frames, k = [], 0
-        for t, m in vo.frames:
-            if m is not None:
-                z = (
-                    np.r_[m.omega_b, m.vel_b]
-                    - E[k]
-                    + np.linalg.cholesky(m.cov) @ rng.normal(size=6)
-                )
-                k += 1
-                m = replace(m, omega_b=z[:3], vel_b=z[3:])
-            frames.append((t, m))
-        vw = VoRun(frames, vo.stats, vo.seen, vo.unreadable)
+        vw = _white_errors(run, vo, np.random.default_rng(1000 + seed))
         ate, nis = {}, {}
         for sd in (None, 0.002, 1e-4):
             res = run_vio(
