@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-fast lint bench clean
+.PHONY: demo test test-fast lint docs bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,6 +21,11 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check src tests bench
 	$(BIN)/mypy
 	$(BIN)/lint-imports
+	$(BIN)/mkdocs build --strict --site-dir site
+
+# The documentation site (mkdocs.yml, docs/) into site/; `.venv/bin/mkdocs serve` to browse it live.
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict --site-dir site
 
 # Both cores (pytest-xdist). --dist loadscope keeps each test module on one worker, so a module-scoped
 # fixture (a VIO run, a real calibration, a 2D map) is computed once, not once per worker. Tests write only
