@@ -21,11 +21,11 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check src tests bench
 	$(BIN)/mypy
 	$(BIN)/lint-imports
-	$(BIN)/mkdocs build --strict --site-dir site
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
 
 # The documentation site (mkdocs.yml, docs/) into site/; `.venv/bin/mkdocs serve` to browse it live.
 docs: $(STAMP)
-	$(BIN)/mkdocs build --strict --site-dir site
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
 
 # Both cores (pytest-xdist). --dist loadscope keeps each test module on one worker, so a module-scoped
 # fixture (a VIO run, a real calibration, a 2D map) is computed once, not once per worker. Tests write only
