@@ -27,21 +27,54 @@ from imuslam.interfaces.imu import ImuLog
 FloatArray = NDArray[np.float64]
 
 
+# Samples of x per block: the blocks are the parallel work items, and one block's x[k0 : k0 + B] (64 KiB), with the slices that the
+# short taus read beside it, stays in the L1 / L2 cache while every tau reads it, instead of x streaming
+# from memory once per tau (bench/allan.py: 1e7 samples, 100 taus).
+BLOCK = 8192
+
+
+@numba.njit(fastmath={"reassoc", "contract"}, inline="always")
+def _block_sum(x: FloatArray, m: int, k0: int, k1: int) -> float:  # pragma: no cover - compiled
+    """sum_{k0 <= k < k1} (x_{k+2m} - 2 x_{k+m} + x_k)^2 of a 1-D ``x``.
+
+    Three slices indexed by the loop's own counter: an index ``k + m`` is a signed integer that numba
+    wraps when negative, and that per-element select keeps LLVM from vectorising the loop (scalar loads,
+    0.4-0.7e9 terms/s per core against 3e9 with the slices); reassociation lets it split the sum into
+    vector lanes."""
+    a = x[k0 + 2 * m : k1 + 2 * m]
+    b = x[k0 + m : k1 + m]
+    c = x[k0:k1]
+    s = 0.0
+    for k in range(k1 - k0):
+        d = a[k] - 2.0 * b[k] + c[k]
+        s += d * d
+    return s
+
+
 @numba.njit(cache=True, parallel=True, fastmath={"reassoc", "contract"})
 def _oavar_kernel(
-    x: FloatArray, ms: NDArray[np.int64]
+    xt: FloatArray, ms: NDArray[np.int64], block: int
 ) -> FloatArray:  # pragma: no cover - compiled
-    """Sum of squared second differences of ``x`` (n+1, A) for each cluster size in ``ms``; (len(ms), A)."""
-    n1, A = x.shape
-    out = np.zeros((ms.shape[0], A))
-    for j in numba.prange(ms.shape[0]):
-        m = ms[j]
-        for a in range(A):
-            s = 0.0
-            for k in range(n1 - 2 * m):
-                d = x[k + 2 * m, a] - 2.0 * x[k + m, a] + x[k, a]
-                s += d * d
-            out[j, a] = s
+    """Sum of squared second differences of ``xt`` (A, n+1) for each cluster size in ``ms``; (len(ms), A).
+
+    Parallel over blocks of ``block`` start indices k (all axes), each block summing every tau; the
+    per-block sums are added in block order, so the result does not depend on the thread count."""
+    A, n1 = xt.shape
+    T = ms.shape[0]
+    nb = (n1 + block - 1) // block
+    part = np.zeros((A * nb, T))
+    for i in numba.prange(A * nb):
+        a = i // nb
+        k0 = (i % nb) * block
+        for j in range(T):
+            k1 = min(k0 + block, n1 - 2 * ms[j])
+            if k1 > k0:
+                part[i, j] = _block_sum(xt[a], ms[j], k0, k1)
+    out = np.zeros((T, A))
+    for a in range(A):
+        for i in range(a * nb, (a + 1) * nb):
+            for j in range(T):
+                out[j, a] += part[i, j]
     return out
 
 
@@ -70,9 +103,9 @@ def overlapped_adev(
     mm = cluster_sizes(n) if ms is None else np.asarray(ms, dtype=np.int64)
     mm = mm[(mm >= 1) & (2 * mm < n)]
     # Integrate relative to the mean: the second differences are unchanged and the sums stay well scaled.
-    x = np.zeros((n + 1, yy.shape[1]))
-    x[1:] = np.cumsum(yy - yy.mean(axis=0), axis=0) * tau0
-    s = _oavar_kernel(x, mm)
+    x = np.zeros((yy.shape[1], n + 1))  # one contiguous row per axis
+    x[:, 1:] = np.cumsum(yy - yy.mean(axis=0), axis=0).T * tau0
+    s = _oavar_kernel(x, mm, BLOCK)
     taus = mm * tau0
     var = s / (2.0 * (taus[:, None] ** 2) * (n + 1 - 2 * mm)[:, None])
     adev = np.sqrt(var)
