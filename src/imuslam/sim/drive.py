@@ -117,3 +117,68 @@ def simulate_lidar_drive(
     T_i_l[:3, 3] = p_b_l
     gt_ns = T0_NS + np.round(gt_t * 1e9).astype(np.int64)
     return LidarDrive(log, scans, T_i_l, gt_ns, st.p_w, st.R_w_b, truth, w_p, world, period)
+
+
+@dataclass
+class LidarImuRig(LidarDrive):
+    """A :class:`LidarDrive` whose LiDAR has a general pose ``T_i_l`` on the IMU and a clock offset:
+    a scan taken at IMU time ``t`` is stamped ``t - time_offset_s`` (``t_imu = t_lidar +
+    time_offset_s``, ``lio.config.ExtrinsicConfig``). The body frame is the IMU frame."""
+
+    time_offset_s: float = 0.0
+
+
+def simulate_lidar_imu_rig(
+    motion: str = "excited",
+    duration_s: float = 20.0,
+    seed: int = 0,
+    T_i_l: FloatArray | None = None,
+    time_offset_s: float = 0.0,
+    imu_errors: ImuErrorSpec | None = None,
+    lidar: Lidar3dConfig | None = None,
+    progress: bool = False,
+) -> LidarImuRig:
+    """A LiDAR rigidly mounted at ``T_i_l`` (4, 4; default: 0.2 m above the IMU) on an IMU (200 Hz), with
+    a LiDAR clock offset, for LiDAR-IMU calibration. ``motion``: 'excited' (the rig waved by hand in a
+    room with a ceiling, :class:`~imuslam.sim.trajectory.ExcitedHandheld`, ``world.calibration_room``) or 'street' (the car loop around
+    the urban block: yaw and a centimetre of roll / pitch only). ``imu_errors`` None: seed 000's
+    BWT901CL errors."""
+    from imuslam.sim.trajectory import ExcitedHandheld
+    from imuslam.sim.world import calibration_room
+
+    rng = np.random.default_rng(seed)
+    traj: EulerTrajectory
+    if motion == "excited":
+        traj, world, period = ExcitedHandheld((0.0, 0.0, 1.2)), calibration_room(), None
+    elif motion == "street":
+        traj, world = CarLoop(), urban_block()
+        period = car_loop_period_s(traj)  # type: ignore[arg-type]
+    else:
+        raise ValueError(f"unknown motion {motion!r}; expected excited or street")
+    if T_i_l is None:
+        T_i_l = np.eye(4)
+        T_i_l[2, 3] = 0.2
+    T = np.asarray(T_i_l, float)
+    R_i_l, p_i_l = T[:3, :3], T[:3, 3]
+    errors = ImuErrorSpec.bwt901cl() if imu_errors is None else imu_errors
+    log, truth = simulate_imu(traj, duration_s, rng, errors, 200.0, t0_ns=T0_NS)
+
+    def pose_w_l(t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        st = traj.state(t)
+        return st.R_w_b @ R_i_l, st.p_w + st.R_w_b @ p_i_l
+
+    cfg = lidar or Lidar3dConfig()
+    # scans start after the first IMU sample and end before the last in both clocks
+    first = max(0.0, time_offset_s)
+    n = int(np.floor((duration_s - first - abs(time_offset_s)) * cfg.rate_hz - 1e-9))
+    off_ns = int(round(time_offset_s * 1e9))
+    scans = []
+    for k in tqdm(range(n), desc="3D LiDAR", unit="scan", disable=not progress):
+        s = simulate_lidar3d_scan(world, pose_w_l, first + k / cfg.rate_hz, cfg, rng)
+        s.t_ns += T0_NS - off_ns
+        scans.append(s)
+    gt_t = np.arange(0.0, duration_s + 1e-9, 0.01)
+    st = traj.state(gt_t)
+    gt_ns = T0_NS + np.round(gt_t * 1e9).astype(np.int64)
+    return LidarImuRig(log, scans, T.copy(), gt_ns, st.p_w, st.R_w_b, truth, 0.0, world, period,
+                       float(time_offset_s))  # fmt: skip

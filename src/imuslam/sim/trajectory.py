@@ -309,3 +309,26 @@ class SquareLoopCcwCw(EulerTrajectory):
         dyaw = dtangent_du * du + np.pi * dsb
         z = np.zeros_like(t)
         return np.stack([z, z, yaw], axis=1), np.stack([z, z, dyaw], axis=1)
+
+
+class ExcitedHandheld(EulerTrajectory):
+    """A LiDAR-IMU rig waved by hand to calibrate it (LI-Init's excitation, Zhu et al. 2022, Sec. V):
+    roll, pitch and yaw swing by 15-30 degrees at 0.15-0.6 Hz and the rig moves by decimetres on all
+    three axes around ``centre``; peak rates about 1 rad/s, angular accelerations about 3 rad/s^2."""
+
+    def __init__(self, centre: tuple[float, float, float] = (0.0, 0.0, 1.3)) -> None:
+        self.centre = np.asarray(centre, float)
+        self.pa = np.array([[0.4, 0.06], [0.4, 0.05], [0.15, 0.04]])
+        self.pf = np.array([[0.8, 2.4], [1.1, 2.9], [1.7, 3.3]])
+        self.pp = np.array([[0.0, 1.0], [0.7, 0.2], [1.3, 0.4]])
+        self.aa = np.array([[0.3, 0.08], [0.3, 0.08], [0.5, 0.08]])
+        self.af = np.array([[2.2, 3.7], [1.9, 3.1], [0.9, 2.6]])
+        self.ap = np.array([[0.0, 0.5], [1.2, 0.3], [0.4, 2.2]])
+
+    def position(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        p, v, a = _sines(t, self.pa, self.pf, self.pp)
+        return p + self.centre, v, a
+
+    def euler(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        ang, rate, _ = _sines(t, self.aa, self.af, self.ap)
+        return ang, rate

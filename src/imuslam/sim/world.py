@@ -163,3 +163,26 @@ def distance_to_surfaces(world: World, points: FloatArray, chunk: int = 20000) -
             np.linalg.norm(pts[s : s + chunk, None, :] - closest, axis=2), axis=1
         )
     return out
+
+
+def calibration_room(height: float = 2.6) -> World:
+    """A 7 m x 6 m room with a ceiling, furniture and two slanted panels: every direction of a LiDAR
+    waved in its middle sees planes close by (the site of a LiDAR-IMU calibration)."""
+    b = WorldBuilder("calibration_room")
+    b.rect([0, 0, 0], [1, 0, 0], [0, 1, 0], 4.0, 3.5, 0.3)  # floor, normal +z
+    b.rect([0, 0, height], [0, 1, 0], [1, 0, 0], 3.5, 4.0, 0.4)  # ceiling, normal -z
+    for lo, hi in (
+        ([-3.7, -3.2, 0], [3.7, -3.0, height]), ([-3.7, 3.0, 0], [3.7, 3.2, height]),
+        ([-3.7, -3.0, 0], [-3.5, 3.0, height]), ([3.5, -3.0, 0], [3.7, 3.0, height]),
+    ):  # fmt: skip
+        b.box(lo, hi, 0.7)
+    for lo, hi in (
+        ([-3.4, -2.9, 0], [-2.4, -2.1, 0.8]), ([2.3, 2.2, 0], [3.4, 2.9, 1.9]), ([2.6, -2.9, 0], [3.4, -2.3, 0.5]),
+        ([-3.4, 1.8, 0], [-2.9, 2.9, 1.1]), ([-0.6, 2.6, 0], [0.4, 2.9, 2.1]),
+    ):  # fmt: skip
+        b.box(lo, hi, 0.5)
+    b.rect(
+        [-1.5, -2.5, 1.4], [1, 0, 0], [0, 0.6, 0.8], 0.8, 0.6, 0.6
+    )  # panels leaning on the walls
+    b.rect([3.0, 0.5, 1.6], [0, 1, 0], [-0.7, 0, 0.7], 0.7, 0.5, 0.6)
+    return b.build()
