@@ -13,7 +13,7 @@ from pydantic import BaseModel, ValidationError
 
 from imuslam.errors import InputError
 from imuslam.io.atomic import write_atomic
-from imuslam.io.text import read_text
+from imuslam.io.yamlfile import read_yaml
 
 ModelT = TypeVar("ModelT", bound=BaseModel)
 
@@ -21,12 +21,7 @@ ModelT = TypeVar("ModelT", bound=BaseModel)
 def load_config(path: str | Path, model: type[ModelT]) -> ModelT:
     """Read ``path`` (YAML) into ``model``; a bad key or value is an InputError naming the field."""
     p = Path(path)
-    try:
-        data = yaml.safe_load(read_text(p)) or {}
-    except yaml.YAMLError as exc:
-        raise InputError(f"{p}: not valid YAML: {exc}") from exc
-    if not isinstance(data, dict):
-        raise InputError(f"{p}: a configuration is a mapping of {model.__name__} fields")
+    data = read_yaml(p, f"a mapping of {model.__name__} fields", empty={})
     unknown = _unknown_keys(data, model)
     if unknown:
         raise InputError(

@@ -45,26 +45,26 @@ def register(app: typer.Typer) -> None:
         """Map a 2D laser log: trajectory.tum, map.pgm/map.yaml (map_server), map.png, config.yaml."""
         import time
 
-        import yaml
         from pydantic import ValidationError
         from tqdm import tqdm
 
+        from imuslam.config import describe_validation_error
         from imuslam.errors import InputError
         from imuslam.io.atomic import atomic_path
         from imuslam.io.laserload import load_laser_log
+        from imuslam.io.yamlfile import read_yaml
         from imuslam.slam2d.output import write_outputs
         from imuslam.slam2d.slam import Slam2dConfig, render_map, run_slam2d
 
+        data = (
+            read_yaml(config, "a mapping of Slam2dConfig fields (--config)", empty={})
+            if config
+            else {}
+        )
         try:
-            data = yaml.safe_load(config.read_text()) if config else {}
-            cfg = Slam2dConfig.model_validate(data or {})
-        except (OSError, yaml.YAMLError) as exc:
-            raise InputError(f"--config {config}: {exc}") from None
+            cfg = Slam2dConfig.model_validate(data)
         except ValidationError as exc:
-            first = exc.errors()[0]
-            raise InputError(
-                f"--config {config}: {'.'.join(str(x) for x in first['loc'])}: {first['msg']}"
-            ) from None
+            raise InputError(f"--config {config}: {describe_validation_error(exc)}") from None
         cfg = cfg.model_copy(update={"use_odometry": cfg.use_odometry and not no_odometry,
                                      "use_imu": cfg.use_imu and not no_imu})  # fmt: skip
         if no_loop:

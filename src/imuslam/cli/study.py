@@ -33,7 +33,7 @@ def register(app: typer.Typer) -> None:
         import logging
 
         logging.getLogger("numexpr").setLevel(logging.WARNING)
-        from imuslam.errors import InputError
+        from imuslam.errors import EstimatorError, InputError
         from imuslam.study.config import load_study, parse_study
         from imuslam.study.presets import QUICK
         from imuslam.study.report import analyse
@@ -60,3 +60,8 @@ def register(app: typer.Typer) -> None:
         console.print(
             f"wrote {out}/report.html, report.md, results.parquet, results.csv, study.yaml"
         )
+        if n_err and n_err == len(res.table):  # nothing was measured: the study failed
+            first = str(res.table["error"].iloc[0])
+            raise EstimatorError(
+                f"every one of the {n_err} cells failed (see {out}/results.csv); the first: {first}"
+            )

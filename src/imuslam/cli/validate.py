@@ -26,6 +26,8 @@ T = TypeVar("T")
 #: Gravity magnitudes on earth's surface: 9.780 (equator, sea level) .. 9.832 (poles); the band keeps a
 #: margin for altitude and for local anomalies, and rejects a value in another unit (98.1, 1.0, -9.8).
 G_BAND = (9.7, 9.9)
+#: The largest seed every generator here accepts (numpy's legacy ``RandomState`` and numba's take 32 bits).
+SEED_MAX = 2**32 - 1
 
 
 def _fmt_range(lo: float | None, hi: float | None, lo_open: bool, hi_open: bool) -> str:
@@ -81,7 +83,11 @@ def integer(
     lo: int | None = None, hi: int | None = None, also: tuple[int, ...] = ()
 ) -> Callable[[int | None], int | None]:
     """An int within ``[lo, hi]``, or one of ``also`` (e.g. 0 for "none")."""
-    rng = _fmt_range(lo, hi, False, False) + "".join(f" or {a}" for a in also)
+    rng = (
+        f"in [{lo}, {hi}]"
+        if lo is not None and hi is not None
+        else _fmt_range(lo, hi, False, False)
+    ) + "".join(f" or {a}" for a in also)
 
     def check(value: int | None) -> int | None:
         if value is None or value in also:

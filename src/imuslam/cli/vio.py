@@ -7,6 +7,7 @@ from pathlib import Path
 
 import typer
 
+from imuslam.cli import validate
 from imuslam.cli.common import console, friendly_errors, table, write_json
 
 
@@ -41,12 +42,26 @@ def register(app: typer.Typer) -> None:
         ),
         nhc: bool | None = typer.Option(None, "--nhc/--no-nhc", help="non-holonomic constraints"),
         detector: str | None = typer.Option(None, help="sift or orb"),
-        g: float | None = typer.Option(None, help="local gravity, m/s^2"),
-        sim_duration: float = typer.Option(20.0, help="sim: seconds of rendered driving"),
-        sim_rate: float = typer.Option(20.0, help="sim: stereo frames per second"),
-        seed: int = typer.Option(0, help="sim: random seed"),
+        g: float | None = typer.Option(
+            None, help="local gravity, m/s^2", callback=validate.gravity()
+        ),
+        sim_duration: float = typer.Option(
+            20.0,
+            help="sim: seconds of rendered driving (1 to 3600)",
+            callback=validate.number(1.0, 3600.0, unit="s", what="a duration"),
+        ),
+        sim_rate: float = typer.Option(
+            20.0,
+            help="sim: stereo frames per second (1 to 100)",
+            callback=validate.number(1.0, 100.0, unit="Hz", what="a camera frame rate"),
+        ),
+        seed: int = typer.Option(
+            0, help="sim: random seed", callback=validate.integer(0, validate.SEED_MAX)
+        ),
         outliers: float = typer.Option(
-            0.0, help="corrupt this share of the VO measurements (study)"
+            0.0,
+            help="corrupt this share of the VO measurements (study)",
+            callback=validate.number(0.0, 1.0, hi_open=True, what="a share"),
         ),
     ) -> None:
         """Stereo VO + IMU EKF: trajectory.tum (fused), vo.tum, imu.tum, gating.json, plots."""
@@ -66,9 +81,9 @@ def register(app: typer.Typer) -> None:
             raise InputError(f"--align: '{align}'; expected se3, sim3, yaw or first")
         cfg_d: dict = {}
         if config is not None:
-            if not config.is_file():
-                raise InputError(f"--config: {config} not found")
-            cfg_d = yaml.safe_load(config.read_text()) or {}
+            from imuslam.io.yamlfile import read_yaml
+
+            cfg_d = read_yaml(config, "a mapping of VioConfig fields (--config)", empty={})
         if nhc is not None:
             cfg_d["nhc"] = nhc
         if g is not None:

@@ -30,6 +30,7 @@ from imuslam.errors import InputError
 from imuslam.interfaces.imu import ImuLog
 from imuslam.io.atomic import write_atomic
 from imuslam.io.text import read_text
+from imuslam.io.yamlfile import read_yaml
 
 FloatArray = NDArray[np.float64]
 BiasSign = Literal["plus", "minus"]
@@ -292,11 +293,8 @@ class ImuCalibration:
     def load_yaml(cls, path: str | Path) -> ImuCalibration:
         """Read a calibration written by :meth:`save_yaml`; a bad field is an InputError naming it."""
         p = Path(path)
-        try:
-            d = yaml.safe_load(read_text(p))
-        except yaml.YAMLError as exc:
-            raise InputError(f"{p}: not valid YAML: {exc}") from exc
-        if not isinstance(d, dict) or "accel" not in d or "gyro" not in d:
+        d = read_yaml(p, "an imuslam calibration (fields 'accel' and 'gyro')")
+        if "accel" not in d or "gyro" not in d:
             raise InputError(
                 f"{p}: not an imuslam calibration (fields 'accel' and 'gyro' expected)"
             )

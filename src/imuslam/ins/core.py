@@ -43,12 +43,12 @@ from typing import Protocol
 
 import numba
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from imuslam.errors import FilterDivergence, InputError
 from imuslam.geometry.so3_nb import exp_nb, log_nb
 from imuslam.interfaces.nav import ImuBias, NavState
+from imuslam.io.yamlfile import read_yaml
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -580,10 +580,7 @@ class KfNoise:
         p = Path(path)
         if not p.is_file():
             raise InputError(f"{p}: no such noise file")
-        try:
-            d = yaml.safe_load(p.read_text())
-        except yaml.YAMLError as e:
-            raise InputError(f"{p}: not valid YAML ({e})") from None
+        d = read_yaml(p, "a Kalibr imu.yaml (noise densities and random walks)")
         keys = ("accelerometer_noise_density", "gyroscope_noise_density", "accelerometer_random_walk",
                 "gyroscope_random_walk")  # fmt: skip
         vals = []

@@ -162,6 +162,12 @@ def _cloud_array(msg: Any) -> NDArray[Any]:
             else (end + _PF_DTYPES[f.datatype], f.count)
         )
         offsets.append(f.offset)
+        end_byte = f.offset + np.dtype(_PF_DTYPES[f.datatype]).itemsize * max(int(f.count), 1)
+        if f.offset < 0 or end_byte > msg.point_step:
+            raise InputError(
+                f"PointCloud2 field '{f.name}' (bytes {f.offset} to {end_byte}) lies beyond the "
+                f"point_step of {msg.point_step} bytes; expected every field inside a point"
+            )
     dt = np.dtype(
         {"names": names, "formats": formats, "offsets": offsets, "itemsize": msg.point_step}
     )

@@ -16,12 +16,13 @@ FloatArray = NDArray[np.float64]
 
 class ExtrinsicConfig(BaseModel):
     """The LiDAR pose in the IMU frame ``T_i_l`` (translation m, rotation as a Hamilton quaternion) and
-    the LiDAR clock offset: ``t_imu = t_lidar + time_offset_s``."""
+    the LiDAR clock offset: ``t_imu = t_lidar + time_offset_s`` (within a second: a larger offset is a
+    clock in another epoch or unit, not a latency)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     p_i_l: tuple[float, float, float] = (0.0, 0.0, 0.0)
     quat_wxyz_i_l: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
-    time_offset_s: float = 0.0
+    time_offset_s: float = Field(0.0, ge=-1.0, le=1.0)
 
     @field_validator("quat_wxyz_i_l")
     @classmethod
@@ -42,13 +43,14 @@ class ExtrinsicConfig(BaseModel):
 
 class FrontEndConfig(BaseModel):
     """mode: LOAM features or voxel-downsampled raw points; scan_voxel: downsampling of the scan, m;
-    min_range / max_range: points kept, m."""
+    min_range / max_range: points kept, m (a voxel under 1 cm or a range beyond 10 km is a value in
+    another unit)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     mode: Literal["features", "direct"] = "features"
-    scan_voxel: float = Field(1.0, gt=0)
+    scan_voxel: float = Field(1.0, ge=0.01, le=100.0)
     min_range: float = Field(1.0, ge=0)
-    max_range: float = Field(100.0, gt=0)
+    max_range: float = Field(100.0, gt=0, le=1e4)
     edge_threshold: float = Field(0.005, gt=0)
     plane_threshold: float = Field(0.003, gt=0)
 
@@ -65,10 +67,10 @@ class MapConfig(BaseModel):
     of a degree, which the map built from those poses accumulates (0.4-0.6 deg of roll / pitch over
     50 m on the simulated street, README: LIO covariance)."""
 
-    model_config = ConfigDict(extra="forbid")
-    voxel: float = Field(0.5, gt=0)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    voxel: float = Field(0.5, ge=0.01, le=100.0)
     max_per_voxel: int = Field(1, ge=1)
-    radius: float = Field(100.0, gt=0)
+    radius: float = Field(100.0, gt=0, le=1e4)
     knn: Literal["ivox", "pykdtree", "small_gicp", "scipy"] = "ivox"
     max_residual: float = Field(0.1, gt=0)
 
@@ -126,7 +128,7 @@ class FilterConfig(BaseModel):
     own runs); max_speed / max_rate bound a physically possible state
     (divergence check)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     state: Literal["reduced", "full"] = "full"
     accel_noise: float = Field(0.02, gt=0)
     gyro_noise: float = Field(2e-3, gt=0)
@@ -136,7 +138,7 @@ class FilterConfig(BaseModel):
     lidar_dof: float = Field(30.0, gt=0)
     lidar_model: Literal["dof", "plane", "plane_diag"] = "dof"
     lidar_range_std: float = Field(0.02, gt=0)
-    max_iterations: int = Field(5, ge=1)
+    max_iterations: int = Field(5, ge=1, le=100)
     reassociate: float = Field(0.02, ge=0)
     converge: float = Field(1e-3, gt=0)
     map_covariance: bool = True
@@ -145,7 +147,7 @@ class FilterConfig(BaseModel):
     map_drift_deg_per_sqrt_m: float | None = Field(None, ge=0)
     map_drift_m_per_sqrt_m: float | None = Field(None, ge=0)
     max_speed: float = Field(60.0, gt=0)
-    g: float = Field(9.80665, gt=0)
+    g: float = Field(9.80665, ge=9.7, le=9.9, description="gravity on earth, m/s^2")
 
     @model_validator(mode="after")
     def _start_needs_rows_model(self) -> FilterConfig:
@@ -160,13 +162,13 @@ class FilterConfig(BaseModel):
 class LioConfig(BaseModel):
     """Everything the LiDAR-inertial odometry needs beside its input."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     extrinsic: ExtrinsicConfig = ExtrinsicConfig()
     frontend: FrontEndConfig = FrontEndConfig()
     map: MapConfig = MapConfig()
     filter: FilterConfig = FilterConfig()
     align: Literal["none", "kf", "stkf", "rwnn"] = "none"
-    align_seconds: float = Field(1.0, gt=0)
+    align_seconds: float = Field(1.0, gt=0, le=3600)
     use_imu: bool = True
 
     def resolved(self) -> LioConfig:

@@ -54,7 +54,7 @@ log = logging.getLogger(__name__)
 class MatcherConfig(BaseModel):
     """Local scan matching (Cartographer's names where they exist)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     use_correlative: bool = True
     linear_window: float = Field(0.15, ge=0, description="correlative search half-window, m")
     angular_window_deg: float = Field(10.0, ge=0, description="correlative search half-window, deg")
@@ -119,7 +119,7 @@ class MatcherConfig(BaseModel):
 class LoopConfig(BaseModel):
     """Loop closure and pose graph."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     enabled: bool = True
     background: bool = Field(
         True,
@@ -223,7 +223,7 @@ class LoopConfig(BaseModel):
 class Slam2dConfig(BaseModel):
     """Everything the 2D SLAM reads; written beside every result as config.yaml."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     resolution: float = Field(0.05, gt=0.005, le=1.0, description="grid cell, m")
     min_range: float = Field(0.1, ge=0)
     max_range: float = Field(30.0, gt=0, description="readings beyond are not used, m")

@@ -9,7 +9,7 @@ factor (``compare``) in the order the claim states (``expect``, best first), pai
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -23,10 +23,27 @@ ALIGN_NAMES = ("none", "kf", "stkf", "rwnn")
 # navigation scenes of the simulator (sim/scenario.py); 'gimbal' is a calibration log, not a drive
 NAV_SCENARIOS = ("room", "square", "street", "corridor", "handheld")
 Factor = Literal["scenario", "imu", "alignment", "estimator"]
+#: A seed every generator of a cell accepts (numpy's legacy RandomState and numba's take 32 bits).
+Seed = Annotated[int, Field(ge=0, le=2**32 - 1)]
+
+
+#: The most seeds a count may ask for (each seed is a run of every cell of a claim).
+MAX_SEED_COUNT = 10_000
+
+
+def _seed_list(v: Any) -> Any:
+    """``seeds: N`` is the seeds 0 .. N-1; a list is kept for the field's own checks."""
+    if isinstance(v, int) and not isinstance(v, bool):
+        if v > MAX_SEED_COUNT:
+            raise ValueError(
+                f"a count of {v} seeds; expected at most {MAX_SEED_COUNT} (or a list of seeds)"
+            )
+        return list(range(v))
+    return v
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class ScenarioSpec(_Strict):
@@ -97,7 +114,7 @@ class ClaimSpec(_Strict):
     )
     metric: str = "ape_rmse_m"
     lower_is_better: bool = True
-    seeds: list[int] | None = Field(
+    seeds: list[Seed] | None = Field(
         None,
         min_length=1,
         description="this claim's seeds (a count or a list); default: the study's",
@@ -110,7 +127,7 @@ class ClaimSpec(_Strict):
     @field_validator("seeds", mode="before")
     @classmethod
     def _seed_count(cls, v: Any) -> Any:
-        return list(range(v)) if isinstance(v, int) else v
+        return _seed_list(v)
 
     def levels(self) -> list[str]:
         if self.compare == "scenario":
@@ -144,7 +161,7 @@ class StudyConfig(_Strict):
     """A whole study (see the module docstring)."""
 
     name: str = "study"
-    seeds: list[int] = Field(default_factory=lambda: [0, 1, 2], min_length=1)
+    seeds: list[Seed] = Field(default_factory=lambda: [0, 1, 2], min_length=1)
     drift: DriftSpec = Field(default_factory=DriftSpec)
     align: AlignSpec = Field(default_factory=AlignSpec)
     claims: list[ClaimSpec] = Field(min_length=1)
@@ -152,7 +169,7 @@ class StudyConfig(_Strict):
     @field_validator("seeds", mode="before")
     @classmethod
     def _seed_count(cls, v: Any) -> Any:
-        return list(range(v)) if isinstance(v, int) else v
+        return _seed_list(v)
 
     @field_validator("claims")
     @classmethod
@@ -209,16 +226,10 @@ def parse_study(data: Any, source: str = "<study>") -> StudyConfig:
 
 def load_study(path: str | Path) -> StudyConfig:
     """Read and validate a study YAML."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: no such study file")
-    try:
-        data = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = f" line {mark.line + 1}" if mark is not None else ""
-        raise InputError(f"{p}:{line} is not valid YAML") from None
-    return parse_study(data, str(p))
+    from imuslam.io.yamlfile import read_yaml
+
+    data = read_yaml(path, "a study: a mapping with 'claims' (and seeds, drift, align)")
+    return parse_study(data, str(path))
 
 
 def dump_study(study: StudyConfig) -> str:

@@ -33,6 +33,7 @@ from imuslam.study.config import StudyConfig
 from imuslam.study.estimators import check_study
 from imuslam.study.pipeline import (
     CALIBRATION_CPU_S,
+    METRICS,
     calibration_need,
     calibration_task,
     cell_cost,
@@ -42,6 +43,29 @@ from imuslam.study.pipeline import (
 )
 
 log = logging.getLogger(__name__)
+
+#: The metrics an estimator adds to every cell's row beside the evaluation's (``pipeline.METRICS``), as
+#: its adapter in ``estimators.py`` returns them (a name ending in '*' is a prefix: vio's gating counts).
+ESTIMATOR_METRICS: dict[str, tuple[str, ...]] = {
+    "map2d": ("map_far_pct", "map_wall_thickness_cm", "loop_error_m", "loop_error_deg"),
+    "vio": ("gate_rejected_*",),
+    "lio": ("lio_scans_per_s",),
+}
+
+
+def check_metrics(study: StudyConfig, source: str = "<study>") -> None:
+    """Every claim's metric is one its cells report (else the claim could never be resolved)."""
+    for k, c in enumerate(study.claims):
+        known = list(METRICS)
+        for e in c.estimators:
+            known += ESTIMATOR_METRICS.get(e.name, ())
+        if not any(
+            c.metric == m or (m.endswith("*") and c.metric.startswith(m[:-1])) for m in known
+        ):
+            raise InputError(
+                f"{source}: claims[{k}] ({c.name}).metric: unknown metric '{c.metric}'; expected one of "
+                f"{', '.join(dict.fromkeys(known))}"
+            )
 
 
 @dataclass
@@ -58,8 +82,10 @@ class StudyRun:
 
 
 def plan(study: StudyConfig, source: str = "<study>") -> list[Cell]:
-    """The study's cells, after checking every estimator, option and scenario (InputError otherwise)."""
+    """The study's cells, after checking every estimator, option, scenario and metric (InputError
+    otherwise)."""
     check_study(study, source)
+    check_metrics(study, source)
     cells = expand(study)
     if not cells:
         raise InputError(f"{source}: the study has no cells")

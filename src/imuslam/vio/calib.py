@@ -13,10 +13,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from imuslam.errors import InputError
+from imuslam.io.yamlfile import read_yaml
 
 FloatArray = NDArray[np.float64]
 
@@ -112,16 +112,7 @@ class StereoCalibration:
 def _load_yaml(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise InputError(f"{path}: calibration file not found")
-    text = path.read_text()
-    if text.startswith("%YAML"):  # OpenCV-style header of EuRoC files
-        text = text.split("\n", 1)[1] if "\n" in text else ""
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: expected a YAML mapping")
-    return data
+    return read_yaml(path, "a camera calibration (Kalibr camchain or EuRoC sensor.yaml)")
 
 
 def _floats(d: dict[str, Any], key: str, n: int, src: str) -> FloatArray:

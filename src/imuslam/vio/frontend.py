@@ -41,7 +41,7 @@ log_ = logging.getLogger(__name__)
 class VoConfig(BaseModel):
     """Front-end settings (pixels of the rectified images)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     detector: Literal["sift", "orb"] = "sift"
     max_features: int = Field(300, ge=20, description="features kept per frame")

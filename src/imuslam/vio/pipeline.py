@@ -67,7 +67,7 @@ log_ = logging.getLogger(__name__)
 class NoiseConfig(BaseModel):
     """IMU noise densities (per sqrt(Hz)) and bias random walks for the filter."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     accel: float = Field(2e-3, gt=0, description="m/s^2/sqrt(Hz)")
     gyro: float = Field(1.7e-4, gt=0, description="rad/s/sqrt(Hz)")
@@ -81,7 +81,7 @@ class NoiseConfig(BaseModel):
 class VioConfig(BaseModel):
     """Everything the VIO pipeline reads; YAML keys equal the field names."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     vo: VoConfig = Field(default_factory=VoConfig)
     noise: NoiseConfig = Field(default_factory=NoiseConfig)
@@ -225,7 +225,7 @@ class VioConfig(BaseModel):
     outlier_rate: tuple[float, float] = Field(
         (0.02, 0.1), description="rad/s, uniform magnitude range"
     )
-    outlier_seed: int = 0
+    outlier_seed: int = Field(0, ge=0, le=2**32 - 1)
 
     @model_validator(mode="after")
     def _vo_error_needs_rate(self) -> VioConfig:
