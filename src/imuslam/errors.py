@@ -36,3 +36,18 @@ class HardwareError(ImuslamError):
     """A device (serial IMU, gimbal, LiDAR) is missing or does not follow its protocol."""
 
     exit_code = 4
+
+
+def raise_if_interrupted(exc: BaseException) -> None:
+    """Re-raise the KeyboardInterrupt (SIGINT, or SIGTERM as the command line maps it) behind ``exc``.
+
+    A signal that arrives while a compiled kernel runs surfaces as another error (a SystemError whose
+    context is the interrupt): code that records a failure and goes on (a study's cell) calls this first,
+    so an interrupt stops the run instead of being recorded as one more failure."""
+    e: BaseException | None = exc
+    for _ in range(10):
+        if e is None:
+            return
+        if isinstance(e, KeyboardInterrupt):
+            raise e
+        e = e.__cause__ or e.__context__

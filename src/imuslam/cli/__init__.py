@@ -127,4 +127,7 @@ def _root(
 
 def main() -> None:
     """Console-script entry point."""
+    from imuslam.cli.common import install_signal_handlers
+
+    install_signal_handlers()
     app()

@@ -26,12 +26,77 @@ err_console = Console(stderr=True, emoji=False)
 F = TypeVar("F", bound=Callable[..., Any])
 
 
+# Options typed ``str`` that name an input file or folder (the others are topics, names, choices).
+_PATH_STR_OPTIONS = ("dataset", "gt", "noise")
+
+
+def check_out_against_inputs(kwargs: dict[str, Any]) -> None:
+    """Refuse an ``out`` that is, holds or lies inside one of the command's inputs (every ``Path``
+    parameter, and the ``str`` ones of :data:`_PATH_STR_OPTIONS`), before any work."""
+    out = kwargs.get("out")
+    if not isinstance(out, Path):
+        return
+    from imuslam.io.results import check_not_input
+
+    inputs: list[tuple[str, Path | str | None]] = []
+    for name, v in kwargs.items():
+        what = f"the input ({name.replace('_', '-')})"
+        if name == "out":
+            continue
+        if isinstance(v, Path) or (name in _PATH_STR_OPTIONS and isinstance(v, str)):
+            inputs.append((what, v))
+        elif isinstance(v, list | tuple):
+            inputs += [(what, x) for x in v if isinstance(x, Path)]
+    check_not_input(out, inputs)
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM: the run stops, its temporary files are removed, exit 128 + the signal."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _interrupt(exc: BaseException) -> Interrupted | None:
+    """The interrupt behind ``exc``: itself, or the cause of an error it became (a SystemError raised
+    when the signal arrived inside a compiled kernel)."""
+    from imuslam.errors import raise_if_interrupted
+
+    try:
+        raise_if_interrupted(exc)
+    except Interrupted as intr:
+        return intr
+    except KeyboardInterrupt:
+        return Interrupted(2)
+    return None
+
+
+def install_signal_handlers() -> None:
+    """SIGTERM (and SIGINT) raise :class:`Interrupted` in the main thread, so every ``with`` block
+    (results folders, progress bars, Dask clients) unwinds and removes what it had started."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        signal.signal(signum, signal.SIG_IGN)  # a second signal while unwinding is not a new error
+        raise Interrupted(signum)
+
+    signal.signal(signal.SIGTERM, handler)
+    signal.signal(signal.SIGINT, handler)
+
+
 def friendly_errors(fn: F) -> F:
-    """Turn an imuslam error into a one-line message on stderr and its exit code (no traceback)."""
+    """Turn an imuslam error into a one-line message on stderr and its exit code (no traceback); an
+    interrupt (SIGINT, SIGTERM) into one line and exit 130 / 143 after the clean-up."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
+            check_out_against_inputs(kwargs)
             return fn(*args, **kwargs)
         except ImuslamError as exc:
             _print_error(str(exc))
@@ -40,7 +105,12 @@ def friendly_errors(fn: F) -> F:
             where = exc.filename if exc.filename is not None else "a file"
             _print_error(f"{where}: {exc.strerror or exc}")
             raise typer.Exit(2) from None
+        except KeyboardInterrupt as exc:
+            _exit_interrupted(_interrupt(exc))
         except Exception as exc:
+            intr = _interrupt(exc)  # the signal arrived inside a compiled kernel
+            if intr is not None:
+                _exit_interrupted(intr)
             # a solver met a singular system the checks missed (numpy is loaded if it raised one)
             np = sys.modules.get("numpy")
             if np is None or not isinstance(exc, np.linalg.LinAlgError):
@@ -54,6 +124,13 @@ def friendly_errors(fn: F) -> F:
                 text.cancel_prefetch()
 
     return wrapper  # type: ignore[return-value]
+
+
+def _exit_interrupted(intr: Interrupted | None) -> None:
+    signum = intr.signum if intr is not None else 2
+    name = {2: "SIGINT", 15: "SIGTERM"}.get(signum, f"signal {signum}")
+    _print_error(f"interrupted ({name}); the results of this run were not written")
+    raise typer.Exit(128 + signum) from None
 
 
 def _print_error(msg: str) -> None:

@@ -39,11 +39,20 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Score calibrations on a log: gravity-norm error per static pose, gyro-predicted gravity-direction
         error per pair of poses (RMS and worst), on poses found without any calibration."""
-        from imuslam.cli.common import console, friendly_errors, load_log, table
+        from imuslam.cli.common import (
+            check_out_against_inputs,
+            console,
+            friendly_errors,
+            load_log,
+            table,
+        )
         from imuslam.imu.score import load_calibrations, score_calibrations, write_scores
 
         @friendly_errors
         def run() -> None:
+            check_out_against_inputs(
+                {"out": out, "log_path": log_path, "calibs": calibs, "gyro": gyro}
+            )
             log = load_log(log_path, gyro, fmt, topic, accel_unit, gyro_unit, None)
             # imu_tk .calib files carry neither units nor g: they are taken as the log's.
             cals, g_yaml = load_calibrations(calibs, log.accel_unit, log.gyro_unit)

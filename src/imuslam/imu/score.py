@@ -18,7 +18,6 @@ against m/s^2, or g) is refused with one line, as is a log without static poses.
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -29,7 +28,6 @@ from numpy.typing import NDArray
 from imuslam.imu.calibrate import integrate_segments
 from imuslam.imu.model import ImuCalibration
 from imuslam.imu.static import detect, init_variance_norm, window_half_size, windowed_variance_norm
-from imuslam.io.atomic import atomic_path
 from imuslam.io.imulog import ImuLog, InputError
 
 if TYPE_CHECKING:
@@ -248,17 +246,14 @@ def load_calibrations(
 
 
 def write_scores(res: ScoreResult, out_dir: str | Path) -> list[Path]:
-    """scores.csv (one row per calibration), poses.csv, pairs.csv and score.png in ``out_dir``,
-    written into a temporary folder renamed on success."""
+    """scores.csv (one row per calibration), poses.csv, pairs.csv and score.png in ``out_dir``, all
+    at once (:func:`imuslam.io.results.results_folder`: the folder's other files are kept)."""
     from imuslam.io.figures import save_figure
+    from imuslam.io.results import results_folder
 
     names = ["scores.csv", "poses.csv", "pairs.csv", "score.png"]
     out = Path(out_dir)
-    with atomic_path(out) as tmp:
-        if out.is_dir():
-            shutil.copytree(out, tmp)
-        else:
-            tmp.mkdir()
+    with results_folder(out) as tmp:
         summ = [s.summary() for s in res.scores]
         lines = [",".join(summ[0])] + [
             ",".join(f"{v:.6g}" if isinstance(v, float) else f'"{v}"' for v in row.values())

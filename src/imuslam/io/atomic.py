@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import tempfile
@@ -15,6 +16,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it is renamed onto ``path``, on error removed.
 
     Use for writers that need a file name (a bag, a PNG): ``with atomic_path(out) as tmp: write(tmp)``.
+    A file replaces ``path`` in one rename. A folder (a ROS 2 bag) is renamed onto ``path`` only if
+    nothing is there: an existing ``path`` is never removed (FileExistsError), so a folder of the user's
+    cannot be lost. A set of results for an existing folder goes through
+    :func:`imuslam.io.results.results_folder`, which adds files instead of replacing the folder.
     """
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
@@ -23,9 +28,9 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         yield tmp
         if tmp.is_dir():
-            if p.exists():
-                shutil.rmtree(p)
-            os.replace(tmp, p)
+            if os.path.lexists(p):
+                raise FileExistsError(errno.EEXIST, "exists; a folder is never replaced", str(p))
+            os.rename(tmp, p)
         else:
             os.replace(tmp, p)
     finally:

@@ -8,6 +8,14 @@ outputs is written into a temporary sibling that replaces the target only when e
     # on success tmp's entries are in out; on any error (an exception, a full disk) nothing is left
 
 A file on its own (``correct --out x.mcap``) goes through :func:`results_file` the same way.
+
+The user's files are never lost:
+- :func:`check_not_input` refuses, before any work, an output that is one of the command's inputs,
+  holds one, or lies inside an input folder;
+- an existing folder keeps every file the command does not write, and a file it does write replaces
+  only a file that an earlier imuslam run wrote there (listed in the folder's :data:`MANIFEST`): a
+  file of the same name that imuslam did not write stops the run with nothing written;
+- a single output file (:func:`results_file`) is never written over an existing one.
 """
 
 from __future__ import annotations
@@ -18,7 +26,7 @@ import math
 import os
 import shutil
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -30,6 +38,9 @@ if TYPE_CHECKING:
     from imuslam.interfaces.trajectory import Trajectory
 
 OutKind = Literal["folder", "file", "any"]
+
+#: The list of the entries that imuslam wrote into a results folder (those a later run may replace).
+MANIFEST = ".imuslam-results.json"
 
 # Errors of the output location itself: reported as bad input (the --out option), exit 2.
 _OUT_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG}
@@ -49,6 +60,10 @@ def check_out_dir(path: str | Path, kind: OutKind = "folder", option: str = "--o
     can be created and written; any: either. A path under an existing file is always an error.
     """
     p = Path(path).absolute()
+    if p.is_symlink() and not p.exists():
+        raise InputError(
+            f"{option} {path}: a symbolic link to nothing; expected a folder or a new name"
+        )
     if p.exists():
         if kind == "folder" and not p.is_dir():
             raise InputError(
@@ -63,6 +78,44 @@ def check_out_dir(path: str | Path, kind: OutKind = "folder", option: str = "--o
         raise InputError(f"{option} {path}: {a} is a file, so nothing can be created under it")
     if not os.access(a, os.W_OK | os.X_OK):
         raise InputError(f"{option} {path}: {a} is not writable")
+
+
+def check_not_input(
+    out: str | Path,
+    inputs: Iterable[tuple[str, str | Path | None]],
+    option: str = "--out",
+) -> None:
+    """Raise an InputError naming ``option`` if ``out`` is one of ``inputs``, holds one, or lies inside
+    an input folder (symbolic links followed). ``inputs`` are ``(what, path)`` pairs, e.g.
+    ``("the log", log_path)``; a None path or one that does not exist is skipped."""
+    o = Path(out).resolve()
+    for what, path in inputs:
+        if path is None or not os.path.lexists(path):
+            continue
+        i = Path(path).resolve()
+        if o == i:
+            raise InputError(f"{option} {out}: is {what} {path}; choose a new results folder")
+        if o in i.parents:
+            raise InputError(
+                f"{option} {out}: holds {what} {path}; choose a folder that does not contain the input"
+            )
+        if i.is_dir() and i in o.parents:
+            raise InputError(
+                f"{option} {out}: lies inside {what} {path}; choose a folder outside the input"
+            )
+
+
+def _read_manifest(folder: Path) -> set[str]:
+    try:
+        data = json.loads((folder / MANIFEST).read_text())
+        return {str(x) for x in data.get("entries", [])} if isinstance(data, dict) else set()
+    except (OSError, ValueError):
+        return set()
+
+
+def _write_manifest(folder: Path, entries: Iterable[str]) -> None:
+    text = json.dumps({"written_by": "imuslam", "entries": sorted(set(entries))}, indent=1)
+    write_atomic(folder / MANIFEST, text + "\n")
 
 
 def _umask() -> int:
@@ -101,7 +154,17 @@ def _as_input_error(exc: OSError, out: Path, option: str) -> InputError | OSErro
 def _move_into(src: Path, dst: Path) -> None:
     """Move every entry of folder ``src`` into the existing folder ``dst``, replacing same names (a
     replaced folder goes into ``src``, removed with it). Each move is a rename: no space needed."""
-    entries = sorted(src.iterdir())
+    entries = sorted(e for e in src.iterdir() if e.name != MANIFEST)
+    ours = _read_manifest(dst)
+    foreign = [e.name for e in entries if os.path.lexists(dst / e.name) and e.name not in ours]
+    if foreign:
+        raise FileExistsError(
+            errno.EEXIST,
+            f"{', '.join(foreign)} already there and not written by imuslam; nothing was written "
+            "(move it away or choose another results folder)",
+            str(dst),
+        )
+    _write_manifest(dst, ours | {e.name for e in entries})
     trash = Path(tempfile.mkdtemp(dir=src, prefix=".replaced-"))
     for e in entries:
         target = dst / e.name
@@ -115,8 +178,10 @@ def results_folder(out: str | Path, option: str = "--out") -> Iterator[Path]:
     """Yield an empty temporary folder; on success its entries land in ``out`` (created if absent),
     on any error it is removed and ``out`` is as it was.
 
-    An absent ``out`` is replaced in one rename. An existing ``out`` keeps the files it has that the
-    command does not write (``--out .`` is safe); those it writes are replaced one rename each.
+    An absent ``out`` is created in one rename. An existing ``out`` keeps the files it has that the
+    command does not write (``--out .`` is safe); those it writes are replaced one rename each, and only
+    where an earlier imuslam run wrote them (:data:`MANIFEST`): a file of the user's with the same name
+    stops the run before anything is moved.
     """
     o = Path(out)
     check_out_dir(o, "folder", option)
@@ -131,8 +196,16 @@ def results_folder(out: str | Path, option: str = "--out") -> Iterator[Path]:
                 if existed:
                     _move_into(tmp, p)
                 else:
+                    _write_manifest(tmp, (e.name for e in tmp.iterdir()))
                     os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp made it private
-                    os.rename(tmp, p)
+                    try:
+                        os.rename(tmp, p)
+                    except OSError as exc:  # another run created ``out`` meanwhile: add to it
+                        if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST) or not p.is_dir():
+                            raise
+                        _move_into(tmp, p)
+            except FileExistsError as exc:
+                raise InputError(f"{option} {out}: {exc.strerror}") from None
             except OSError as exc:
                 raise _as_input_error(exc, o, option) from exc
         finally:
@@ -142,17 +215,21 @@ def results_folder(out: str | Path, option: str = "--out") -> Iterator[Path]:
 @contextmanager
 def results_file(out: str | Path, option: str = "--out") -> Iterator[Path]:
     """:func:`imuslam.io.atomic.atomic_path` after the preflight of ``out``: a temporary path beside it
-    that replaces ``out`` (a file, or a folder bag written there) on success and is removed on any
-    error, with the parents it had to create."""
+    that becomes ``out`` (a file, or a folder bag written there) on success and is removed on any
+    error, with the parents it had to create. An existing ``out`` is never written over."""
     o = Path(out)
     check_out_dir(o, "any", option)
     p = o.absolute()
-    if p.is_dir():
-        raise InputError(f"{option} {out}: exists; choose a new name")
+    if os.path.lexists(p):
+        raise InputError(f"{option} {out}: exists; choose a new name (nothing is written over)")
     with _parents(p):
         try:
             with atomic_path(p) as tmp:
                 yield tmp
+        except FileExistsError:
+            raise InputError(
+                f"{option} {out}: appeared while the command ran; nothing was written over it"
+            ) from None
         except OSError as exc:
             raise _as_input_error(exc, o, option) from exc
 

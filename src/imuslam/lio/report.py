@@ -23,13 +23,12 @@ def write_results(
 
     import yaml
 
-    from imuslam.io.atomic import atomic_path
     from imuslam.io.pointcloud import write_pcd, write_ply
+    from imuslam.io.results import results_folder
     from imuslam.io.trajectory import write_tum
 
     metrics: dict[str, Any] = {}
-    with atomic_path(out_dir) as tmp:
-        tmp.mkdir(parents=True)
+    with results_folder(out_dir) as tmp:
         write_tum(result.trajectory, tmp / "trajectory.tum")
         write_ply(tmp / "map.ply", result.map_points)
         write_pcd(tmp / "map.pcd", result.map_points)

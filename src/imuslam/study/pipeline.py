@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from imuslam.errors import EstimatorError, InputError
+from imuslam.errors import EstimatorError, InputError, raise_if_interrupted
 from imuslam.eval.metrics import evaluate
 from imuslam.geometry import exp as so3_exp
 from imuslam.geometry import log as so3_log
@@ -116,6 +116,7 @@ def calibration_task(drift: dict[str, Any], age_h: float, seed: int) -> ImuCalib
     try:
         return gimbal_calibration(DriftSpec.model_validate(drift), age_h, seed)
     except Exception as exc:
+        raise_if_interrupted(exc)
         return f"calibration failed: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
 
 
@@ -130,6 +131,7 @@ def shared_task(fn: Any, *args: Any) -> Any:
     try:
         return fn(*args)
     except Exception as exc:
+        raise_if_interrupted(exc)
         return SharedError(f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
 
 
@@ -237,6 +239,7 @@ def run_cell(
     try:
         metrics, timings = _run(c, calibration, shared)
     except Exception as exc:  # a failing cell is a result, not the end of the study
+        raise_if_interrupted(exc)
         msg = str(exc).splitlines()[0] if str(exc) else ""
         row.update(status="error", error=f"{type(exc).__name__}: {msg}"[:500])
         metrics, timings = {m: float("nan") for m in METRICS}, {}
