@@ -129,6 +129,7 @@ def register(app: typer.Typer) -> None:
         from imuslam.ins.kf import KfNoise
         from imuslam.ins.pipeline import AlignConfig, AlignDataset, AlignPipeline
         from imuslam.io.load import detect_format, write_imu
+        from imuslam.io.plausible import check_units
         from imuslam.io.trajectory import read_euroc_state, read_trajectory
 
         if init == Init.aiding and aiding == "zupt":
@@ -143,7 +144,9 @@ def register(app: typer.Typer) -> None:
                           t_still_s=t_still, lat_deg=lat_deg, heading_deg=heading_deg)  # fmt: skip
         au = None if accel_unit is None else accel_unit.value
         gu = None if gyro_unit is None else gyro_unit.value
-        full = load_log(log_path, None, fmt.value, topic, au, gu, columns).to_si()
+        full = load_log(log_path, None, fmt.value, topic, au, gu, columns)
+        check_units(full, hint="give --accel-unit / --gyro-unit")
+        full = full.to_si()
         tr = None
         if aiding != "zupt":
             ap = Path(aiding)

@@ -73,12 +73,16 @@ def register(app: typer.Typer) -> None:
         import numpy as np
 
         from imuslam.imu.allan import allan
+        from imuslam.io.plausible import check_gyro_noise, check_units
         from imuslam.io.results import write_results
 
         log = load_log(
             log_path, gyro, fmt.value, topic, value(accel_unit), value(gyro_unit), columns
         )
+        check_units(log, hint="give --accel-unit / --gyro-unit")
         res = allan(log)
+        white = float(np.median([t.white for t in res.gyro_terms]))
+        check_gyro_noise(white, log.source, log.gyro_unit, hint="give --gyro-unit deg/s")
         rows = []
         data = []
         for sensor, terms, u in (

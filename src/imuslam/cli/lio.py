@@ -97,6 +97,11 @@ def register(app: typer.Typer) -> None:
 
             imu = ImuCalibration.load_yaml(calib).correct(imu)
         if imu is not None:
+            from imuslam.io.plausible import check_units
+
+            check_units(
+                imu, hint="a sensor_msgs/Imu carries m/s^2 and rad/s (convert the bag's IMU)"
+            )
             span = (imu.t_ns[0], imu.t_ns[-1])
             console.print(f"IMU {imu.source}: {len(imu)} samples, {imu.rate_hz:.0f} Hz, "
                           f"{(span[1] - span[0]) * 1e-9:.1f} s")  # fmt: skip

@@ -3,10 +3,38 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from imuslam.cli.common import console, friendly_errors, table
+
+if TYPE_CHECKING:
+    from imuslam.io.laserlog import LaserLog
+
+
+def _check_reference(gt: Path, log_: LaserLog) -> None:
+    """The --gt reference read and matched to the log before the run: a corrected CARMEN log must
+    hold scans with this log's readings, a trajectory must be readable; else one line naming --gt."""
+    from imuslam.errors import InputError
+    from imuslam.eval.slam2d_gt import is_carmen
+
+    try:
+        if is_carmen(gt):
+            from imuslam.eval.relations import associate_by_ranges
+            from imuslam.io.carmen import read_carmen
+
+            ri, _ = associate_by_ranges(read_carmen(gt).laser.ranges, log_.ranges)
+            if len(ri) < 2:
+                raise InputError("fewer than 2 of its scans have the readings of a scan of the log")
+        else:
+            from imuslam.io.trajectory import read_trajectory
+
+            read_trajectory(gt, "tum")
+    except InputError as exc:
+        raise InputError(
+            f"--gt {gt}: {exc}; expected the corrected log or trajectory of {log_.source}"
+        ) from None
 
 
 def register(app: typer.Typer) -> None:
@@ -52,6 +80,7 @@ def register(app: typer.Typer) -> None:
         from imuslam.errors import InputError
         from imuslam.io.atomic import atomic_path
         from imuslam.io.laserload import load_laser_log
+        from imuslam.io.plausible import check_stamps, check_units
         from imuslam.io.yamlfile import read_yaml
         from imuslam.slam2d.output import write_outputs
         from imuslam.slam2d.slam import Slam2dConfig, render_map, run_slam2d
@@ -70,12 +99,17 @@ def register(app: typer.Typer) -> None:
         if no_loop:
             cfg.loop.enabled = False
         log_ = load_laser_log(log_path, fmt, scan_topic, imu_topic, odom_topic)
+        check_stamps(log_.t_ns, "scans", str(log_path))
         if calib is not None:
             if log_.imu is None:
                 raise InputError(f"--calib: {log_path} has no IMU to correct")
             from imuslam.imu.model import ImuCalibration
 
             log_.imu = ImuCalibration.load_yaml(calib).correct(log_.imu)
+        if log_.imu is not None and cfg.use_imu:
+            check_units(log_.imu, hint="check the log's IMU units, or map without it (--no-imu)")
+        if gt is not None:
+            _check_reference(gt, log_)
         t0 = time.perf_counter()
         with tqdm(total=len(log_), unit="scan", desc="map2d", disable=not progress) as bar:
 

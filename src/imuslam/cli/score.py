@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from imuslam.cli import validate
+
 
 def register(app: typer.Typer) -> None:
     @app.command("score")
@@ -22,9 +24,17 @@ def register(app: typer.Typer) -> None:
             None, "--gyro", help="gyroscope file of an imu_tk two-file text log"
         ),
         g: float | None = typer.Option(
-            None, "--g", help="local gravity, m/s^2 (default: the first YAML's, else 9.80665)"
+            None,
+            "--g",
+            help="local gravity, m/s^2 (default: the first YAML's, else 9.80665)",
+            callback=validate.gravity(),
         ),
-        t_init: float = typer.Option(50.0, "--t-init", help="initial still period of the log, s"),
+        t_init: float = typer.Option(
+            50.0,
+            "--t-init",
+            help="initial still period of the log, s",
+            callback=validate.positive("s"),
+        ),
         fmt: str = typer.Option(
             "auto", "--format", help="input format: auto, imutk, euroc, csv or bag"
         ),

@@ -128,6 +128,10 @@ def register(app: typer.Typer) -> None:
             from imuslam.imu.model import ImuCalibration
 
             data.imu = ImuCalibration.load_yaml(calib).correct(data.imu.to_si())
+        if dataset != "sim":
+            from imuslam.io.plausible import check_units
+
+            check_units(data.imu, hint="EuRoC's imu0 and a sensor_msgs/Imu carry m/s^2 and rad/s")
         if gt is not None:
             fmt = gt_format if gt_format != "auto" else ("euroc" if gt.suffix == ".csv" else "tum")
             truth = read_trajectory(gt, fmt)
