@@ -40,8 +40,12 @@ test: lint
 test-fast: $(STAMP)
 	$(BIN)/pytest -q $(PYTEST_XDIST) -m "not slow"
 
+# Every headline speed ratio against its anchor in the same run (about 10-15 min), written to
+# bench/results.json and compared with bench/reference.json (fails when a row slipped beyond the noise).
+# IMUTK_SRC=/path/to/imu_tk builds imu_tk's program for its rows; each bench/*.py also runs on its own.
 bench: $(STAMP)
-	for f in bench/*.py; do $(BIN)/python $$f || exit 1; done
+	$(BIN)/python bench/table.py
+	$(BIN)/python bench/compare.py
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache .mypy_cache .ruff_cache

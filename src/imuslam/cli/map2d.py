@@ -78,9 +78,9 @@ def register(app: typer.Typer) -> None:
 
         from imuslam.config import describe_validation_error
         from imuslam.errors import InputError
-        from imuslam.io.atomic import atomic_path
         from imuslam.io.laserload import load_laser_log
         from imuslam.io.plausible import check_stamps, check_units
+        from imuslam.io.results import results_folder
         from imuslam.io.yamlfile import read_yaml
         from imuslam.slam2d.output import write_outputs
         from imuslam.slam2d.slam import Slam2dConfig, render_map, run_slam2d
@@ -126,7 +126,7 @@ def register(app: typer.Typer) -> None:
             from imuslam.eval.slam2d_gt import score_run
 
             metrics = score_run(gt, log_, res.t_ns, res.pose_xy_yaw)
-        with atomic_path(out) as tmp:
+        with results_folder(out) as tmp:
             s = write_outputs(tmp, log_, res, grid, wall, metrics)
         rows = [
             ["scans", f"{s['scans']}", ""], ["log duration", f"{s['log_duration_s']:.1f}", "s"],

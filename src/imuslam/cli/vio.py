@@ -73,7 +73,7 @@ def register(app: typer.Typer) -> None:
         from imuslam.config import describe_validation_error
         from imuslam.errors import InputError
         from imuslam.eval.vio_compare import compare_tracks, plot_vio
-        from imuslam.io.atomic import atomic_path
+        from imuslam.io.results import results_folder
         from imuslam.io.trajectory import read_trajectory, write_tum
         from imuslam.vio.pipeline import VioConfig, run_vio
 
@@ -168,8 +168,7 @@ def register(app: typer.Typer) -> None:
             f"{summary['vo']['measurements']} measurements, {summary['vo']['skipped_few_features']} "
             f"skipped (too few features), {summary['vo']['skipped_few_inliers']} (too few inliers)"
         )
-        with atomic_path(out) as tmp:
-            tmp.mkdir()
+        with results_folder(out) as tmp:
             write_tum(res.fused, tmp / "trajectory.tum")
             write_tum(res.vo, tmp / "vo.tum")
             write_tum(res.imu, tmp / "imu.tum")

@@ -296,12 +296,16 @@ def run_study(
     report.html, report.md and study.yaml there."""
     cells = plan(study, source)
     out = Path(out_dir) if out_dir is not None else None
-    if out is not None and out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
+    if out is not None:
+        from imuslam.io.results import check_out_dir
+
+        check_out_dir(out, "folder")
     rows, n_cached, backend, cpu = execute(cells, out, scheduler, workers, serial, progress)
     df = table(cells, rows)
     if out is not None:
+        from imuslam.io.results import results_folder
         from imuslam.study.report import write_outputs
 
-        write_outputs(study, df, out, backend)
+        with results_folder(out) as tmp:  # the report's files all at once, beside the cells/ cache
+            write_outputs(study, df, tmp, backend)
     return StudyRun(df, out, n_cached, len(rows) - n_cached, backend, cpu)
