@@ -93,6 +93,6 @@ def check_stamps(
     if t.max() == t.min() or same.size > max_fraction * len(t):
         raise InputError(
             f"{source}: {same.size} of {len(t)} {what} carry the same stamp as the one before "
-            f"(first: {what.rstrip('s')} {int(same[0]) + 1}, t = {t[same[0]] * 1e-9:.9g} s); "
+            f"(first: {what.rstrip('s')} {int(same[0]) + 1}, t = {t[same[0]] * 1e-9:.3f} s); "
             f"expected a time per {what.rstrip('s')}"
         )
