@@ -18,7 +18,7 @@ from cli_helpers import (
     write_calibration,
     write_rows,
 )
-from cli_strategies import bad_calibration_field, set_field, spoiled_table
+from cli_strategies import _not_utf8, bad_calibration_field, set_field, spoiled_table
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
@@ -185,3 +185,97 @@ def test_bag_samples(i: int, col: int, value: float, command: str) -> None:
         r = run(args)  # type: ignore[arg-type]
         assert_rejected(r, [bag.name], d)
         assert f"sample {i}" in r.output
+
+
+# --- YAML files of the estimators, the study and the noise / calibration files --------------------
+#: Bytes no YAML reader may take as a mapping: not text, a syntax error, another top-level type.
+damaged_yaml = st.one_of(
+    st.binary(min_size=1, max_size=200).filter(lambda b: _not_utf8(b)),
+    st.sampled_from([b"a: [1, 2\n", b"{a: 1\n", b"key: 'open\n", b"a: b: c\n", b"\tkey: 1\n",
+                     b"just text\n", b"- 1\n- 2\n", b"42\n", b"a: 1\x00\n", b"[" * 5000]),
+)  # fmt: skip
+
+
+def _yaml_user(command: str, f: Path, d: Path) -> list[object]:
+    """The command line of ``command`` reading ``f`` as its YAML (other inputs valid, or never reached:
+    a command reads its YAML before its data)."""
+    imu = write_rows(d / "imu.txt", IMU)
+    return {
+        "lio": ["lio", d / "scans.bag", "--config", f],
+        "vio": ["vio", "sim", "--config", f],
+        "vio-camchain": ["vio", d / "euroc", "--camchain", f],
+        "map2d": ["map2d", d / "scans.clf", "--config", f],
+        "study": ["study", f, "--serial"],
+        "align-noise": ["align", imu, "--noise", f, "--accel-unit", "m/s^2", "--gyro-unit", "rad/s",
+                        "--t-still", "1"],
+        "score": ["score", imu, f, "--accel-unit", "m/s^2", "--gyro-unit", "rad/s"],
+        "correct": ["correct", imu, "--calib", f],
+    }[command] + ["--out", d / ("out.txt" if command == "correct" else "out")]  # fmt: skip
+
+
+YAML_COMMANDS = ("lio", "vio", "vio-camchain", "map2d", "study", "align-noise", "score", "correct")
+
+
+@SETTINGS
+@given(command=st.sampled_from(YAML_COMMANDS), content=damaged_yaml)
+def test_damaged_yaml(command: str, content: bytes) -> None:
+    """Every YAML a command reads goes through one reader: one line naming the file, exit 2."""
+    with tempfile.TemporaryDirectory() as td:
+        d = Path(td)
+        f = d / "input.yaml"
+        f.write_bytes(content)
+        r = run(_yaml_user(command, f, d))  # type: ignore[arg-type]
+        assert_rejected(r, ["input.yaml"], d, codes=(2,))
+
+
+NAN, INF = float("nan"), float("inf")
+GENERIC = [NAN, INF, -INF, "abc"]  # and a list, where a number is expected
+#: command -> {dotted field: values it must refuse beside GENERIC}; every value is invalid there.
+FIELDS: dict[str, dict[str, list[object]]] = {
+    "lio": {"filter.lidar_std": [0, -1], "filter.g": [0, 98.1, 1.0], "map.voxel": [1e-9, 0, 1e3],
+            "frontend.scan_voxel": [1e-9, -0.5], "extrinsic.time_offset_s": [1.7e9, -5],
+            "filter.max_iterations": [0, 10**6, 1.5], "align_seconds": [0, 1e7], "map.radius": [0, 1e9]},
+    "vio": {"noise.gyro": [0, -1], "nhc_rate_hz": [0, 1e6], "vo.max_features": [0, 5],
+            "g": [0, 98.1], "outlier_fraction": [1.0, -0.1], "outlier_seed": [-1, 2**40]},
+    "map2d": {"resolution": [1e-9, 0, 5], "loop.min_score": [0, 1, 2], "max_range": [0, -3],
+              "matcher.max_iterations": [0, -2]},
+    "study": {"claims.0.scenarios.0.duration_s": [0, -1, 1e9], "align.fix_rate_hz": [0, -10],
+              "seeds": [[-1], [2**40], ["x"], 10**9], "drift.age_h": [-1], "claims.0.metric": ["happiness"]},
+}  # fmt: skip
+STUDY = {"name": "t", "seeds": [0], "claims": [{
+    "name": "c", "scenarios": [{"name": "street", "duration_s": 2.0}], "estimators": [{"name": "ins"}],
+    "compare": "imu"}]}  # fmt: skip
+
+
+def _put(doc: dict[str, object], path: str, value: object) -> None:
+    keys = path.split(".")
+    node: object = doc
+    for k in keys[:-1]:
+        node = node[int(k)] if k.isdigit() else node.setdefault(k, {})  # type: ignore[index, union-attr]
+    node[keys[-1]] = value  # type: ignore[index]
+
+
+@st.composite
+def bad_field(draw: st.DrawFn) -> tuple[str, str, object]:
+    command = draw(st.sampled_from(sorted(FIELDS)))
+    field = draw(st.sampled_from(sorted(FIELDS[command])))
+    generic = GENERIC if field == "seeds" else [*GENERIC, [1, 2]]
+    return command, field, draw(st.sampled_from(generic + FIELDS[command][field]))
+
+
+@SETTINGS
+@given(case=bad_field())
+def test_config_field_values(case: tuple[str, str, object]) -> None:
+    """A value that is NaN, infinite, of another type or in another unit is refused before any work,
+    naming the field (.inf and 1e-9 passed and failed later, exit 3, naming nothing)."""
+    import copy
+
+    command, field, value = case
+    with tempfile.TemporaryDirectory() as td:
+        d = Path(td)
+        doc: dict[str, object] = copy.deepcopy(STUDY) if command == "study" else {}
+        _put(doc, field, value)
+        f = d / "input.yaml"
+        f.write_text(yaml.safe_dump(doc))
+        r = run(_yaml_user(command, f, d))  # type: ignore[arg-type]
+        assert_rejected(r, [field.rsplit(".", 1)[-1]], d, codes=(2,))

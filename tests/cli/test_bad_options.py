@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from imuslam.io import results
 
 SETTINGS = settings(
-    max_examples=60,
+    max_examples=100,
     derandomize=True,
     phases=(Phase.explicit, Phase.generate),  # no shrinking: a failing example is printed as drawn
     deadline=None,
@@ -30,6 +30,10 @@ def positive(hi: float | None = None) -> st.SearchStrategy[str]:
     """Values a positive (<= hi) option refuses: zero, negatives, beyond hi, non-finite, words."""
     return st.one_of(st.just("0"), st.just("-0.0"), bad_float(0.0, hi))
 
+
+#: Seeds no generator takes: negative, beyond 32 bits (numpy's legacy RandomState), not integers.
+bad_seed = st.one_of(st.integers(-(10**12), -1).map(str), st.integers(2**32, 2**80).map(str),
+                     st.sampled_from(["1.5", "x", "nan"]))  # fmt: skip
 
 # command -> (positional arguments, {option: strategy of values it must refuse})
 OPTIONS: dict[str, tuple[list[str], dict[str, st.SearchStrategy[str]]]] = {
@@ -65,6 +69,21 @@ OPTIONS: dict[str, tuple[list[str], dict[str, st.SearchStrategy[str]]]] = {
         "--rate": positive(1000.0), "--seed": bad_int(0),
     }),
     "demo": ([], {"--poses": bad_int(12, 200), "--seed": bad_int(0)}),
+    "lio": (["scans.bag"], {
+        "--state": bad_choice(("reduced", "full")), "--mode": bad_choice(("features", "direct")),
+        "--align": bad_choice(("none", "kf", "stkf", "rwnn")), "--max-scans": bad_int(1),
+    }),
+    "vio": (["sim"], {
+        "--sim-duration": bad_float(1.0, 3600.0), "--sim-rate": bad_float(1.0, 100.0), "--seed": bad_seed,
+        "--g": bad_float(9.7, 9.9), "--outliers": bad_float(0.0, 1.0), "--detector": bad_choice(("sift", "orb")),
+        "--align": bad_choice(("se3", "sim3", "yaw", "first")), "--gt-format": bad_choice(("auto", "tum", "euroc")),
+    }),
+    "map2d": (["scans.clf"], {"--format": bad_choice(("auto", "carmen", "breezyslam", "bag", "sim"))}),
+    "study": (["study.yaml"], {"--workers": bad_int(1)}),
+    "score": (["imu.txt", "cal.yaml"], {
+        "--g": bad_float(9.7, 9.9), "--t-init": positive(), "--format": bad_choice(FORMATS),
+        "--accel-unit": bad_choice(("m/s^2", "g", "counts")), "--gyro-unit": bad_choice(("rad/s", "deg/s", "counts")),
+    }),
 }  # fmt: skip
 
 

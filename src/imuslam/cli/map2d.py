@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import typer
 
+from imuslam.cli import validate
 from imuslam.cli.common import console, friendly_errors, table
 
 if TYPE_CHECKING:
@@ -53,7 +54,12 @@ def register(app: typer.Typer) -> None:
             None, "--gt", help="reference: a corrected CARMEN log or a TUM trajectory"
         ),
         config: Path | None = typer.Option(None, "--config", help="YAML with Slam2dConfig fields"),
-        fmt: str = typer.Option("auto", "--format", help="auto, carmen, breezyslam, bag or sim"),
+        fmt: str = typer.Option(
+            "auto",
+            "--format",
+            help="auto, carmen, breezyslam, bag or sim",
+            callback=validate.choice(("auto", "carmen", "breezyslam", "bag", "sim")),
+        ),
         scan_topic: str | None = typer.Option(
             None, "--scan-topic", help="bag: LaserScan / MultiEchoLaserScan topic"
         ),

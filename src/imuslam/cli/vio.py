@@ -33,9 +33,15 @@ def register(app: typer.Typer) -> None:
         gt: Path | None = typer.Option(
             None, "--gt", help="ground truth (TUM, EuRoC csv) for ATE/RPE"
         ),
-        gt_format: str = typer.Option("auto", help="tum, euroc or auto (by extension)"),
+        gt_format: str = typer.Option(
+            "auto",
+            help="tum, euroc or auto (by extension)",
+            callback=validate.choice(("auto", "tum", "euroc")),
+        ),
         align: str = typer.Option(
-            "se3", help="ATE alignment: se3, yaw, first (short or static runs)"
+            "se3",
+            help="ATE alignment: se3, sim3, yaw, first (short or static runs)",
+            callback=validate.choice(("se3", "sim3", "yaw", "first")),
         ),
         config: Path | None = typer.Option(
             None, "--config", help="VioConfig YAML (keys = field names)"
