@@ -264,6 +264,17 @@ def _study(**claim: object) -> dict[str, object]:
         ({"seeds": 10**9}, "seeds"),  # a count: a billion seeds
         ({"imu": ["perfect"]}, "imu"),
         ({"scenarios": [{"name": "street", "duration_s": float("inf")}]}, "duration_s"),
+        (
+            {"estimators": [{"name": "ins", "options": {"pose_rate_hz": float("inf")}}]},
+            "pose_rate_hz",
+        ),
+        (  # a further configuration field: refused at load, not in every cell
+            {
+                "scenarios": [{"name": "square"}],
+                "estimators": [{"name": "map2d", "options": {"config": {"resolution": 1e-9}}}],
+            },
+            "resolution",
+        ),
     ],
 )
 def test_study_refused_before_any_cell(

@@ -22,7 +22,11 @@ def register(app: typer.Typer) -> None:
             None, "--scheduler", help="address of a running Dask scheduler, e.g. tcp://host:8786"
         ),
         workers: int | None = typer.Option(
-            None, "--workers", min=1, help="local worker processes (default: one per core)"
+            None,
+            "--workers",
+            min=1,
+            max=256,
+            help="local worker processes (default: one per core)",
         ),
         serial: bool = typer.Option(
             False, "--serial", help="run the cells one after another in this process"

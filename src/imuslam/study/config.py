@@ -8,6 +8,7 @@ factor (``compare``) in the order the claim states (``expect``, best first), pai
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -76,6 +77,22 @@ class EstimatorSpec(_Strict):
     @property
     def variant(self) -> str:
         return self.label or self.name
+
+    @field_validator("options")
+    @classmethod
+    def _finite(cls, v: dict[str, Any]) -> dict[str, Any]:
+        def walk(x: Any, where: str) -> None:
+            if isinstance(x, float) and not math.isfinite(x):
+                raise ValueError(f"options.{where}: {x}; expected a finite number")
+            if isinstance(x, dict):
+                for key, val in x.items():
+                    walk(val, f"{where}.{key}" if where else str(key))
+            elif isinstance(x, list):
+                for j, val in enumerate(x):
+                    walk(val, f"{where}[{j}]")
+
+        walk(v, "")
+        return v
 
 
 class DriftSpec(_Strict):

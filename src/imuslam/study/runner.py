@@ -53,6 +53,42 @@ ESTIMATOR_METRICS: dict[str, tuple[str, ...]] = {
 }
 
 
+def check_estimator_configs(study: StudyConfig, source: str = "<study>") -> None:
+    """An estimator's ``options.config`` (further fields of its own configuration model) is validated
+    when the study is loaded, not in every cell (where a bad field would fail them all)."""
+    from pydantic import BaseModel, ValidationError
+
+    from imuslam.config import describe_validation_error
+
+    def model(name: str) -> type[BaseModel] | None:
+        if name == "lio":
+            from imuslam.lio.config import LioConfig
+
+            return LioConfig
+        if name == "vio":
+            from imuslam.vio.pipeline import VioConfig
+
+            return VioConfig
+        if name == "map2d":
+            from imuslam.slam2d.slam import Slam2dConfig
+
+            return Slam2dConfig
+        return None
+
+    for k, c in enumerate(study.claims):
+        for i, e in enumerate(c.estimators):
+            m, cfg = model(e.name), e.options.get("config")
+            if m is None or not isinstance(cfg, dict):
+                continue
+            try:
+                m.model_validate(cfg)
+            except ValidationError as exc:
+                raise InputError(
+                    f"{source}: claims[{k}] ({c.name}).estimators[{i}] ({e.name}).options.config: "
+                    f"{describe_validation_error(exc)}"
+                ) from None
+
+
 def check_metrics(study: StudyConfig, source: str = "<study>") -> None:
     """Every claim's metric is one its cells report (else the claim could never be resolved)."""
     for k, c in enumerate(study.claims):
@@ -86,6 +122,7 @@ def plan(study: StudyConfig, source: str = "<study>") -> list[Cell]:
     otherwise)."""
     check_study(study, source)
     check_metrics(study, source)
+    check_estimator_configs(study, source)
     cells = expand(study)
     if not cells:
         raise InputError(f"{source}: the study has no cells")
