@@ -83,7 +83,7 @@ class EstimatorSpec(_Strict):
     def _finite(cls, v: dict[str, Any]) -> dict[str, Any]:
         def walk(x: Any, where: str) -> None:
             if isinstance(x, float) and not math.isfinite(x):
-                raise ValueError(f"options.{where}: {x}; expected a finite number")
+                raise ValueError(f"{where}: {x}; expected a finite number")
             if isinstance(x, dict):
                 for key, val in x.items():
                     walk(val, f"{where}.{key}" if where else str(key))
