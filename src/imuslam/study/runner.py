@@ -26,7 +26,7 @@ from typing import Any
 import pandas as pd
 from tqdm import tqdm
 
-from imuslam.errors import InputError
+from imuslam.errors import InputError, raise_if_interrupted
 from imuslam.io.atomic import write_atomic
 from imuslam.study.cells import Cell, expand
 from imuslam.study.config import StudyConfig
@@ -179,7 +179,7 @@ def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
             # the scheduler's HTTP server (no dashboard) moves to a free port when 8787 is taken
             warnings.filterwarnings("ignore", message="Port .* is already in use")
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)  # fmt: skip
+                                   dashboard_address=None, silence_logs=logging.CRITICAL)  # fmt: skip
     finally:
         for k, v in saved.items():
             if v is None:
@@ -187,7 +187,20 @@ def dask_client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
             else:
                 os.environ[k] = v
     with cluster, Client(cluster) as client:
+        client.run(_ignore_sigint)
         yield client
+
+
+def _ignore_sigint() -> bool:
+    """In a local worker process: leave Ctrl-C (sent to the whole process group) to the study's own
+    process, which cancels the cells and closes the cluster; the workers then end without a traceback."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return False
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return True
 
 
 def worker_cpu_s(client: Any) -> dict[str, float]:
@@ -251,23 +264,23 @@ def execute(
         return rows, n_cached, "cache", {}
     if serial:
         cpu0 = time.process_time()
-        bar = tqdm(total=len(pending), unit="cell", desc="study", disable=not progress)
         backend = "serial"
         cals: dict[tuple[float, int], Any] = {}
         shared: dict[str, Any] = {}
-        for c in pending:
-            need = calibration_need(c)
-            if need is not None and need not in cals:
-                cals[need] = calibration_task(c.drift.model_dump(), *need)
-            sh = shared_need(c)
-            if sh is not None and sh[0] not in shared:
-                shared.clear()  # keep one at a time: cells that share work are adjacent in the study
-                shared[sh[0]] = shared_task(sh[1], *sh[2])
-            rows[c.key] = run_cell(c, None if need is None else cals[need],
-                                   None if sh is None else shared[sh[0]])  # fmt: skip
-            _store(out, c, rows[c.key])
-            bar.update()
-        bar.close()
+        # closed on any exit, so that an error or an interrupt is printed on a line of its own
+        with tqdm(total=len(pending), unit="cell", desc="study", disable=not progress) as bar:
+            for c in pending:
+                need = calibration_need(c)
+                if need is not None and need not in cals:
+                    cals[need] = calibration_task(c.drift.model_dump(), *need)
+                sh = shared_need(c)
+                if sh is not None and sh[0] not in shared:
+                    shared.clear()  # one at a time: cells that share work are adjacent in the study
+                    shared[sh[0]] = shared_task(sh[1], *sh[2])
+                rows[c.key] = run_cell(c, None if need is None else cals[need],
+                                       None if sh is None else shared[sh[0]])  # fmt: skip
+                _store(out, c, rows[c.key])
+                bar.update()
         return rows, n_cached, backend, {"serial": time.process_time() - cpu0}
     with dask_client(scheduler, workers) as client:
         from distributed import as_completed
@@ -299,18 +312,26 @@ def execute(
                                 None if sh is None else shared_futures[sh[0]], key=f"cell-{c.key}",
                                 priority=cost[c.key])  # fmt: skip
             futures[fut] = c
-        for fut in as_completed(list(futures)):
-            c = futures[fut]
-            try:
-                row = fut.result()
-            except Exception as exc:  # a worker died, a task was lost: record it, go on
-                row = {"key": c.key, **c.label, "status": "error",
-                       "error": f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"[:500]}  # fmt: skip
-            rows[c.key] = row
-            _store(out, c, row)
-            bar.update()
-            fut.release()
-        bar.close()
+        try:
+            for fut in as_completed(list(futures)):
+                c = futures[fut]
+                try:
+                    row = fut.result()
+                except Exception as exc:  # a worker died, a task was lost: record it, go on
+                    raise_if_interrupted(exc)
+                    row = {"key": c.key, **c.label, "status": "error",
+                           "error": f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"[:500]}  # fmt: skip
+                rows[c.key] = row
+                _store(out, c, row)
+                bar.update()
+                fut.release()
+        except (
+            BaseException
+        ):  # an interrupt: the cells done so far stay in the cache, the rest stop
+            client.cancel([*futures, *cal_futures.values(), *shared_futures.values()])
+            raise
+        finally:
+            bar.close()
         cpu = worker_cpu_s(client)
     return rows, n_cached, backend, cpu
 
