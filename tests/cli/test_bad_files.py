@@ -10,6 +10,7 @@ import numpy as np
 import yaml
 from cli_helpers import (
     assert_rejected,
+    compact,
     imu_rows,
     imu_text,
     run,
@@ -19,6 +20,7 @@ from cli_helpers import (
     write_rows,
 )
 from cli_strategies import _not_utf8, bad_calibration_field, set_field, spoiled_table
+from click.testing import Result
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
@@ -279,3 +281,139 @@ def test_config_field_values(case: tuple[str, str, object]) -> None:
         f.write_text(yaml.safe_dump(doc))
         r = run(_yaml_user(command, f, d))  # type: ignore[arg-type]
         assert_rejected(r, [field.rsplit(".", 1)[-1]], d, codes=(2,))
+
+
+# --- damaged data of the estimators: a bag (lio), a CARMEN log and a simulation (map2d) ----------
+def carmen_text(n: int = 40) -> str:
+    """A CARMEN log of ``n`` FLASER scans (180 beams over 180 deg, 10 Hz) of a robot driving 5 cm a
+    scan along x in a 6 m x 4 m room; laser pose = odometry."""
+    out = []
+    ang = -np.pi / 2 + np.pi / 180 * np.arange(180)
+    for i in range(n):
+        x = -1.0 + 0.05 * i
+        c, s = np.cos(ang), np.sin(ang)
+        with np.errstate(divide="ignore"):
+            tx = np.where(c > 0, (3.0 - x) / c, np.where(c < 0, (-3.0 - x) / c, np.inf))
+            ty = np.where(s > 0, 2.0 / s, np.where(s < 0, -2.0 / s, np.inf))
+        r = np.minimum(tx, ty)
+        t = 1000.0 + 0.1 * i
+        out.append(f"FLASER 180 {' '.join(f'{v:.3f}' for v in r)} {x:.3f} 0 0 {x:.3f} 0 0 "
+                   f"{t:.3f} host {t:.3f}")  # fmt: skip
+    return "\n".join(out) + "\n"
+
+
+Recipe = tuple[str, int, int, bytes]
+
+
+@st.composite
+def damage(draw: st.DrawFn, n: int, text: bool) -> Recipe:
+    """How to damage ``n`` bytes (kept small, so a failing example prints readably): cut short, a
+    span overwritten (random bytes or zeros), bytes inserted or deleted; for text, also a token of a
+    line replaced (a word, NaN, an absurd value) or two lines swapped."""
+    kinds = ["truncate", "overwrite", "zeros", "insert", "delete"] + (
+        ["token", "swap"] if text else []
+    )
+    kind = draw(st.sampled_from(kinds))
+    k = draw(st.integers(n // 20, n - 2))
+    span = draw(st.integers(1, max(1, min(400, n - k - 1))))
+    if kind == "overwrite":
+        return kind, k, span, draw(st.binary(min_size=span, max_size=span))
+    if kind == "insert":
+        return kind, k, span, draw(st.binary(min_size=1, max_size=64))
+    if kind == "token":
+        word = draw(
+            st.sampled_from(["nan", "inf", "-1e308", "1e20", "abc", "", "99999999999999999999"])
+        )
+        return kind, k, span, word.encode()
+    return kind, k, span, b""
+
+
+def apply_damage(raw: bytes, recipe: Recipe) -> bytes:
+    kind, k, span, payload = recipe
+    if kind == "truncate":
+        return raw[:k]
+    if kind in ("overwrite", "zeros"):
+        return raw[:k] + (payload or b"\x00" * span) + raw[k + span :]
+    if kind == "insert":
+        return raw[:k] + payload + raw[k:]
+    if kind == "delete":
+        return raw[:k] + raw[k + span :]
+    lines = raw.decode().splitlines()
+    i = 1 + k % (len(lines) - 1)
+    if kind == "swap":
+        lines[i - 1], lines[i] = lines[i], lines[i - 1]
+    else:
+        tok = lines[i].split()
+        tok[1 + span % (len(tok) - 1)] = payload.decode()
+        lines[i] = " ".join(tok)
+    return ("\n".join(lines) + "\n").encode()
+
+
+def assert_clean(r: Result, names: list[str]) -> None:
+    """The law for damaged data: exit 0, 2 or 3, no traceback; a failure is one line naming the file."""
+    assert r.exit_code in (0, 2, 3), f"exit {r.exit_code}: {r.output!r} {r.exception!r}"
+    assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
+    assert "Traceback" not in r.output
+    if r.exit_code:
+        assert r.output.count("error:") == 1, r.output
+        assert any(compact(n) in compact(r.output) for n in names), r.output
+
+
+_BASE: dict[str, bytes] = {}
+
+
+def _base(kind: str) -> bytes:
+    """The valid input of each kind, made once."""
+    if kind not in _BASE:
+        with tempfile.TemporaryDirectory() as td:
+            d = Path(td)
+            if kind == "bag":
+                from imuslam.sim import export
+                from imuslam.sim.drive import simulate_lidar_drive
+
+                dr = simulate_lidar_drive("street", 1.0, seed=5)
+                pc = [(s.t_ns, "/points", export.pointcloud_message(s)[1]) for s in dr.scans]
+                export.write_bag(d / "bag", [export.imu_messages(dr.imu), iter(pc)])
+                _BASE[kind] = next((d / "bag").glob("*.mcap")).read_bytes()
+            elif kind == "sim":
+                assert (
+                    run(["simulate", "room", "--duration", "2", "--out", d / "room"]).exit_code == 0
+                )
+                _BASE[kind] = (d / "room" / "sim.npz").read_bytes()
+            else:
+                _BASE[kind] = carmen_text().encode()
+    return _BASE[kind]
+
+
+@st.composite
+def damaged_input(draw: st.DrawFn) -> tuple[str, Recipe]:
+    kind = draw(st.sampled_from(["bag", "sim", "carmen"]))
+    return kind, draw(damage(len(_base(kind)), text=kind == "carmen"))
+
+
+@settings(max_examples=15, derandomize=True, deadline=None, phases=(Phase.explicit, Phase.generate),
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])  # fmt: skip
+@given(case=damaged_input())
+def test_damaged_estimator_data(case: tuple[str, Recipe]) -> None:
+    """lio on a damaged MCAP, map2d on a damaged simulation or CARMEN log: it runs (the damage was
+    in data the reader may drop and count) or stops with one line naming the file."""
+    kind, recipe = case
+    content = apply_damage(_base(kind), recipe)
+    with tempfile.TemporaryDirectory() as td:
+        d = Path(td)
+        if kind == "bag":
+            (d / "bag").mkdir()
+            f = d / "bag" / "bag.mcap"
+            f.write_bytes(content)
+            args = ["lio", f, "--max-scans", "3", "--mode", "direct"]
+        elif kind == "sim":
+            (d / "room").mkdir()
+            f = d / "room" / "sim.npz"
+            f.write_bytes(content)
+            args = ["map2d", d / "room", "--no-progress"]
+        else:
+            f = d / "log.clf"
+            f.write_bytes(content)
+            args = ["map2d", f, "--no-progress"]
+        r = run([*args, "--out", d / "out"])  # type: ignore[list-item]
+        assert_clean(r, [f.name, f.parent.name])

@@ -4,6 +4,8 @@ Odometry), or a folder written by ``imuslam simulate room`` (``sim.npz``)."""
 
 from __future__ import annotations
 
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Literal
 
@@ -47,12 +49,15 @@ def read_sim_room(path: str | Path, with_imu: bool = True) -> LaserLog:
     """Scans, wheel odometry (dead-reckoned, interpolated to the scan times) and IMU of a simulated robot."""
     p = Path(path)
     f = p / "sim.npz" if p.is_dir() else p
-    try:
-        d = np.load(f)
+    try:  # every array read here: a damaged member of the archive fails now, not later
+        with np.load(f) as z:
+            d = {k: z[k] for k in z.files}
         t_ns = d["scan_t_ns"]
         ranges = d["scan_ranges"]
-    except (OSError, KeyError, ValueError) as exc:
-        raise InputError(f"{f}: not a simulation with 2D scans ({exc})") from None
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise InputError(
+            f"{f}: not a simulation with 2D scans ({type(exc).__name__}: {exc})"
+        ) from None
     if len(t_ns) == 0:
         raise InputError(f"{f}: the simulation holds no laser scans")
     warnings: dict[str, int] = {}
