@@ -294,3 +294,28 @@ def test_a_signal_stops_the_run_and_leaves_nothing(sig: int, tmp_path: Path) -> 
     assert "Traceback" not in stderr + stdout
     assert stderr.count("error:") == 1 and "interrupted" in stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", ["map2d", "lio"])
+def test_full_disk_names_out_and_leaves_nothing(command: str, tmp_path: Path) -> None:
+    """The disk fills while the plot is written: exit 2 naming --out and the cause, a new folder not
+    created, an existing one as it was."""
+    import errno
+    from unittest import mock
+
+    def full(path: object, data: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    data = tmp_path / "data"
+    data.mkdir()
+    args = COMMANDS[command](data)
+    user = _user_folder(tmp_path / "user")
+    before = tree_hashes(user)
+    with mock.patch("imuslam.io.figures.write_atomic", full):
+        for out in (tmp_path / "new", user):
+            r = run([*args, "--out", str(out)])
+            assert_rejected(r, ["--out"], codes=(2,))
+            assert "No space left" in r.output
+    assert not (tmp_path / "new").exists()
+    assert tree_hashes(user) == before
+    assert not no_temporaries(tmp_path)
