@@ -31,23 +31,28 @@ RANDOM = np.random.default_rng(34).bytes(
 
 @pytest.fixture(scope="module")
 def lio_bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """A 3 s simulated street drive (it turns at up to 0.37 rad/s) as a bag: as recorded, with its gyro in deg/s, and with point_step 4."""
+    """A 3 s simulated street drive (it turns at up to 0.37 rad/s) as a bag: as recorded, with its gyro
+    in deg/s, with point_step 4, with every IMU sample or every scan at one stamp."""
     from imuslam.sim import export
     from imuslam.sim.drive import simulate_lidar_drive
 
     d = simulate_lidar_drive("street", 3.0, seed=5)
     root = tmp_path_factory.mktemp("lio34")
 
-    def write(name: str, imu: ImuLog, step: int | None = None) -> Path:
+    def write(name: str, imu: ImuLog, step: int | None = None, scans: list | None = None) -> Path:  # type: ignore[type-arg]
         pc = []
-        for s in d.scans:
+        for s in d.scans if scans is None else scans:
             t, msg = export.pointcloud_message(s)
             pc.append((t, "/points", msg if step is None else replace(msg, point_step=step)))
         export.write_bag(root / name, [export.imu_messages(imu), iter(pc)])
         return root / name
 
     deg = ImuLog(d.imu.t_ns, d.imu.accel, np.rad2deg(d.imu.gyro), "m/s^2", "rad/s", "deg")
-    return {"good": write("good", d.imu), "deg": write("deg", deg), "ps4": write("ps4", d.imu, 4)}
+    t1 = np.full_like(d.imu.t_ns, d.imu.t_ns[0])
+    imu1 = ImuLog(t1, d.imu.accel, d.imu.gyro, "m/s^2", "rad/s", "one stamp")
+    scans1 = [replace(s, t_ns=d.scans[0].t_ns) for s in d.scans]
+    return {"good": write("good", d.imu), "deg": write("deg", deg), "ps4": write("ps4", d.imu, 4),
+            "imu1": write("imu1", imu1), "scan1": write("scan1", d.imu, scans=scans1)}  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -118,6 +123,18 @@ def test_lio_gyro_in_degrees(lio_bags: dict[str, Path], tmp_path: Path) -> None:
     assert ok.exit_code == 0, ok.output
 
 
+@pytest.mark.parametrize(
+    "bag, expect", [("imu1", "share one timestamp"), ("scan1", "1 usable scans")]
+)
+def test_lio_stamps_shared(
+    bag: str, expect: str, lio_bags: dict[str, Path], tmp_path: Path
+) -> None:
+    """IMU samples, or scans, that all carry one stamp."""
+    r = run(["lio", lio_bags[bag], "--out", tmp_path / "out"])
+    assert_rejected(r, [bag], tmp_path, codes=(2,))
+    assert compact(expect) in compact(r.output)
+
+
 # --- vio ------------------------------------------------------------------------------------------
 @pytest.mark.parametrize(
     "option, value",
@@ -150,8 +167,9 @@ def test_vio_config_file(content: bytes, expect: str, tmp_path: Path) -> None:
     assert expect in r.output
 
 
-def _euroc(shared: Path, dst: Path, gyro_scale: float = 1.0) -> Path:
-    """The first 3 stereo pairs of the EuRoC excerpt and 2 s of its IMU (gyro times ``gyro_scale``)."""
+def _euroc(shared: Path, dst: Path, gyro_scale: float = 1.0, one_stamp: bool = False) -> Path:
+    """The first 3 stereo pairs of the EuRoC excerpt and 4 s of its IMU (gyro times ``gyro_scale``;
+    every sample at the first one's stamp with ``one_stamp``)."""
     src = shared / "euroc_V1_01_micro_kimera" / "mav0"
     root = dst / "mav0"
     for cam in ("cam0", "cam1"):
@@ -163,7 +181,8 @@ def _euroc(shared: Path, dst: Path, gyro_scale: float = 1.0) -> Path:
             shutil.copy(src / cam / "data" / x.split(",")[1], root / cam / "data")
     (root / "imu0").mkdir()
     rows = [x.split(",") for x in (src / "imu0" / "data.csv").read_text().splitlines()[1:800]]
-    body = [[r[0], *(f"{float(v) * gyro_scale:.9g}" for v in r[1:4]), *r[4:7]] for r in rows]
+    body = [[rows[0][0] if one_stamp else r[0], *(f"{float(v) * gyro_scale:.9g}" for v in r[1:4]),
+             *r[4:7]] for r in rows]  # fmt: skip
     (root / "imu0" / "data.csv").write_text(
         "#timestamp [ns],w_x,w_y,w_z,a_x,a_y,a_z\n" + "".join(",".join(b) + "\n" for b in body)
     )
@@ -187,6 +206,12 @@ def test_vio_gyro_in_degrees(shared_data: Path, tmp_path: Path) -> None:
     r = run(["vio", ds, "--out", tmp_path / "out"])
     assert_rejected(r, ["deg/s"], tmp_path, codes=(2,))
     assert "imu0" in compact(r.output)
+
+
+def test_vio_imu_stamps_shared(shared_data: Path, tmp_path: Path) -> None:
+    ds = _euroc(shared_data, tmp_path / "ds", one_stamp=True)
+    r = run(["vio", ds, "--out", tmp_path / "out"])
+    assert_rejected(r, ["imu0/data.csv"], tmp_path, codes=(2,))
 
 
 # --- map2d ----------------------------------------------------------------------------------------
