@@ -67,6 +67,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "lio",
         "LiDAR-inertial odometry (iterated ESKF) with a voxel map; LiDAR-only without an IMU.",
     ),
+    "calibrate-lidar": (
+        "calibrate_lidar",
+        "Calibrate the LiDAR pose on the IMU and the clock offset without a target (LI-Init's method).",
+    ),
 }
 
 

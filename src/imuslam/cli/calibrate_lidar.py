@@ -1,0 +1,146 @@
+"""``imuslam calibrate-lidar``: the LiDAR pose on the IMU and the LiDAR clock offset from a bag, without
+a target (``imuslam.lio.extrinsic``): lio_config.yaml for ``imuslam lio --config``, metrics.json with
+values, 1-sigma and the observability verdict, config.yaml (the settings of this run)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import typer
+
+from imuslam.cli import validate
+from imuslam.cli.common import console, friendly_errors, table
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("calibrate-lidar")
+    @friendly_errors
+    def calibrate_lidar_cmd(
+        bag: Path = typer.Argument(..., help="ROS 1 / ROS 2 / MCAP bag with PointCloud2 and Imu"),
+        imu_topic: str | None = typer.Option(None, "--imu-topic", help="sensor_msgs/Imu topic"),
+        points_topic: str | None = typer.Option(
+            None, "--points-topic", help="sensor_msgs/PointCloud2 topic"
+        ),
+        out: Path = typer.Option(
+            Path("lidar_calib_out"), "--out", help="results folder", callback=validate.out_folder()
+        ),
+        config: Path | None = typer.Option(
+            None, "--config", help="LioConfig YAML: the starting extrinsic and offset"
+        ),
+        calib: Path | None = typer.Option(
+            None, "--calib", help="IMU calibration.yaml, applied first"
+        ),
+        duration: float | None = typer.Option(
+            None,
+            "--duration",
+            help="use the first N seconds of the scans, s",
+            callback=validate.positive("s"),
+        ),
+        search: float = typer.Option(
+            0.2,
+            "--search",
+            help="clock offsets searched around the start's, +- s",
+            callback=validate.positive("s", hi=5.0),
+        ),
+    ) -> None:
+        """Calibrate the LiDAR pose on the IMU and the clock offset without a target (LI-Init's method)."""
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        import numpy as np
+
+        from imuslam.config import load_config
+        from imuslam.errors import InputError
+        from imuslam.io.results import write_results
+        from imuslam.lio.config import LioConfig
+        from imuslam.lio.datasets import BagLidarDataset
+        from imuslam.lio.extrinsic import AXES, calibrate_lidar_imu
+        from imuslam.lio.threads import blas_threads
+
+        cfg = load_config(config, LioConfig) if config is not None else LioConfig()
+        if not bag.exists():
+            raise InputError(f"{bag}: no such bag")
+        if bag.is_dir() and (any(bag.glob("*.pcd")) or any(bag.glob("*.bin"))):
+            raise InputError(
+                f"{bag}: a folder of scans has no IMU; expected a bag with an Imu topic"
+            )
+        data = BagLidarDataset(bag, points_topic, imu_topic, use_imu=True)
+        imu = data.imu()
+        if imu is None:
+            raise InputError(f"{bag}: no sensor_msgs/Imu topic; name one with --imu-topic")
+        if calib is not None:
+            from imuslam.imu.model import ImuCalibration
+
+            imu = ImuCalibration.load_yaml(calib).correct(imu)
+        scans = []
+        t_first: int | None = None
+        for s in data.lidar_scans():
+            t_first = s.t_ns if t_first is None else t_first
+            if duration is not None and (s.t_ns - t_first) * 1e-9 > duration:
+                break
+            scans.append(s)
+        if len(scans) < 20:
+            raise InputError(
+                f"{bag}:{data.points_topic}: {len(scans)} scans; the calibration needs at least 20"
+            )
+        if duration is not None:
+            lo = scans[0].t_ns - int((search + abs(cfg.extrinsic.time_offset_s) + 1.0) * 1e9)
+            hi = scans[-1].t_ns + int((search + abs(cfg.extrinsic.time_offset_s) + 1.0) * 1e9)
+            i0, i1 = np.searchsorted(imu.t_ns, [lo, hi])
+            imu = imu.slice(int(i0), int(i1))
+        console.print(
+            f"{len(scans)} scans of {data.points_topic}, {len(imu)} IMU samples of {data.imu_topic}"
+        )
+        with blas_threads(1):
+            res = calibrate_lidar_imu(scans, imu, cfg, search_s=search)
+        lio_cfg = cfg.model_copy(update={"extrinsic": res.extrinsic()})
+        settings = {"bag": str(bag), "imu_topic": data.imu_topic, "points_topic": data.points_topic,
+                    "config": None if config is None else str(config), "calib": None if calib is None else str(calib),
+                    "duration_s": duration, "search_s": search, "start": cfg.model_dump(mode="json")}  # fmt: skip
+
+        def extra(folder: Path) -> None:
+            import yaml
+
+            from imuslam.io.atomic import write_atomic
+
+            text = yaml.safe_dump(lio_cfg.model_dump(mode="json"), sort_keys=False)
+            write_atomic(folder / "lio_config.yaml", text)
+
+        write_results(out, config=settings, metrics=res.to_dict(), extra=extra)
+
+        def obs(ok: bool) -> str:
+            return "yes" if ok else "NO"
+
+        rows = [[f"lever arm p_i_l {a}", f"{res.p_i_l[k]:.4f}", f"{res.sigma_p_m[k]:.4f}", "m",
+                 obs(bool(res.observable_p[k]))] for k, a in enumerate(AXES)]  # fmt: skip
+        rpy = res.rpy_deg_i_l
+        rows += [[f"rotation R_i_l {n} (about IMU {a})", f"{rpy[k]:.3f}", f"{res.sigma_rot_deg[k]:.3f}",
+                  "deg", obs(bool(res.observable_rot[k]))]
+                 for k, (n, a) in enumerate(zip(("roll", "pitch", "yaw"), AXES, strict=True))]  # fmt: skip
+        rows += [
+            ["clock offset (t_imu = t_lidar + offset)", f"{res.time_offset_s * 1e3:.2f}",
+             f"{res.sigma_time_offset_s * 1e3:.2f}", "ms", obs(res.observable_time)],
+            ["gyro residual RMS", f"{res.rms_gyro:.4f}", "", "rad/s", ""],
+            ["accelerometer residual RMS", f"{res.rms_accel:.4f}", "", "m/s^2", ""],
+            ["scans used", f"{res.n_scans}", "", "", ""],
+            ["time span", f"{res.duration_s:.1f}", "", "s", ""],
+        ]  # fmt: skip
+        console.print(
+            table(
+                f"imuslam calibrate-lidar {bag}",
+                ["parameter", "value", "1-sigma", "unit", "observed"],
+                rows,
+            )
+        )
+        for u in res.unobservable:
+            console.print(
+                f"warning: not excited by the motion: {u}",
+                markup=False,
+                highlight=False,
+                soft_wrap=True,
+            )
+        if not res.observable:
+            console.print("warning: the parameters marked NO keep (about) their starting values; record a "
+                          "motion that turns about all three axes", markup=False, highlight=False, soft_wrap=True)  # fmt: skip
+        console.print(
+            f"wrote {out}/lio_config.yaml (for imuslam lio --config), metrics.json, config.yaml"
+        )
