@@ -43,6 +43,8 @@ IMU_COMMANDS = {
     "allan": lambda log, d: ["allan", log, "--out", d / "out"],
     "align": lambda log, d: ["align", log, "--accel-unit", "m/s^2", "--gyro-unit", "rad/s",
                              "--t-still", "1", "--out", d / "out"],
+    "score": lambda log, d: ["score", log, write_calibration(d / "cal.yaml"), "--accel-unit", "m/s^2",
+                             "--gyro-unit", "rad/s", "--t-init", "0.5", "--out", d / "out"],
 }  # fmt: skip
 
 
