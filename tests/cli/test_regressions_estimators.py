@@ -374,6 +374,19 @@ def test_align_gyro_in_degrees_declared_radians(tmp_path: Path) -> None:
     assert "deg/s" in r.output
 
 
+def test_align_still_gyro_in_degrees_declared_radians(tmp_path: Path) -> None:
+    """A still log (gyro bias 1.2 deg/s) in deg/s declared rad/s: levelled with a 1.2 rad/s bias."""
+    rows = imu_rows(600)
+    rows[:, 4:7] = np.rad2deg(rows[:, 4:7] + [0.02, -0.01, 0.005])
+    p = write_rows(tmp_path / "still.txt", imu_text(rows))
+    args = ["align", p, "--accel-unit", "m/s^2", "--t-still", "2", "--method", "coarse"]
+    r = run([*args, "--gyro-unit", "rad/s", "--out", tmp_path / "out"])
+    assert_rejected(r, ["--gyro-unit"], tmp_path, codes=(2,))
+    assert "deg/s" in r.output and "still" in r.output
+    ok = run([*args, "--gyro-unit", "deg/s", "--out", tmp_path / "ok"])
+    assert ok.exit_code == 0, ok.output
+
+
 def test_allan_gyro_in_degrees_declared_radians(tmp_path: Path) -> None:
     """The README says a deg/s gyro declared rad/s is refused; allan analysed it (exit 0, noise 57x)."""
     rows = imu_rows(3000)

@@ -129,7 +129,7 @@ def register(app: typer.Typer) -> None:
         from imuslam.ins.kf import KfNoise
         from imuslam.ins.pipeline import AlignConfig, AlignDataset, AlignPipeline
         from imuslam.io.load import detect_format, write_imu
-        from imuslam.io.plausible import check_units
+        from imuslam.io.plausible import check_at_rest, check_units
         from imuslam.io.trajectory import read_euroc_state, read_trajectory
 
         if init == Init.aiding and aiding == "zupt":
@@ -146,6 +146,8 @@ def register(app: typer.Typer) -> None:
         gu = None if gyro_unit is None else gyro_unit.value
         full = load_log(log_path, None, fmt.value, topic, au, gu, columns)
         check_units(full, hint="give --accel-unit / --gyro-unit")
+        if aiding == "zupt" or init == Init.coarse:  # levelled on a still start
+            check_at_rest(full, t_still, hint="give --gyro-unit, or --t-still")
         full = full.to_si()
         tr = None
         if aiding != "zupt":

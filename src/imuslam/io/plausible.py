@@ -22,6 +22,10 @@ G0 = 9.80665
 #: here: a Husky 0.41, a backpack 0.65, EuRoC's drone 0.73-1.6 rad/s). The same log in deg/s read as
 #: rad/s shows 23-94 "rad/s".
 NAV_MAX_RATE_RAD_S = 8.0
+#: The largest mean rate, rad/s, a gyro at rest reads (its bias and the earth's rate): 0.5 rad/s is
+#: 29 deg/s, beyond the zero-rate tolerance of any MEMS gyro (the MPU6050's +-20 deg/s is among the
+#: widest); a gyro in deg/s read as rad/s with a bias over 0.5 deg/s exceeds it.
+MAX_REST_RATE_RAD_S = 0.5
 #: The largest white-noise density, rad/s/sqrt(Hz), of any MEMS gyro (0.2 deg/s/sqrt(Hz): about 4x the
 #: noisiest datasheet, 20-40x a consumer part's 0.005-0.01); a gyro in deg/s read as rad/s shows
 #: 57x its density in rad/s.
@@ -63,6 +67,24 @@ def check_units(
                 f"deg/s), more than {platform} turns at ({max_rate_rad_s:g} rad/s): the gyro is not "
                 f"in {log.gyro_unit}{like}{tail}"
             )
+
+
+def check_at_rest(log: ImuLog, t_still_s: float, hint: str = "") -> None:
+    """InputError when the gyro's mean over the first ``t_still_s`` (the IMU at rest) exceeds
+    :data:`MAX_REST_RATE_RAD_S` in its declared unit: a gyro in deg/s read as rad/s, or an IMU
+    that was not still."""
+    if log.gyro_unit == "counts" or len(log) == 0:
+        return
+    k = int(np.searchsorted(log.t_ns, log.t_ns[0] + int(t_still_s * 1e9), side="right"))
+    mean = float(np.linalg.norm(_si_gyro(log)[: max(k, 1)].mean(axis=0)))
+    if not mean <= MAX_REST_RATE_RAD_S:
+        like = " (it looks like deg/s)" if log.gyro_unit == "rad/s" else ""
+        raise InputError(
+            f"{log.source}: over the still start ({t_still_s:g} s) the gyro reads {mean:.4g} rad/s "
+            f"({np.rad2deg(mean):.0f} deg/s) on average, more than any gyro at rest "
+            f"({MAX_REST_RATE_RAD_S:g} rad/s of bias): the gyro is not in {log.gyro_unit}{like}, "
+            "or the IMU was not still" + (f"; {hint}" if hint else "")
+        )
 
 
 def check_gyro_noise(white_rad_s_rthz: float, source: str, gyro_unit: str, hint: str = "") -> None:
