@@ -563,6 +563,7 @@ def refine_extrinsic(
 
     # observability: the rotation and lever-arm blocks' information with the rest marginalised
     unobs: list[str] = []
+    fixed: list[FloatArray] = [np.zeros((3, 0)), np.zeros((3, 0))]
     lims = (np.deg2rad(lim.rotation_deg), lim.translation_m)
     for blk, (name, limit) in enumerate(zip(_NAMES, lims, strict=True)):
         idx = np.arange(3 * blk, 3 * blk + 3)
@@ -576,11 +577,34 @@ def refine_extrinsic(
             s = 1.0 / np.sqrt(max(lam[k], 1e-300))
             if s > limit:
                 v = V[:, k] * np.sign(V[np.argmax(np.abs(V[:, k])), k])
+                fixed[blk] = np.column_stack([fixed[blk], v])
                 sd_txt = f"{np.rad2deg(s):.3g} deg" if blk == 0 else f"{s:.3g} m"
                 unobs.append(f"{name} along IMU [{v[0]:+.2f}, {v[1]:+.2f}, {v[2]:+.2f}]: 1-sigma {sd_txt} "
-                             "from the data alone (kept near the start)")  # fmt: skip
-    if sd[6] > lim.time_offset_s:
-        unobs.append(f"clock offset: 1-sigma {sd[6] * 1e3:.3g} ms")
+                             "from the data alone (kept at the start)")  # fmt: skip
+    fix_offset = bool(sd[6] > lim.time_offset_s)
+    if fix_offset:
+        unobs.append(f"clock offset: 1-sigma {sd[6] * 1e3:.3g} ms (kept at the start)")
+    if fixed[0].shape[1] or fixed[1].shape[1] or fix_offset:
+        # the directions the data do not see stay where they started: the weak prior alone would let
+        # the residuals' systematic errors move them by as much as their large sigma
+        Vr, Vp = fixed
+
+        def constraint(x: FloatArray) -> FloatArray:
+            R, p, d, *_ = unpack(x)
+            c = [Vr.T @ Rotation.from_matrix(R @ R_s.T).as_rotvec() / 1e-6, Vp.T @ (p - p_s) / 1e-6]
+            if fix_offset:
+                c.append(np.array([(d - start.time_offset_s) / 1e-6]))
+            return np.concatenate(c)
+
+        n_res = len(residuals(x))
+        x[3:6] -= Vp @ (Vp.T @ (x[3:6] - p_s))
+        if fix_offset:
+            x[6] = start.time_offset_s
+        sol = least_squares(lambda x: np.concatenate([residuals(x), constraint(x)]), x,
+                            x_scale=scale, method="trf")  # fmt: skip
+        x = sol.x
+        J = sol.jac[:n_res]  # the sigma: the data's and the weak prior's information only
+        sd = np.sqrt(np.diag(np.linalg.inv(J.T @ J)))
 
     R, p, d, bg, ba, g = unpack(x)
     eg, fp = model(x)
