@@ -33,6 +33,8 @@ def _check_reference(gt: Path, log_: LaserLog) -> None:
 
             read_trajectory(gt, "tum")
     except InputError as exc:
+        if str(gt) in str(exc):  # the reader named the file and what it expected
+            raise InputError(f"--gt: {exc}") from None
         raise InputError(
             f"--gt {gt}: {exc}; expected the corrected log or trajectory of {log_.source}"
         ) from None
