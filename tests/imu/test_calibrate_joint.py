@@ -11,12 +11,12 @@ from imuslam.imu.calibrate import (
     calibrate,
     extend_to_motion,
     extend_to_rest,
-    integrate_segments,
     motion_compensated_means,
 )
 from imuslam.imu.crossval import cross_validate
 from imuslam.imu.joint import measured_noise
 from imuslam.imu.model import ImuCalibration, TriadModel
+from imuslam.imu.rk4 import integrate_segments
 from imuslam.imu.score import detect_poses, pose_errors, rms
 from imuslam.io.imulog import ImuLog
 from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO

@@ -7,8 +7,8 @@ import pytest
 
 from imuslam.errors import InputError
 from imuslam.geometry import quat_to_matrix, rk4_integrate_gyro
-from imuslam.imu.calibrate import integrate_segments
 from imuslam.imu.model import ImuCalibration, TriadModel
+from imuslam.imu.rk4 import integrate_segments
 from imuslam.interfaces.imu import ImuLog
 from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO, raw_from_errors
 

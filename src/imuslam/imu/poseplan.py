@@ -18,7 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.imu.calibrate import accel_residual_jacobian, gyro_residuals
+from imuslam.imu.calibrate.accel import accel_residual_jacobian
+from imuslam.imu.calibrate.gyro import gyro_residuals
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.sim.imu_errors import (
     BWT901CL_ACCEL_DENSITY,

@@ -25,8 +25,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.imu.calibrate import integrate_segments
 from imuslam.imu.model import ImuCalibration
+from imuslam.imu.rk4 import integrate_segments
 from imuslam.imu.static import detect, init_variance_norm, window_half_size, windowed_variance_norm
 from imuslam.io.imulog import ImuLog, InputError
 
