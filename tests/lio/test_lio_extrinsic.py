@@ -203,3 +203,16 @@ def test_missing_topic_is_one_line_naming_the_option(tmp_path: Path) -> None:
     assert r.exit_code == 2
     assert "/imu/raw" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "o").exists()
+
+
+def test_a_bag_without_motion_is_refused_naming_what_cannot_be_seen(tmp_path: Path) -> None:
+    """The rig at rest: exit 2 with one line saying the rotation, lever arm and offset are unobservable
+    (and the measured rates), nothing written."""
+    d = simulate_lidar_imu_rig(
+        "static", 3.0, 9, true_T_i_l(), OFFSET_S, lidar=Lidar3dConfig(columns=360)
+    )
+    bag = _rig_bag(d, tmp_path / "still")
+    r = RUNNER.invoke(app, ["calibrate-lidar", str(bag), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2, r.output
+    assert "unobservable" in r.output and "rad/s RMS" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "o").exists()

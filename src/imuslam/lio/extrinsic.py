@@ -422,6 +422,8 @@ def _gravity_basis(g0: FloatArray) -> FloatArray:
 # rad/s, accel bias m/s^2, gravity direction (unit-free); wide enough to be nothing where the data speak
 _PRIOR = np.array([0.2] * 3 + [0.5] * 3 + [0.1] + [0.1] * 3 + [1.0] * 3 + [1.0] * 2)
 _NAMES = ("rotation", "lever arm")
+# below this rate (RMS about every axis) the LiDAR odometry's noise (0.01 rad/s a scan) hides the motion
+MIN_RATE_RMS = 0.03
 
 
 def calibrate_lidar_imu(
@@ -454,6 +456,14 @@ def calibrate_lidar_imu(
     cfg = odometry_config(cfg, scans)
     # 1-3: LiDAR-only odometry, offset by cross-correlation, hand-eye rotation, gyro least squares
     track = lidar_odometry(scans, cfg, t_ref)
+    _, _, w_l = track.rates()
+    rms = np.sqrt(np.mean(w_l**2, axis=0))
+    if rms.max() < MIN_RATE_RMS:
+        raise InputError(
+            f"the LiDAR turned at {', '.join(f'{v:.3f}' for v in rms)} rad/s RMS about its x, y, z "
+            f"axes (below {MIN_RATE_RMS} rad/s about every axis): the rotation, the lever arm and the "
+            "clock offset are all unobservable; record a motion that turns about all three axes"
+        )
     d0, rho = coarse_time_offset(track, t_imu, imu.gyro, start.time_offset_s, search_s)
     a, b, w_l = track.rates()
     ok = (a + d0 >= t_imu[0]) & (b + d0 <= t_imu[-1])

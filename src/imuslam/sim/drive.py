@@ -141,20 +141,22 @@ def simulate_lidar_imu_rig(
     """A LiDAR rigidly mounted at ``T_i_l`` (4, 4; default: 0.2 m above the IMU) on an IMU (200 Hz), with
     a LiDAR clock offset, for LiDAR-IMU calibration. ``motion``: 'excited' (the rig waved by hand in a
     room with a ceiling, :class:`~imuslam.sim.trajectory.ExcitedHandheld`, ``world.calibration_room``) or 'street' (the car loop around
-    the urban block: yaw and a centimetre of roll / pitch only). ``imu_errors`` None: seed 000's
+    the urban block: yaw and a centimetre of roll / pitch only) or 'static' (the rig at rest in the room). ``imu_errors`` None: seed 000's
     BWT901CL errors."""
-    from imuslam.sim.trajectory import ExcitedHandheld
+    from imuslam.sim.trajectory import ExcitedHandheld, Static
     from imuslam.sim.world import calibration_room
 
     rng = np.random.default_rng(seed)
     traj: EulerTrajectory
     if motion == "excited":
         traj, world, period = ExcitedHandheld((0.0, 0.0, 1.2)), calibration_room(), None
+    elif motion == "static":
+        traj, world, period = Static((0.0, 0.0, 1.2)), calibration_room(), None
     elif motion == "street":
         traj, world = CarLoop(), urban_block()
         period = car_loop_period_s(traj)  # type: ignore[arg-type]
     else:
-        raise ValueError(f"unknown motion {motion!r}; expected excited or street")
+        raise ValueError(f"unknown motion {motion!r}; expected excited, static or street")
     if T_i_l is None:
         T_i_l = np.eye(4)
         T_i_l[2, 3] = 0.2
