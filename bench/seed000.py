@@ -28,7 +28,8 @@ from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
 from imuslam.sim.robot2d import simulate_robot2d, with_imu
 from imuslam.sim.trajectory import SquareLoopCcwCw
-from imuslam.slam2d.slam import Slam2dConfig, render_map, run_slam2d
+from imuslam.slam2d.config import Slam2dConfig
+from imuslam.slam2d.pipeline import render_map, run_slam2d
 
 
 def main() -> None:

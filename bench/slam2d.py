@@ -35,7 +35,9 @@ from imuslam.eval.slam2d_gt import relations_against_corrected
 from imuslam.io.carmen import read_breezyslam, read_carmen
 from imuslam.io.laserlog import LaserLog
 from imuslam.slam2d import pose2
-from imuslam.slam2d.slam import Slam2dConfig, Slam2dResult, render_map, run_slam2d, scan_points
+from imuslam.slam2d.config import Slam2dConfig
+from imuslam.slam2d.pipeline import render_map, run_slam2d, scan_points
+from imuslam.slam2d.records import Slam2dResult
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data"

@@ -141,7 +141,8 @@ def ekf_speed() -> list[tuple[str, ...]]:
     from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
     from imuslam.vio.dataset import EurocStereo
     from imuslam.vio.frontend import VoConfig
-    from imuslam.vio.pipeline import VioConfig, compute_vo, run_vio
+    from imuslam.vio.config import VioConfig
+    from imuslam.vio.pipeline import compute_vo, run_vio
     from imuslam.vio.simvo import truth_vo_run
 
     rows = []
@@ -378,7 +379,8 @@ def calibrate_vo_cov(
     if nhc is None:
         nhc = NHC["calib_nhc"] == "on"
     from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
-    from imuslam.vio.pipeline import VioConfig, run_vio
+    from imuslam.vio.config import VioConfig
+    from imuslam.vio.pipeline import run_vio
 
     # the VO covariance is calibrated on ANOTHER rendered run (seed + 1, its own truth) and then
     # applied unchanged to the evaluated run: first its shape (vio/covcal.py: the second moment M of
@@ -454,7 +456,8 @@ def sim(
     correction: bool,
 ) -> dict[str, float]:  # fmt: skip
     from imuslam.eval.vio_compare import compare_tracks
-    from imuslam.vio.pipeline import VioConfig, run_vio
+    from imuslam.vio.config import VioConfig
+    from imuslam.vio.pipeline import run_vio
 
     cseeds = [seed + 1] if not calib_seeds else calib_seeds
     if UNCAL[0]:
@@ -625,7 +628,8 @@ def nhc_bias_removed(duration: float, rate: float, seeds: list[int], calib_durat
     from imuslam.eval.vio_compare import compare_tracks
     from imuslam.vio.covcal import vo_errors
     from imuslam.vio.frontend import VoMeasurement
-    from imuslam.vio.pipeline import VioConfig, VoRun, run_vio
+    from imuslam.vio.config import VioConfig
+    from imuslam.vio.pipeline import VoRun, run_vio
 
     runs = {s: _sim_vo(duration, rate, s) for s in seeds}
     errs = {}
@@ -701,7 +705,8 @@ def nhc_sweep(duration: float, rate: float, seed: int, calib_duration: float) ->
     the error budget of NHC off / on, then the NHC cut for other constraint noises, rates, the
     separate vertical sigma, the VO rate and velocity as two updates, and a smaller gyro bias walk."""
     from imuslam.eval.vio_compare import compare_tracks
-    from imuslam.vio.pipeline import VioConfig, run_vio
+    from imuslam.vio.config import VioConfig
+    from imuslam.vio.pipeline import run_vio
 
     M, s_vel, s_rate = calibrate_vo_cov(rate, calib_duration, [seed + 1], True)
     run, vo_run = _sim_vo(duration, rate, seed)
@@ -757,7 +762,8 @@ def white_vo(duration: float, rate: float, seed: int) -> None:
     mean NIS per kind and the ATE. The constraint holds exactly on this robot."""
     from imuslam.eval.vio_compare import compare_tracks
     from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
-    from imuslam.vio.pipeline import VioConfig, run_vio
+    from imuslam.vio.config import VioConfig
+    from imuslam.vio.pipeline import run_vio
     from imuslam.vio.simvo import truth_vo_run
 
     run = SimStereoRun(StereoRunConfig(duration_s=duration, image_hz=rate, seed=seed, **SIM))
@@ -812,7 +818,8 @@ def nis_reference(duration: float, rate: float, seeds: list[int], draws: int) ->
     same four filter runs per seed (NHC off / on, each with and without 10 % corrupted), the same
     bands. The four runs of a seed read the same VO, so the 8 cells of a seed move together and the
     count scatters more than 80 independent cells would; ``draws`` noise draws give its spread."""
-    from imuslam.vio.pipeline import VioConfig, run_vio
+    from imuslam.vio.config import VioConfig
+    from imuslam.vio.pipeline import run_vio
 
     base = {"nhc_std": NHC["nhc_std"], **GATE, **FILTER}
     counts = []
@@ -947,7 +954,8 @@ def as_reported(duration: float, rate: float, seeds: list[int]) -> None:
     frames, skips and motion): what the NHC and the NIS give when the VO's errors are what its
     covariance says. No covariance calibration (scales 1), NHC off, at 0.002 and at 1e-4 m/s."""
     from imuslam.eval.vio_compare import compare_tracks
-    from imuslam.vio.pipeline import VioConfig, run_vio
+    from imuslam.vio.config import VioConfig
+    from imuslam.vio.pipeline import run_vio
 
     rows = []
     cuts: dict[float, list[float]] = {0.002: [], 1e-4: []}
@@ -986,7 +994,8 @@ def vo_error_parts(duration: float, rate: float, seeds: list[int]) -> None:
 
     from imuslam.eval.vio_compare import compare_tracks
     from imuslam.vio.covcal import vo_errors
-    from imuslam.vio.pipeline import VioConfig, VoRun, run_vio
+    from imuslam.vio.config import VioConfig
+    from imuslam.vio.pipeline import VoRun, run_vio
 
     variants = ("as rendered", "run mean removed", "shuffled in time", "shuffled, mean removed",
                 "white, reported covariance")  # fmt: skip
@@ -1132,7 +1141,8 @@ def vostats(rate: float, calib_seeds: list[int] | None) -> None:
     rate-velocity correlation, the NEES with the shape learnt on ``calib_seeds`` (default 1 and 3, 120 s),
     its variance (chi-square(3): 6) and tail, and the filter NIS variance with and without the shape."""
     from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
-    from imuslam.vio.pipeline import VioConfig, run_vio
+    from imuslam.vio.config import VioConfig
+    from imuslam.vio.pipeline import run_vio
 
     runs = {}
     for p in sorted(CACHE.glob(f"vo_sim_*s_{rate:g}hz_seed*_{_cache_tag()}.pkl")):

@@ -191,7 +191,9 @@ def test_carmen_bad_input(tmp_path: Path) -> None:
 def test_pose_graph_closes_a_simulated_loop() -> None:
     """A circle of 200 nodes whose local steps carry a yaw bias (drift), plus one correct loop edge from
     the first to the last node: the optimised end meets the truth to within the loop edge's noise."""
-    from imuslam.slam2d.slam import LoopConstraint, Slam2d, Slam2dConfig
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.records import LoopConstraint
+    from imuslam.slam2d.slam import Slam2d
 
     rng = np.random.default_rng(5)
     n = 200
@@ -230,7 +232,8 @@ def test_simulated_room_ate_below_one_cell() -> None:
     from imuslam.sim.imu import ImuErrorSpec
     from imuslam.sim.robot2d import simulate_robot2d
     from imuslam.sim.trajectory import SquareLoopCcwCw
-    from imuslam.slam2d.slam import Slam2dConfig, run_slam2d
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.pipeline import run_slam2d
 
     rng = np.random.default_rng(6)
     sim = simulate_robot2d(SquareLoopCcwCw(), 30.0, rng, ImuErrorSpec.bwt901cl())
@@ -253,7 +256,8 @@ def test_intel_relations_beat_odometry_and_match_published(shared_data: Path) ->
     below the raw odometry's."""
     from imuslam.eval.slam2d_gt import relations_against_corrected
     from imuslam.io.carmen import read_carmen
-    from imuslam.slam2d.slam import Slam2dConfig, run_slam2d
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.pipeline import run_slam2d
 
     raw = read_carmen(shared_data / "radish_freiburg_benchmark" / "intel.clf.bz2").laser.slice(
         0, 1000
@@ -333,11 +337,11 @@ def test_map2d_cli_on_simulated_room(tmp_path: Path) -> None:
         ],
     )
     assert r.exit_code == 0, r.output
-    for f in ("trajectory.tum", "map.pgm", "map.yaml", "map.png", "config.yaml", "summary.json"):
+    for f in ("trajectory.tum", "map.pgm", "map.yaml", "map.png", "config.yaml", "metrics.json"):
         assert (out / f).is_file(), f
     import json
 
-    s = json.loads((out / "summary.json").read_text())
+    s = json.loads((out / "metrics.json").read_text())
     assert s["scans"] == 200
     # every match above the minimum score is a constraint or counted as rejected
     assert s["loop_candidates"] == s["loop_constraints"] + s["loop_inconsistent"]
@@ -361,7 +365,8 @@ def test_tilted_scans_are_rejected_by_gravity() -> None:
     from imuslam.sim.imu import ImuErrorSpec
     from imuslam.sim.robot2d import simulate_robot2d
     from imuslam.sim.trajectory import SquareLoopCcwCw
-    from imuslam.slam2d.slam import Slam2dConfig, run_slam2d
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.pipeline import run_slam2d
 
     sim = simulate_robot2d(SquareLoopCcwCw(), 8.0, np.random.default_rng(7), ImuErrorSpec.ideal())
     imu = sim.log.imu
@@ -444,7 +449,7 @@ def test_map2d_cli_bad_log_is_one_line_and_no_output(
 def test_map2d_cli_counts_bad_readings_and_odometry_jumps(tmp_path: Path) -> None:
     """A log of a robot standing 3 m from a round wall with 4 bad readings (inf, NaN, 90 m beyond the
     30 m range, a negative one) and one odometry jump (5 m in 0.1 s): the map is made, each counted once in
-    summary.json and the printed table, the jump replaced by no motion (the pose stays at the start)."""
+    metrics.json and the printed table, the jump replaced by no motion (the pose stays at the start)."""
     import json
 
     from typer.testing import CliRunner
@@ -466,7 +471,7 @@ def test_map2d_cli_counts_bad_readings_and_odometry_jumps(tmp_path: Path) -> Non
     out = tmp_path / "out"
     res = CliRunner().invoke(app, ["map2d", str(f), "--out", str(out), "--no-progress"])
     assert res.exit_code == 0, res.output
-    s = json.loads((out / "summary.json").read_text())
+    s = json.loads((out / "metrics.json").read_text())
     assert s["warnings"]["readings dropped (inf/NaN/out of range)"] == 4
     assert s["warnings"]["odometry jumps (step replaced by no motion)"] == 1
     assert "odometry jumps" in res.output
@@ -505,7 +510,8 @@ def test_background_loop_search_equals_inline(shared_data: Path) -> None:
     optimisations see fewer constraints, so its guesses can differ: at least 90 % shared (node, submap)
     pairs) and every final pose within one grid cell."""
     from imuslam.io.carmen import read_carmen
-    from imuslam.slam2d.slam import Slam2dConfig, run_slam2d
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.pipeline import run_slam2d
 
     log_ = read_carmen(shared_data / "radish_freiburg_benchmark" / "intel.clf.bz2").laser.slice(
         0, 3000
@@ -547,7 +553,8 @@ def test_wide_search_bridges_an_odometry_yaw_jump() -> None:
     from imuslam.sim.imu import ImuErrorSpec
     from imuslam.sim.robot2d import simulate_robot2d
     from imuslam.sim.trajectory import SquareLoopCcwCw
-    from imuslam.slam2d.slam import Slam2dConfig, run_slam2d
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.pipeline import run_slam2d
 
     sim = simulate_robot2d(SquareLoopCcwCw(), 20.0, np.random.default_rng(11), ImuErrorSpec.ideal())
     odo = sim.log.odom_xy_yaw
@@ -593,8 +600,9 @@ def test_revisit_check_measures_a_known_loop_error(context_scans: int) -> None:
     from imuslam.sim.imu import ImuErrorSpec
     from imuslam.sim.robot2d import simulate_robot2d
     from imuslam.sim.trajectory import SquareLoopCcwCw
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.records import Slam2dResult
     from imuslam.slam2d.revisit import check_revisits
-    from imuslam.slam2d.slam import Slam2dConfig, Slam2dResult
 
     sim = simulate_robot2d(SquareLoopCcwCw(), 70.0, np.random.default_rng(3), ImuErrorSpec.ideal())
     truth = sim.truth_xy_yaw
@@ -743,7 +751,9 @@ def test_loop_candidates_accepted_only_when_consistent() -> None:
     """Five true loop matches of consecutive nodes (the truth seen through a drifted local SLAM) and one
     false one (1 m off) among them: the true ones confirm each other and become constraints, the false
     one finds no partner and is rejected."""
-    from imuslam.slam2d.slam import LoopConstraint, Slam2d, Slam2dConfig
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.records import LoopConstraint
+    from imuslam.slam2d.slam import Slam2d
 
     n = 60
     th = np.linspace(0, 1.0, n)
@@ -784,7 +794,9 @@ def test_ambiguous_peaks_support_a_candidate_but_never_reject_it() -> None:
     peak is the third agreeing node the pairwise check needs, so both are accepted; without that peak
     both are rejected. Ambiguous matches with only wrong peaks (nodes 41, 43) do not count against
     them."""
-    from imuslam.slam2d.slam import LoopConstraint, Slam2d, Slam2dConfig
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.records import LoopConstraint
+    from imuslam.slam2d.slam import Slam2d
 
     n = 60
     th = np.linspace(0, 1.0, n)
@@ -848,7 +860,8 @@ def test_intel_long_and_loop_relations_beat_odometry_by_far(shared_data: Path) -
     1 + 2 std / mean comes from the SLAM's own spread), in translation and in rotation, on every set."""
     from imuslam.eval.slam2d_gt import relations_against_corrected
     from imuslam.io.carmen import read_carmen
-    from imuslam.slam2d.slam import Slam2dConfig, run_slam2d
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.pipeline import run_slam2d
 
     raw = read_carmen(shared_data / "radish_freiburg_benchmark" / "intel.clf.bz2").laser.slice(
         0, 3000
@@ -925,7 +938,9 @@ def test_loop_peaks_accepted_by_consistency_over_time() -> None:
     the drift the path since the submap allows are rejected by the gate."""
     from types import SimpleNamespace
 
-    from imuslam.slam2d.slam import LoopConstraint, Slam2d, Slam2dConfig
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.records import LoopConstraint
+    from imuslam.slam2d.slam import Slam2d
 
     rng = np.random.default_rng(16)
     n = 60
@@ -984,8 +999,10 @@ def test_exp1_first_return_closes_by_consistency_over_time(shared_data: Path) ->
     the start map agree with the optimised trajectory within the rule's own tolerance (0.1 m, 2 deg),
     where the local SLAM is off by more than 5x that."""
     from imuslam.io.carmen import read_breezyslam
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.pipeline import run_slam2d
+    from imuslam.slam2d.records import Slam2dResult
     from imuslam.slam2d.revisit import RevisitCheck, check_revisits
-    from imuslam.slam2d.slam import Slam2dConfig, Slam2dResult, run_slam2d
 
     log_ = read_breezyslam(shared_data / "breezyslam_mines" / "exp1.dat")
     # the shipped profile for this scanner, as `imuslam map2d --config` reads it

@@ -35,6 +35,9 @@ def small_study(**over: Any) -> dict[str, Any]:
         "compare": "alignment",
         "expect": ["kf", "none"],
         "eval_align": "none",
+        "practical_bound": 0.05,
+        "reason": "5 cm: one map cell",
+        "max_seeds": 2,
     }
     claim.update(over)
     return {"name": "t", "seeds": [0, 1], "align": {"duration_s": 20.0}, "claims": [claim]}
@@ -112,7 +115,7 @@ def _fake_rows(effect: float, noise: float, n: int, seed: int) -> pd.DataFrame:
 def test_paired_verdicts() -> None:
     """A difference of 1 under a per-seed spread of 10 but pair noise of 0.1 is found ('holds'); the same
     difference the other way is 'reversed'; no difference is 'not resolved'."""
-    claim = parse_study(small_study()).claims[0]
+    claim = parse_study(small_study(max_seeds=8)).claims[0]  # one look at the rows' 8 seeds
     assert analyse(claim, _fake_rows(1.0, 0.1, 8, 0)).verdict == "supported"
     res = analyse(claim, _fake_rows(-1.0, 0.1, 8, 1))
     assert res.pairs[0].verdict == "reversed" and res.pairs[0].agree == 0
@@ -221,6 +224,17 @@ def _cli_error(tmp_path: Path, study: dict[str, Any] | str, *extra: str) -> str:
         ),
         ({"expect": ["rwnn"]}, "expect names 'rwnn', which is not a level of 'alignment'"),
         ({"colour": "red"}, "claims[0] (align).colour: unknown key"),
+        (
+            {"practical_bound": None},
+            "claim 'align' compares 2 levels of 'alignment' but states no practical_bound",
+        ),
+        ({"max_seeds": None}, "states no max_seeds; expected the smallest difference"),
+        ({"reason": " "}, "practical_bound 0.05 has no reason"),
+        (
+            {"practical_bound": 0},
+            "claims[0] (align).practical_bound: Input should be greater than 0",
+        ),
+        ({"seeds": [0, 1, 2]}, "3 seeds but max_seeds 2"),
     ],
 )
 def test_bad_study(tmp_path: Path, change: dict[str, Any], expect: str) -> None:

@@ -97,10 +97,11 @@ def test_scheduler_equals_serial(cluster: str, tmp_path: Path) -> None:
         "claims": [
             {"name": "align", "scenarios": [{"name": "street", "duration_s": 10.0}], "imu": ["online"],
              "alignment": ["none", "kf", "rwnn"], "estimators": [{"name": "ins"}], "compare": "alignment",
-             "expect": ["rwnn", "kf", "none"], "eval_align": "none"},
+             "expect": ["rwnn", "kf", "none"], "eval_align": "none", "practical_bound": 0.05,
+             "reason": "5 cm", "max_seeds": 2},
             {"name": "calib", "scenarios": [{"name": "room", "duration_s": 10.0}],
              "imu": ["raw", "online"], "alignment": ["kf"], "estimators": [{"name": "ins"}],
-             "compare": "imu"},
+             "compare": "imu", "practical_bound": 0.05, "reason": "5 cm", "max_seeds": 2},
         ],
     }  # fmt: skip
     import yaml
@@ -132,14 +133,17 @@ def _same_numbers(a: pd.DataFrame, b: pd.DataFrame) -> None:
 
 
 def test_local_cluster_equals_serial(tmp_path: Path) -> None:
-    """The default in-process LocalCluster (one worker process) gives the serial numbers too."""
+    """The default in-process LocalCluster (one worker process) gives the serial numbers too, over two
+    looks on the same cluster (one seed first: too few to decide, so the second seed is added)."""
     study = parse_study({"seeds": [0], "align": {"duration_s": 20.0}, "claims": [
         {"name": "a", "scenarios": [{"name": "street", "duration_s": 10.0}], "imu": ["online"],
-         "alignment": ["stkf", "rwnn"], "estimators": [{"name": "ins"}], "compare": "alignment"}]})  # fmt: skip
+         "alignment": ["stkf", "rwnn"], "estimators": [{"name": "ins"}], "compare": "alignment",
+         "practical_bound": 0.05, "reason": "5 cm", "max_seeds": 2}]})  # fmt: skip
     local = run_study(study, tmp_path / "local", workers=1, progress=False)
     assert local.backend == "dask LocalCluster (1 workers)"
     serial = run_study(study, tmp_path / "serial", serial=True, progress=False).table
     assert (local.table["status"] == "ok").all(), local.table[["error"]]
+    assert sorted(local.table.seed.unique()) == [0, 1]
     _same_numbers(local.table, serial)
 
 

@@ -9,9 +9,10 @@ import pytest
 from imuslam.errors import EstimatorError, InputError
 from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise
 from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
+from imuslam.vio.config import VioConfig
 from imuslam.vio.covcal import apply_vo_cov_correction, learn_vo_cov_correction, vo_errors
 from imuslam.vio.measurements import VoRate, VoVelocity, VoVelocityGivenRate
-from imuslam.vio.pipeline import VioConfig, run_vio
+from imuslam.vio.pipeline import run_vio
 from imuslam.vio.simvo import truth_vo_run
 
 

@@ -15,8 +15,9 @@ import pytest
 
 from imuslam.eval.vio_compare import compare_tracks
 from imuslam.io.trajectory import read_tum
+from imuslam.vio.config import VioConfig
 from imuslam.vio.dataset import EurocStereo
-from imuslam.vio.pipeline import VioConfig, run_vio
+from imuslam.vio.pipeline import run_vio
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,8 @@ import pytest
 
 from imuslam.eval.vio_compare import compare_tracks
 from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
-from imuslam.vio.pipeline import VioConfig, VoRun, run_vio
+from imuslam.vio.config import VioConfig
+from imuslam.vio.pipeline import VoRun, run_vio
 from imuslam.vio.simvo import truth_vo_run
 
 
@@ -122,15 +123,15 @@ def test_nhc_vertical_sigma_and_jacobian() -> None:
     """The constraint's noise is diag(lateral^2, vertical^2), and its Jacobian matches a finite
     difference of the vehicle-frame velocity under the right attitude perturbation."""
     from imuslam.geometry import exp
+    from imuslam.geometry.euler import euler_to_matrix
     from imuslam.ins.core import ErrorLayout, InsState
     from imuslam.vio.measurements import NonHolonomic
-    from imuslam.vio.pipeline import rpy_matrix
 
     rng = np.random.default_rng(3)
     lay = ErrorLayout.full()
     x = InsState(np.zeros(3), rng.normal(size=3), exp(rng.normal(size=3) * 0.3), np.zeros(3),
                  rng.normal(size=3) * 0.01, np.array([0.0, 0.0, -9.81]))  # fmt: skip
-    meas = NonHolonomic(0.002, rng.normal(size=3) * 0.2, rpy_matrix((2.0, -3.0, 10.0)),
+    meas = NonHolonomic(0.002, rng.normal(size=3) * 0.2, euler_to_matrix(np.deg2rad([2.0, -3.0, 10.0])),
                         np.array([-0.3, 0.05, 0.1]), std_vertical=0.01)  # fmt: skip
     r, H, Rm = meas.linearize(x, lay)
     np.testing.assert_allclose(Rm, np.diag([0.002**2, 0.01**2]))

@@ -13,13 +13,14 @@ from imuslam.eval.vio_compare import compare_tracks
 from imuslam.geometry import exp, log
 from imuslam.ins.core import ErrorLayout, InsState
 from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
+from imuslam.vio.config import VioConfig
 from imuslam.vio.measurements import (
     VoClone,
     VoRelativeRotation,
     VoRelativeTranslation,
     VoRelativeTranslationGivenRotation,
 )
-from imuslam.vio.pipeline import VioConfig, run_vio
+from imuslam.vio.pipeline import run_vio
 from imuslam.vio.simvo import truth_vo_run
 
 

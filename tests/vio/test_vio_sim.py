@@ -12,8 +12,9 @@ from imuslam.eval.vio_compare import compare_tracks
 from imuslam.sim.render import CameraRig, pixel_bbox, render_image, render_stereo
 from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
 from imuslam.sim.world import room_8x8
+from imuslam.vio.config import VioConfig
 from imuslam.vio.frontend import VoConfig
-from imuslam.vio.pipeline import VioConfig, compute_vo, run_vio
+from imuslam.vio.pipeline import compute_vo, run_vio
 
 
 def _ray_depth_ref(

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -12,6 +12,7 @@ from imuslam.cli.common import console, friendly_errors, table
 
 if TYPE_CHECKING:
     from imuslam.io.laserlog import LaserLog
+    from imuslam.slam2d.config import Slam2dConfig
 
 
 def _check_reference(gt: Path, log_: LaserLog) -> None:
@@ -79,93 +80,107 @@ def register(app: typer.Typer) -> None:
         progress: bool = typer.Option(True, "--progress/--no-progress"),
     ) -> None:
         """Map a 2D laser log: trajectory.tum, map.pgm/map.yaml (map_server), map.png, config.yaml."""
-        import time
-
-        from pydantic import ValidationError
         from tqdm import tqdm
 
-        from imuslam.config import describe_validation_error
-        from imuslam.errors import InputError
-        from imuslam.io.laserload import load_laser_log
-        from imuslam.io.plausible import check_stamps, check_units
-        from imuslam.io.results import results_folder
-        from imuslam.io.yamlfile import read_yaml
-        from imuslam.slam2d.output import write_outputs
-        from imuslam.slam2d.slam import Slam2dConfig, render_map, run_slam2d
+        from imuslam.slam2d.pipeline import Slam2dPipeline
 
-        data = (
-            read_yaml(config, "a mapping of Slam2dConfig fields (--config)", empty={})
-            if config
-            else {}
-        )
-        try:
-            cfg = Slam2dConfig.model_validate(data)
-        except ValidationError as exc:
-            raise InputError(f"--config {config}: {describe_validation_error(exc)}") from None
-        cfg = cfg.model_copy(update={"use_odometry": cfg.use_odometry and not no_odometry,
-                                     "use_imu": cfg.use_imu and not no_imu})  # fmt: skip
-        if no_loop:
-            cfg.loop.enabled = False
-        log_ = load_laser_log(log_path, fmt, scan_topic, imu_topic, odom_topic)
-        check_stamps(log_.t_ns, "scans", str(log_path))
-        if calib is not None:
-            if log_.imu is None:
-                raise InputError(f"--calib: {log_path} has no IMU to correct")
-            from imuslam.imu.model import ImuCalibration
-
-            log_.imu = ImuCalibration.load_yaml(calib).correct(log_.imu)
-        if log_.imu is not None and cfg.use_imu:
-            check_units(log_.imu, hint="check the log's IMU units, or map without it (--no-imu)")
+        cfg = _config(config, no_odometry, no_imu, no_loop)
+        log_ = _load(log_path, fmt, scan_topic, imu_topic, odom_topic, calib, cfg)
         if gt is not None:
             _check_reference(gt, log_)
-        t0 = time.perf_counter()
+        pipeline = Slam2dPipeline(log_, cfg)
         with tqdm(total=len(log_), unit="scan", desc="map2d", disable=not progress) as bar:
 
             def tick(k: int) -> None:
                 if k % 50 == 49:
                     bar.update(50)
 
-            res = run_slam2d(log_, cfg, progress=tick)
+            run = pipeline.run_and_render(tick)
             bar.update(len(log_) - bar.n)
-        grid = render_map(log_, res.pose_xy_yaw, cfg)
-        wall = time.perf_counter() - t0
         metrics = None
         if gt is not None:
             from imuslam.eval.slam2d_gt import score_run
 
-            metrics = score_run(gt, log_, res.t_ns, res.pose_xy_yaw)
-        with results_folder(out) as tmp:
-            s = write_outputs(tmp, log_, res, grid, wall, metrics)
-        rows = [
-            ["scans", f"{s['scans']}", ""], ["log duration", f"{s['log_duration_s']:.1f}", "s"],
-            ["path length", f"{s['path_length_m']:.1f}", "m"], ["nodes / submaps", f"{s['nodes']} / {s['submaps']}", ""],
-            ["loop constraints", f"{s['loop_constraints']} of {s['loop_searches']} searches", ""],
-            ["mean match score", f"{s['mean_match_score']:.3f}", "probability"],
-            ["time", f"{wall:.1f}", "s"], ["faster than real time", f"{s['faster_than_real_time']:.1f}", "x"],
-        ]  # fmt: skip
-        for k, v in res.warnings.items():
-            rows.append([k, f"{v}", "count"])
-        if metrics is not None:
-            for name in ("slam", "odometry"):
-                m = metrics.get(name)
-                if m is None:
-                    continue
-                if metrics["kind"] == "kuemmerle2009_relations":
-                    rows.append([f"{name}: relation error (Kümmerle 2009)",
-                                 f"{m['trans_mean']:.3f} ± {m['trans_std']:.3f} m, {m['rot_mean_deg']:.2f} ± {m['rot_std_deg']:.2f}", "m, deg"])  # fmt: skip
-                    rows.append([f"{name}: ATE after SE(2) alignment (RMSE, largest)",
-                                 f"{m['ate_rmse_m']:.3f}, {m['ate_max_m']:.3f}", "m"])  # fmt: skip
-                    for key, r in metrics.get("sets", {}).items():
-                        if name in r:
-                            q = r[name]
-                            rows.append([f"{name}: relation error, {key} relations ({q['n']})",
-                                         f"{q['trans_mean']:.3f} ± {q['trans_std']:.3f} m, {q['rot_mean_deg']:.2f} ± {q['rot_std_deg']:.2f}", "m, deg"])  # fmt: skip
-                else:
-                    rows.append([f"{name}: ATE RMSE", f"{m['ate_rmse_m']:.3f}", "m"])
-                    rows.append(
-                        [f"{name}: RPE per metre", f"{m['rpe_trans_rmse_m_per_m']:.3f}", "m"]
-                    )
+            metrics = score_run(gt, log_, run.result.t_ns, run.result.pose_xy_yaw)
+        s = pipeline.save(run, out, metrics)
+        rows = _summary_rows(s, run.result.warnings, run.wall_s, metrics)
         console.print(table(f"imuslam map2d: {log_path.name}", ["quantity", "value", "unit"], rows))
         console.print(
-            f"wrote {out}/: trajectory.tum, map.pgm, map.yaml, map.png, config.yaml, summary.json"
+            f"wrote {out}/: trajectory.tum, map.pgm, map.yaml, map.png, config.yaml, metrics.json"
         )
+
+
+def _config(config: Path | None, no_odometry: bool, no_imu: bool, no_loop: bool) -> Slam2dConfig:
+    """The effective configuration: the --config file's fields, then the --no-* options."""
+    from pydantic import ValidationError
+
+    from imuslam.config import describe_validation_error
+    from imuslam.errors import InputError
+    from imuslam.io.yamlfile import read_yaml
+    from imuslam.slam2d.config import Slam2dConfig
+
+    data = (
+        read_yaml(config, "a mapping of Slam2dConfig fields (--config)", empty={}) if config else {}
+    )
+    try:
+        cfg = Slam2dConfig.model_validate(data)
+    except ValidationError as exc:
+        raise InputError(f"--config {config}: {describe_validation_error(exc)}") from None
+    loop = cfg.loop.model_copy(update={"enabled": cfg.loop.enabled and not no_loop})
+    return cfg.model_copy(update={"use_odometry": cfg.use_odometry and not no_odometry,
+                                  "use_imu": cfg.use_imu and not no_imu, "loop": loop})  # fmt: skip
+
+
+def _load(
+    log_path: Path, fmt: str, scan_topic: str | None, imu_topic: str | None,
+    odom_topic: str | None, calib: Path | None, cfg: Slam2dConfig,
+) -> LaserLog:  # fmt: skip
+    """The log, its stamps and IMU units checked, its IMU corrected by ``calib``."""
+    from imuslam.errors import InputError
+    from imuslam.io.laserload import load_laser_log
+    from imuslam.io.plausible import check_stamps, check_units
+
+    log_ = load_laser_log(log_path, fmt, scan_topic, imu_topic, odom_topic)
+    check_stamps(log_.t_ns, "scans", str(log_path))
+    if calib is not None:
+        if log_.imu is None:
+            raise InputError(f"--calib: {log_path} has no IMU to correct")
+        from imuslam.imu.model import ImuCalibration
+
+        log_.imu = ImuCalibration.load_yaml(calib).correct(log_.imu)
+    if log_.imu is not None and cfg.use_imu:
+        check_units(log_.imu, hint="check the log's IMU units, or map without it (--no-imu)")
+    return log_
+
+
+def _summary_rows(
+    s: dict[str, Any], warnings: dict[str, int], wall: float, metrics: dict[str, Any] | None
+) -> list[list[str]]:
+    """The terminal table: the run's summary, its warnings and the errors against a reference."""
+    rows = [
+        ["scans", f"{s['scans']}", ""], ["log duration", f"{s['log_duration_s']:.1f}", "s"],
+        ["path length", f"{s['path_length_m']:.1f}", "m"], ["nodes / submaps", f"{s['nodes']} / {s['submaps']}", ""],
+        ["loop constraints", f"{s['loop_constraints']} of {s['loop_searches']} searches", ""],
+        ["mean match score", f"{s['mean_match_score']:.3f}", "probability"],
+        ["time", f"{wall:.1f}", "s"], ["faster than real time", f"{s['faster_than_real_time']:.1f}", "x"],
+    ]  # fmt: skip
+    for k, v in warnings.items():
+        rows.append([k, f"{v}", "count"])
+    for name in ("slam", "odometry"):
+        m = metrics.get(name) if metrics is not None else None
+        if m is None or metrics is None:
+            continue
+        if metrics["kind"] == "kuemmerle2009_relations":
+            rows.append([f"{name}: relation error (Kümmerle 2009)",
+                         f"{m['trans_mean']:.3f} ± {m['trans_std']:.3f} m, {m['rot_mean_deg']:.2f} ± {m['rot_std_deg']:.2f}", "m, deg"])  # fmt: skip
+            rows.append([f"{name}: ATE after SE(2) alignment (RMSE, largest)",
+                         f"{m['ate_rmse_m']:.3f}, {m['ate_max_m']:.3f}", "m"])  # fmt: skip
+            for key, r in metrics.get("sets", {}).items():
+                if name in r:
+                    q = r[name]
+                    rows.append([f"{name}: relation error, {key} relations ({q['n']})",
+                                 f"{q['trans_mean']:.3f} ± {q['trans_std']:.3f} m, {q['rot_mean_deg']:.2f} ± {q['rot_std_deg']:.2f}", "m, deg"])  # fmt: skip
+        else:
+            rows.append([f"{name}: ATE RMSE", f"{m['ate_rmse_m']:.3f}", "m"])
+            rows.append([f"{name}: RPE per metre", f"{m['rpe_trans_rmse_m_per_m']:.3f}", "m"])
+    return rows

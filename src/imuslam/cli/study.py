@@ -40,7 +40,7 @@ def register(app: typer.Typer) -> None:
         from imuslam.errors import EstimatorError, InputError
         from imuslam.study.config import load_study, parse_study
         from imuslam.study.presets import QUICK
-        from imuslam.study.report import analyse
+        from imuslam.study.report import PAIR_COLUMNS, analyse, pair_table_rows
         from imuslam.study.runner import run_study
 
         if quick == (study_file is not None):
@@ -56,11 +56,16 @@ def register(app: typer.Typer) -> None:
         console.print(
             f"{len(res.table)} cells on {res.backend}: {res.n_run} run, {res.n_cached} from the cache, {n_err} failed"
         )
-        rows = []
+        rows, pair_rows = [], []
         for c in study.claims:
-            a = analyse(c, res.table)
+            a = analyse(c, res.table, study.seeds)
             rows.append([c.name, c.seed_doc or "-", c.compare, c.metric, a.verdict])
+            pair_rows += pair_table_rows(a)
         console.print(table("Claims", ["claim", "seed", "compared", "metric", "verdict"], rows))
+        if pair_rows:
+            console.print(
+                table("Pairs (difference > 0: as claimed)", list(PAIR_COLUMNS), pair_rows)
+            )
         console.print(
             f"wrote {out}/report.html, report.md, results.parquet, results.csv, study.yaml"
         )

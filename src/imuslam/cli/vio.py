@@ -81,7 +81,8 @@ def register(app: typer.Typer) -> None:
         from imuslam.eval.vio_compare import compare_tracks, plot_vio
         from imuslam.io.results import results_folder
         from imuslam.io.trajectory import read_trajectory, write_tum
-        from imuslam.vio.pipeline import VioConfig, run_vio
+        from imuslam.vio.config import VioConfig
+        from imuslam.vio.pipeline import run_vio
 
         if align not in ("se3", "sim3", "yaw", "first"):
             raise InputError(f"--align: '{align}'; expected se3, sim3, yaw or first")

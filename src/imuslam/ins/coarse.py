@@ -93,3 +93,19 @@ def coarse_align(
         reason = "heading unobservable: no latitude for gyrocompassing and no heading source"
     R = euler_to_matrix(np.array([[roll, pitch, yaw if yaw is not None else 0.0]]))[0]
     return CoarseAlignment(roll, pitch, yaw, rp_std, yaw_std, observable, reason, R)
+
+
+def level_rotation(f_b: FloatArray) -> FloatArray:
+    """R_w_b (3, 3) with zero yaw whose z axis is along the mean specific force ``f_b`` (3,), or of the
+    mean of (N, 3) samples: static levelling, roll and pitch from the accelerometers (Titterton & Weston,
+    eq. 10.3), R = Ry(pitch) Rx(roll). The one levelling of every estimator's initial attitude."""
+    f = np.asarray(f_b, float)
+    if f.ndim == 2:
+        f = f.mean(axis=0)
+    f = f / np.linalg.norm(f)
+    roll = np.arctan2(f[1], f[2])
+    pitch = np.arctan2(-f[0], np.hypot(f[1], f[2]))
+    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    return Ry @ Rx

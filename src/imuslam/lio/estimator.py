@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import FilterDivergence, InputError
+from imuslam.ins.coarse import level_rotation
 from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise, boxplus, propagate_covariance
 from imuslam.io.imulog import ImuLog
 from imuslam.lio.config import LioConfig
@@ -44,18 +45,6 @@ if TYPE_CHECKING:  # lio.rowcov (scipy.sparse) is imported only with ``filter.li
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
-
-
-def level_rotation(f_b: FloatArray) -> FloatArray:
-    """R_w_b (3, 3) with zero yaw whose z axis is along the mean specific force ``f_b`` (3,) (static
-    levelling, Titterton & Weston eq. 10.13: roll and pitch from the accelerometers)."""
-    f = np.asarray(f_b, float) / np.linalg.norm(f_b)
-    roll = np.arctan2(f[1], f[2])
-    pitch = np.arctan2(-f[0], np.hypot(f[1], f[2]))
-    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
-    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    return Ry @ Rx
 
 
 @dataclass

@@ -1,37 +1,32 @@
-"""The results folder of a 2D SLAM run: trajectory.tum (one pose per scan, the log's own stamps),
-map.pgm + map.yaml (ROS map_server), map.png (the map with the trajectory), config.yaml, summary.json."""
+"""What a 2D SLAM run's results folder holds besides the common files (``Slam2dPipeline.save``): the
+summary written as metrics.json, the per-scan poses as a trajectory, map.pgm + map.yaml (ROS map_server)
+and map.png (the map with the trajectory)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
-from imuslam.io.atomic import write_atomic
+from imuslam.interfaces import Trajectory
 from imuslam.io.laserlog import LaserLog
 from imuslam.io.mapfiles import write_map_server
 from imuslam.slam2d.grid import ProbabilityGrid
-from imuslam.slam2d.slam import Slam2dResult
+from imuslam.slam2d.records import Slam2dResult
 
 FloatArray = NDArray[np.float64]
 
 
-def tum_text(t_ns: NDArray[np.int64], xy_yaw: FloatArray) -> str:
-    """TUM lines ``t x y z qx qy qz qw`` for planar poses (z = 0, rotation about z)."""
-    whole = t_ns // 1_000_000_000
-    frac = t_ns - whole * 1_000_000_000
-    half = xy_yaw[:, 2] / 2
-    lines = [
-        f"{w}.{f:09d} {x:.6f} {y:.6f} 0 0 0 {qz:.9f} {qw:.9f}"
-        for w, f, x, y, qz, qw in zip(
-            whole, frac, xy_yaw[:, 0], xy_yaw[:, 1], np.sin(half), np.cos(half), strict=True
-        )
-    ]
-    return "# t x y z qx qy qz qw\n" + "\n".join(lines) + "\n"
+def planar_trajectory(result: Slam2dResult) -> Trajectory:
+    """The per-scan planar poses as a trajectory (z = 0, rotation about z), the log's own stamps."""
+    P = result.pose_xy_yaw
+    c, sn = np.cos(P[:, 2]), np.sin(P[:, 2])
+    R = np.zeros((len(P), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -sn, sn, c, 1.0
+    p = np.column_stack([P[:, :2], np.zeros(len(P))])
+    return Trajectory(result.t_ns, p, R, result.source or "map2d")
 
 
 def summary(result: Slam2dResult, log_: LaserLog, wall_s: float) -> dict[str, Any]:
@@ -81,21 +76,10 @@ def map_figure(grid: ProbabilityGrid, result: Slam2dResult, title: str):  # type
     return fig
 
 
-def write_outputs(
-    out: Path, log_: LaserLog, result: Slam2dResult, grid: ProbabilityGrid, wall_s: float,
-    metrics: dict[str, Any] | None = None,
-) -> dict[str, Any]:  # fmt: skip
-    """Write every file into ``out`` (a temporary folder renamed by the caller on success)."""
+def write_maps(out: Path, grid: ProbabilityGrid, result: Slam2dResult) -> None:
+    """map.pgm / map.yaml (ROS map_server) and map.png (the map with the trajectory) into ``out``."""
     from imuslam.io.figures import save_figure
 
-    out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / "trajectory.tum", tum_text(result.t_ns, result.pose_xy_yaw))
     pr, known, x0, y0 = grid.cropped_known()
     write_map_server(out, pr, known, x0, y0, grid.params.resolution)
     save_figure(map_figure(grid, result, Path(result.source).name), out / "map.png")
-    write_atomic(out / "config.yaml", yaml.safe_dump(result.config.model_dump(), sort_keys=False))
-    s = summary(result, log_, wall_s)
-    if metrics:
-        s["metrics"] = metrics
-    write_atomic(out / "summary.json", json.dumps(s, indent=2, default=float) + "\n")
-    return s

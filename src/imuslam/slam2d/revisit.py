@@ -25,8 +25,10 @@ from numpy.typing import NDArray
 
 from imuslam.io.laserlog import LaserLog
 from imuslam.slam2d import pose2
+from imuslam.slam2d.config import Slam2dConfig
 from imuslam.slam2d.matching import angular_step, refine_pose, score_volume
-from imuslam.slam2d.slam import Slam2dConfig, Slam2dResult, render_map, scan_points
+from imuslam.slam2d.pipeline import render_map, scan_points
+from imuslam.slam2d.records import Slam2dResult
 
 FloatArray = NDArray[np.float64]
 

@@ -14,7 +14,8 @@ global SLAM  nodes are matched against finished submaps by branch and bound (Hes
              (consecutive nodes tied by their local-SLAM relative pose), optimised with gtsam
              (Levenberg-Marquardt), as the graph grows and once at the end.
 
-Poses are [x, y, theta] of the body (odometry frame) in the map frame; the first scan is at the origin.
+This module is the estimator (``Slam2d``: ``add_scan`` per scan, then ``finish``); ``pipeline.py`` drives
+it over a log, ``config.py`` holds its settings. Poses are [x, y, theta] of the body (odometry frame) in the map frame; the first scan is at the origin.
 """
 
 from __future__ import annotations
@@ -24,16 +25,14 @@ import logging
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
 
 from imuslam.errors import EstimatorError
-from imuslam.io.laserlog import LaserLog
 from imuslam.slam2d import pose2
+from imuslam.slam2d.config import Slam2dConfig
 from imuslam.slam2d.grid import GridParams, ProbabilityGrid
 from imuslam.slam2d.matching import (
     SubmapIndex,
@@ -46,291 +45,10 @@ from imuslam.slam2d.matching import (
     match_information,
     refine_pose,
 )
+from imuslam.slam2d.records import LoopConstraint
 
 FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
-
-
-class MatcherConfig(BaseModel):
-    """Local scan matching (Cartographer's names where they exist)."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    use_correlative: bool = True
-    linear_window: float = Field(0.15, ge=0, description="correlative search half-window, m")
-    angular_window_deg: float = Field(10.0, ge=0, description="correlative search half-window, deg")
-    step_range: float = Field(
-        10.0, gt=0, description="angular step: one cell at this range, m (Olson 2009)"
-    )
-    translation_delta_cost_weight: float = Field(0.1, ge=0)
-    rotation_delta_cost_weight: float = Field(0.1, ge=0)
-    occupied_space_weight: float = Field(1.0, gt=0)
-    # Cartographer's 2D default is 10: it pulls each scan towards the wheel odometry's translation, which
-    # kept our relation errors near the odometry's on ACES and MIT-CSAIL (0.057 / 0.058 m); 3 lets the
-    # scan decide while still holding the pose along featureless corridors (1 lost ACES's corridors)
-    translation_weight: float = Field(3.0, ge=0, description="pull towards the prior, per m")
-    rotation_weight: float = Field(40.0, ge=0, description="pull towards the prior, per rad")
-    max_iterations: int = Field(20, ge=1)
-    interpolation: Literal["bilinear", "bicubic"] = Field(
-        "bilinear", description="of the probability grid in the refinement (Cartographer: bicubic)"
-    )
-    # a scan whose match scores this far below the running median is searched again over a wide window
-    # by branch and bound against the same submap (an odometry jump, a slip while turning: on ACES a
-    # 61 deg turn in 0.16 s is read as a jump and replaced by no motion; the +-10 deg window cannot
-    # bridge it and the local SLAM kept a 68 deg error for the rest of the log)
-    recovery_score_ratio: float = Field(
-        0.6, ge=0, lt=1, description="wide search when the score < ratio x the running median"
-    )
-    # Where the wheel odometry is trusted, its prior cannot be off by a quarter turn: on the BreezySLAM
-    # logs the +-90 deg search at a poorly matching corner turned the drive by -89 deg (exp1; exp2 twice
-    # +89 deg, each at the window's edge, scoring 0.38-0.43 against a run median of 0.63) where the
-    # wheels turned a few degrees, and the rest of the map folded over itself; the true re-localisations
-    # of fr079 and MIT-CSAIL are 0-20 deg from the prior. So with odometry the full angular window is
-    # searched only where the prior is suspect (``recovery_when: suspect``): within
-    # ``recovery_suspect_scans`` scans after an odometry jump the reader replaced by no motion, or after a
-    # pause of ``recovery_gap_s`` in the scans (ACES's 61 deg turn in 0.16 s follows a 3 s pause);
-    # elsewhere +-``recovery_trusted_window_deg``. Without odometry, or ``always``, the full window.
-    recovery_when: Literal["suspect", "always"] = Field(
-        "suspect", description="the full angular window only where the odometry prior is suspect"
-    )
-    recovery_suspect_scans: int = Field(
-        50, ge=1, description="scans after an odometry jump or a scan gap that get the full window"
-    )
-    recovery_gap_s: float = Field(
-        1.0, gt=0, description="a pause in the scans this long is a gap, s"
-    )
-    recovery_trusted_window_deg: float = Field(
-        30.0,
-        gt=0,
-        le=180.0,
-        description="wide search half-window where the odometry is trusted, deg",
-    )
-    recovery_linear_window: float = Field(1.0, gt=0, description="wide search half-window, m")
-    # +-90 deg: a corridor scores almost as well turned by 180 deg (MIT-CSAIL with +-180: a scan flipped
-    # at 0.44 against a run median of 0.68, and the map broke)
-    recovery_angular_window_deg: float = Field(90.0, gt=0, le=180.0)
-    recovery_min_gain: float = Field(
-        0.15,
-        gt=0,
-        description="the wide search's pose must score this much more than the local one "
-        "and no longer be poor (at least recovery_score_ratio x the running median)",
-    )
-
-
-class LoopConfig(BaseModel):
-    """Loop closure and pose graph."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    enabled: bool = True
-    background: bool = Field(
-        True,
-        description="search constraints in a background thread (as Cartographer's constraint builder); "
-        "the intermediate optimisations then see the constraints found so far, so runs can differ slightly",
-    )
-    # The worker's constraints join the graph when collected; while it lags, the main thread picks the
-    # next nodes' candidate submaps from global poses that lack them (ACES: 53 constraints against 71
-    # inline, ATE 0.24 against 0.13 m). Past this many queued jobs the main thread waits for the oldest.
-    max_pending_jobs: int = Field(
-        4,
-        ge=1,
-        description="background loop jobs queued before the main thread waits for the oldest",
-    )
-    every_n_nodes: int = Field(5, ge=1, description="search constraints for one node in this many")
-    max_submaps_per_node: int = Field(
-        3, ge=1, description="the nearest finished submaps searched per node"
-    )
-    step_range: float = Field(15.0, gt=0, description="angular step: one cell at this range, m")
-    max_distance: float = Field(10.0, gt=0, description="only submaps this close to the node, m")
-    linear_window: float = Field(3.0, gt=0, description="branch-and-bound half-window, m")
-    angular_window_deg: float = Field(20.0, gt=0)
-    min_score: float = Field(0.6, gt=0, lt=1)
-    depth: int = Field(
-        5, ge=1, le=8, description="branch-and-bound levels (root step 2^depth cells)"
-    )
-    optimize_every_n_nodes: int = Field(60, ge=1)
-    # loop constraints as soft as a 10 cm / 3 deg match and a Huber threshold of one sigma: with 5 cm,
-    # 1.1 deg and k = 5, ACES's loop edges bent the local SLAM (relation error 0.051 -> 0.057 m)
-    huber_k: float = Field(1.0, gt=0, description="Huber threshold on whitened loop residuals")
-    local_sigma_m: float = Field(0.004, gt=0)
-    local_sigma_rad: float = Field(0.0015, gt=0)
-    # "information": each local edge's covariance from its scan match (J^T J of the refinement's
-    # residuals plus the prior's weights, inverted, scaled so its median translation sigma is
-    # local_sigma_m and capped at 25x): loop closures may then stretch a corridor along its axis where
-    # the scan could not fix the pose (MIT-CSAIL's corridor slip) instead of bending every edge alike
-    local_edges: Literal["fixed", "information"] = "fixed"
-    loop_sigma_m: float = Field(0.1, gt=0)
-    loop_sigma_rad: float = Field(0.05, gt=0)
-    skip_recent_submaps: int = Field(
-        2, ge=0, description="the newest finished submaps are local SLAM's"
-    )
-    # acceptance beyond the absolute score (a corridor, a row of equal rooms: a match can score well at
-    # several places). 1) the peak must be distinct: a second branch and bound over the same window,
-    # without the poses near the best, finds nothing within ``distinct_margin`` of its score (Olson's
-    # local uniqueness test, Robotics and Autonomous Systems 57(12), 2009; 0 switches it off).
-    # 2) candidates must agree with each other: a candidate is accepted once ``consistent_min`` - 1
-    # candidates of other nodes within ``consistency_window_nodes`` imply the same relative pose between
-    # their nodes as the local SLAM (pairwise consistency, as Olson's single-cluster graph partitioning
-    # and Latif et al.'s RRR group loop hypotheses; Cartographer relies on the Huber loss alone). 1: off.
-    # With 3) on, a peak of another node's ambiguous match may be the agreeing one (never a disagreeing
-    # one: an ambiguous match's peaks scatter by nature). Without that, a group of true candidates
-    # whose neighbours' matches fall just short of the distinct-peak test loses its support: on
-    # MIT-CSAIL with the background search, node 1420 found nothing above the minimum score and 1430
-    # came out ambiguous (its peak the same pose) after 1 cm shifts of their search guesses, and the
-    # distinct candidates of nodes 1410, 1415 and 1590 were rejected for want of two agreeing nodes (60
-    # distinct constraints of 67, ATE 0.36 -> 0.44 m; with the lost ones restored offline, 0.36 m)
-    distinct_margin: float = Field(
-        0.05, ge=0, description="best score minus the best clearly different pose's, at least"
-    )
-    peak_radius: float = Field(0.5, gt=0, description="'clearly different': this far, m ...")
-    peak_angle_deg: float = Field(10.0, gt=0, description="... or turned this much, deg")
-    consistent_min: int = Field(
-        3, ge=1, description="mutually consistent candidates (of distinct nodes) to accept one"
-    )
-    consistency_window_nodes: int = Field(30, ge=1)
-    consistency_ratio: float = Field(
-        2.0, ge=0, description="agreeing nodes at least this many times the disagreeing ones"
-    )
-    consistency_tol_m: float = Field(0.2, gt=0, description="plus 2 % of the nodes' distance")
-    consistency_tol_deg: float = Field(2.0, gt=0)
-    # 3) consistency over time for matches with no distinct peak: the best ``peaks_per_match`` peaks of
-    # each are kept, and one becomes a constraint when a majority of the ``temporal_window`` consecutive
-    # nodes searched against the same submap have a peak implying the same pose of it (each peak composed
-    # with the local SLAM's relative poses, within ``temporal_tol_m`` / ``temporal_tol_deg``): wrong peaks
-    # scatter, the true one recurs (the consistent-set acceptance of Olson 2009 and of Latif et al.'s RRR,
-    # "Robust loop closing over time for pose graph SLAM", IJRR 32(14), 2013). 0 peaks: off.
-    peaks_per_match: int = Field(
-        3, ge=0, description="peaks kept per ambiguous match for the consistency over time (0: off)"
-    )
-    temporal_window: int = Field(
-        10, ge=2, description="consecutive nodes searched against a submap that vote"
-    )
-    # 2 cells and 2 deg: the refined peaks of exp1's returning scans that agree scatter by about +-1.5 deg
-    # (with 1 cell / 1 deg only 2 of its 9 were accepted)
-    temporal_tol_m: float = Field(0.1, gt=0, description="same implied pose: within this, m ...")
-    temporal_tol_deg: float = Field(2.0, gt=0, description="... and this, deg")
-    # consecutive scans that see a repeated structure from nearly the same place alias alike, so their
-    # wrong peaks can agree too (exp2: 5 nodes agreed on a 3 m / 20 deg correction against a submap
-    # mapped 7 m of path before). The correction a peak implies is gated by the drift the local SLAM can
-    # have accumulated since the submap's first node (the individual-compatibility gate of Neira and
-    # Tardos, IEEE T-RA 17(6), 2001, with a drift that grows with the path instead of a covariance)
-    temporal_drift: float = Field(
-        0.05, gt=0, description="largest correction: tol_m + this x the path since the submap, m/m"
-    )
-    temporal_drift_deg_per_m: float = Field(
-        0.5, gt=0, description="... and tol_deg + this x the path, deg/m"
-    )
-
-
-class Slam2dConfig(BaseModel):
-    """Everything the 2D SLAM reads; written beside every result as config.yaml."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    resolution: float = Field(0.05, gt=0.005, le=1.0, description="grid cell, m")
-    min_range: float = Field(0.1, ge=0)
-    max_range: float = Field(30.0, gt=0, description="readings beyond are not used, m")
-    voxel_size: float = Field(0.025, ge=0, description="scan points thinned to one per voxel, m")
-    scans_per_submap: int = Field(
-        60, ge=2, description="nodes inserted into a submap before it is finished"
-    )
-    motion_min_distance: float = Field(
-        0.1, ge=0, description="motion filter: a new node after this, m"
-    )
-    motion_min_angle_deg: float = Field(2.0, ge=0)
-    motion_max_time_s: float = Field(5.0, gt=0)
-    use_odometry: bool = True
-    use_imu: bool = True
-    max_tilt_deg: float = Field(
-        5.0, gt=0, description="scans with a larger IMU tilt are not inserted"
-    )
-    matcher: MatcherConfig = Field(default_factory=MatcherConfig)
-    loop: LoopConfig = Field(default_factory=LoopConfig)
-    map_resolution: float = Field(0.05, gt=0.005, le=1.0, description="output map cell, m")
-
-
-@dataclass
-class LoopConstraint:
-    """A node matched against a finished submap, kept as the pose-graph edge it gives: the node's pose
-    relative to the submap's anchor node (the first node inserted into it)."""
-
-    node: int  # index into the nodes
-    submap: int
-    T_submap_node: FloatArray
-    score: float
-    anchor: int
-    T_anchor_node: FloatArray
-    peak: int = (
-        0  # 0: a distinct match; k >= 1: the k-th best peak of a match without a distinct one
-    )
-
-
-@dataclass
-class Slam2dResult:
-    """t_ns (N,) the log's stamps; pose_xy_yaw (N, 3) optimised map-frame pose per scan; local_xy_yaw
-    (N, 3) local-SLAM poses; odom_xy_yaw (N, 3) or None; node_scans (M,) scans that became nodes."""
-
-    t_ns: NDArray[np.int64]
-    pose_xy_yaw: FloatArray
-    local_xy_yaw: FloatArray
-    odom_xy_yaw: FloatArray | None
-    node_scans: NDArray[np.int64]
-    n_submaps: int
-    loops: list[LoopConstraint]
-    loops_searched: int
-    timing_s: dict[str, float]
-    warnings: dict[str, int]
-    mean_match_score: float
-    config: Slam2dConfig
-    source: str = ""
-    rejected_tilt: int = 0
-    extra: dict[str, float] = field(default_factory=dict)
-    # (N,) the local match's score (mean probability at the scan's points), NaN where not matched
-    match_score: FloatArray = field(default_factory=lambda: np.zeros(0))
-
-
-def scan_points(log_: LaserLog, cfg: Slam2dConfig, with_time: bool = False) -> list[FloatArray]:
-    """Per scan, the valid hit points (P, 2) in the body frame, thinned by the voxel filter; with
-    ``with_time`` (P, 3): the third column the beam's firing time after the scan's stamp, s."""
-    ang = log_.angles
-    ca, sa = np.cos(ang), np.sin(ang)
-    r = log_.ranges.astype(float)
-    ok = np.isfinite(r) & (r >= cfg.min_range) & (r <= cfg.max_range)
-    T = log_.T_b_l
-    c, s = np.cos(T[2]), np.sin(T[2])
-    lx, ly = np.where(ok, r * ca, 0.0), np.where(ok, r * sa, 0.0)
-    bx, by = c * lx - s * ly + T[0], s * lx + c * ly + T[1]
-    out: list[FloatArray] = []
-    v = cfg.voxel_size
-    for k in range(len(log_)):
-        m = ok[k]
-        p = np.column_stack([bx[k, m], by[k, m]])
-        if with_time:
-            p = np.column_stack([p, np.flatnonzero(m) * log_.time_increment])
-        if v > 0 and len(p) > 1:
-            key = np.floor(p[:, :2] / v).astype(np.int64)
-            _, first = np.unique(key[:, 0] * 1_000_003 + key[:, 1], return_index=True)
-            p = p[np.sort(first)]
-        out.append(p)
-    return out
-
-
-def imu_yaw_and_tilt(log_: LaserLog) -> tuple[FloatArray, FloatArray] | None:
-    """Integrated yaw (rad) at each scan time about the gravity direction, and the tilt of the IMU's z
-    axis from gravity (deg) at each scan (the accelerometer averaged over 1 s); None without an IMU."""
-    imu = log_.imu
-    if imu is None or len(imu) < 2:
-        return None
-    t = (imu.t_ns - log_.t_ns[0]).astype(float) * 1e-9
-    acc = imu.accel * (9.80665 if imu.accel_unit == "g" else 1.0)
-    gyr = imu.gyro * (np.pi / 180 if imu.gyro_unit == "deg/s" else 1.0)
-    dt_med = float(np.median(np.diff(t))) if len(t) > 1 else 0.01
-    w = max(1, int(round(1.0 / max(dt_med, 1e-4))))
-    kern = np.ones(w) / w
-    up = np.column_stack([np.convolve(acc[:, i], kern, mode="same") for i in range(3)])
-    up /= np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-9)
-    rate = np.einsum("ij,ij->i", gyr, up)  # rate about the up direction
-    yaw = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))])
-    ts = (log_.t_ns - log_.t_ns[0]).astype(float) * 1e-9
-    tilt = np.rad2deg(np.arccos(np.clip(up[:, 2], -1, 1)))
-    return np.interp(ts, t, yaw), np.interp(ts, t, tilt)
 
 
 class _Submap:
@@ -392,6 +110,15 @@ class Slam2d:
         self._peaks_open: set[tuple[int, int]] = (
             set()
         )  # (submap, node) of ambiguous peaks undecided
+        # per scan (add_scan): the local-SLAM pose, the node it belongs to, its match score (NaN where
+        # not matched); the last scores for the running median; what happened to scans not mapped
+        self.scan_local: list[FloatArray] = []
+        self.scan_node: list[int] = []
+        self.scan_score: list[float] = []
+        self._recent: list[float] = []
+        self._vel = np.zeros(3)  # last local step (the constant-velocity model without odometry)
+        self.counts = {"empty": 0, "recovered": 0, "poor": 0, "tilt": 0}
+        self._t_first_scan: float | None = None
 
     # ---------------------------------------------------------------- local SLAM
     def match(self, pts: FloatArray, prior: FloatArray) -> tuple[FloatArray, float]:
@@ -524,6 +251,112 @@ class Slam2d:
             self._nodes_since_opt += 1
             if self._loops_since_opt and self._nodes_since_opt >= cfg.loop.optimize_every_n_nodes:
                 self.optimise()
+
+    def add_scan(
+        self,
+        pts_t: FloatArray,
+        t_s: float,
+        step: FloatArray | None = None,
+        dyaw: float | None = None,
+        dt_s: float | None = None,
+        tilted: bool = False,
+        wide: bool = True,
+    ) -> FloatArray:
+        """Track one scan and insert it when it moved enough; returns its local-SLAM pose (3,).
+
+        pts_t: (P, 3) hit points in the body frame with their firing time after the scan's stamp, s;
+        t_s: the scan's time since the first, s; step: the body's motion since the last scan from the
+        wheel odometry (None: the last local step, a constant velocity); dyaw: the IMU's yaw change
+        since the last scan (replaces the step's rotation); dt_s: the time since the last scan, s, when
+        the scan is unwarped (None: it is not); tilted: the IMU reports a tilt above ``max_tilt_deg`` (the
+        scan is not matched); wide: a re-localisation gets the full angular window."""
+        if self._t_first_scan is None:
+            self._t_first_scan = time.perf_counter()
+        k = len(self.scan_local)
+        if k > 0:
+            s = step.copy() if step is not None else self._vel.copy()
+            if dyaw is not None:
+                s[2] = dyaw
+            prior = pose2.compose(self.scan_local[k - 1], s)
+        else:
+            prior = np.zeros(3)
+        pts = pts_t[:, :2]
+        if dt_s is not None and k > 0:
+            # motion during the scan (Cartographer unwarps with its pose extrapolator): constant velocity
+            # of the predicted step, each point moved to the pose at its firing time
+            f = pts_t[:, 2] / dt_s
+            step_k = pose2.between(self.scan_local[k - 1], prior)
+            pts = pose2.act_each(step_k[None] * f[:, None], pts)
+        poor = False
+        score_k = float("nan")
+        if len(pts) < 3:
+            self.counts["empty"] += 1
+            est = prior
+        elif tilted:
+            self.counts["tilt"] += 1
+            est = prior
+        else:
+            est, score = self.match(pts, prior)
+            recent = self._recent
+            if k > 0 and self.active and len(recent) >= 20:
+                med = float(np.median(recent))
+                if score < self.cfg.matcher.recovery_score_ratio * med:
+                    found = self.relocalise(pts, prior, score, med, full_window=wide)
+                    if found is not None:
+                        est, score = found
+                        self.counts["recovered"] += 1
+                    else:
+                        # still far below the run: not inserted, so it cannot spoil the submap
+                        poor = True
+                        self.counts["poor"] += 1
+            if k > 0 and self.active:
+                recent.append(score)
+                if len(recent) > 100:
+                    recent.pop(0)
+                self.scores.append(score)
+                score_k = score
+        if not np.isfinite(est).all():
+            raise EstimatorError(f"scan {k}: the scan matcher returned a non-finite pose")
+        if k > 0:
+            self._vel = pose2.between(self.scan_local[k - 1], est)
+        self.scan_local.append(est)
+        self.scan_score.append(score_k)
+        if not tilted and not poor and len(pts) >= 3 and self.wants_node(est, t_s):
+            self.add_node(k, est, pts, t_s)
+        self.scan_node.append(max(len(self.node_local) - 1, 0))
+        return est
+
+    def finish(self) -> None:
+        """After the last scan: wait for the loop searches, decide their candidates, optimise once."""
+        if not self.node_local:
+            raise EstimatorError("no scan had enough valid readings to map")
+        total_local = time.perf_counter() - (self._t_first_scan or time.perf_counter())
+        cfg = self.cfg
+        t_wait = time.perf_counter()
+        self.collect_loops(wait=True)
+        self.timing["loop_wait"] = time.perf_counter() - t_wait
+        if cfg.loop.enabled:
+            self.vet_candidates(final=True)
+            if cfg.loop.peaks_per_match > 0:
+                self.vet_peaks(final=True)
+        if cfg.loop.enabled and self.loops:
+            self.optimise()
+        # loop_search: the matching's own time (on the worker thread when in the background)
+        self.timing["local"] = total_local - self.main_loop_time - self.timing["optimise"]
+        if not self.in_background:
+            self.timing["local"] -= self.timing["loop_search"]
+
+    def scan_poses(self) -> FloatArray:
+        """(N, 3) every scan's map-frame pose: the optimised pose of its node times the local motion
+        since that node (scans before the first node keep their local pose)."""
+        NL = np.array(self.node_local)
+        NG = np.array(self.node_global)
+        local = np.array(self.scan_local)
+        j = np.array(self.scan_node, np.int64)
+        glob = pose2.compose(NG[j], pose2.between(NL[j], local))
+        first_node_scan = self.node_scan[0]
+        glob[:first_node_scan] = local[:first_node_scan]
+        return glob
 
     # ---------------------------------------------------------------- global SLAM
     def submap_global(self, s: int) -> FloatArray:
@@ -913,181 +746,3 @@ class Slam2d:
         self._nodes_since_opt = 0
         self._loops_since_opt = 0
         self.timing["optimise"] += time.perf_counter() - t0
-
-
-def run_slam2d(
-    log_: LaserLog, cfg: Slam2dConfig | None = None, progress: Callable[[int], None] | None = None
-) -> Slam2dResult:
-    """Run the 2D SLAM over every scan of ``log_``; ``progress(k)`` is called after each scan."""
-    cfg = cfg or Slam2dConfig()
-    slam = Slam2d(cfg)
-    try:
-        return _run_slam2d(log_, cfg, slam, progress)
-    finally:
-        slam.close()
-
-
-def _wide_search_scans(log_: LaserLog, cfg: Slam2dConfig, odometry: bool) -> NDArray[np.bool_]:
-    """(N,) True at the scans whose wide search gets the full angular window (``MatcherConfig.recovery_when``)."""
-    n = len(log_)
-    m = cfg.matcher
-    if m.recovery_when == "always" or not odometry:
-        return np.ones(n, bool)
-    start = np.zeros(n, bool)
-    if log_.odom_jumped is not None:
-        start |= log_.odom_jumped
-    gap = np.diff(log_.t_ns).astype(float) * 1e-9 >= m.recovery_gap_s
-    start[1:] |= gap
-    # each suspect scan opens a window of recovery_suspect_scans scans (itself included)
-    opened = np.cumsum(start)
-    closed = np.concatenate(
-        [np.zeros(m.recovery_suspect_scans, np.int64), opened[: -m.recovery_suspect_scans]]
-    )
-    return (opened - closed[:n]) > 0
-
-
-def _run_slam2d(
-    log_: LaserLog, cfg: Slam2dConfig, slam: Slam2d, progress: Callable[[int], None] | None
-) -> Slam2dResult:
-    n = len(log_)
-    pts_all = scan_points(log_, cfg, with_time=True)
-    deskew = log_.time_increment > 0
-    odo = log_.odom_xy_yaw if (cfg.use_odometry and log_.odom_xy_yaw is not None) else None
-    imu = imu_yaw_and_tilt(log_) if cfg.use_imu else None
-    t_s = (log_.t_ns - log_.t_ns[0]).astype(float) * 1e-9
-    slam.sensor_b = log_.T_b_l[None, :2].copy()
-    local = np.zeros((n, 3))
-    node_of_scan = np.zeros(n, np.int64)
-    match_score = np.full(n, np.nan)
-    recovered = 0
-    poor_scans = 0
-    recent: list[float] = []  # the last scores, for the running median
-    rejected_tilt = 0
-    empty = 0
-    pose = np.zeros(3)
-    vel = np.zeros(3)  # last local step (constant-velocity model without odometry)
-    wide_ok = _wide_search_scans(log_, cfg, odo is not None)
-    t0 = time.perf_counter()
-    for k in range(n):
-        if k > 0:
-            step = pose2.between(odo[k - 1], odo[k]) if odo is not None else vel.copy()
-            if imu is not None:
-                step[2] = pose2.wrap(imu[0][k] - imu[0][k - 1])
-            prior = pose2.compose(local[k - 1], step)
-        else:
-            prior = pose.copy()
-        pts = pts_all[k][:, :2]
-        if deskew and k > 0:
-            # motion during the scan (Cartographer unwarps with its pose extrapolator): constant velocity
-            # of the predicted step, each point moved to the pose at its firing time
-            dt = max(float(log_.t_ns[k] - log_.t_ns[k - 1]) * 1e-9, 1e-3)
-            f = pts_all[k][:, 2] / dt
-            step_k = pose2.between(local[k - 1], prior)
-            pts = pose2.act_each(step_k[None] * f[:, None], pts)
-        tilted = imu is not None and imu[1][k] > cfg.max_tilt_deg
-        poor = False
-        if len(pts) < 3:
-            empty += 1
-            est = prior
-        elif tilted:
-            rejected_tilt += 1
-            est = prior
-        else:
-            est, score = slam.match(pts, prior)
-            if k > 0 and slam.active and len(recent) >= 20:
-                med = float(np.median(recent))
-                if score < cfg.matcher.recovery_score_ratio * med:
-                    found = slam.relocalise(pts, prior, score, med, full_window=bool(wide_ok[k]))
-                    if found is not None:
-                        est, score = found
-                        recovered += 1
-                    else:
-                        # still far below the run: not inserted, so it cannot spoil the submap
-                        poor = True
-                        poor_scans += 1
-            if k > 0 and slam.active:
-                recent.append(score)
-                if len(recent) > 100:
-                    recent.pop(0)
-                slam.scores.append(score)
-                match_score[k] = score
-        if not np.isfinite(est).all():
-            raise EstimatorError(
-                f"{log_.source}: scan {k}: the scan matcher returned a non-finite pose"
-            )
-        local[k] = est
-        if k > 0:
-            vel = pose2.between(local[k - 1], est)
-        if not tilted and not poor and len(pts) >= 3 and slam.wants_node(est, t_s[k]):
-            slam.add_node(k, est, pts, t_s[k])
-        node_of_scan[k] = max(len(slam.node_local) - 1, 0)
-        if progress is not None:
-            progress(k)
-    total_local = time.perf_counter() - t0
-    if not slam.node_local:
-        raise EstimatorError(f"{log_.source}: no scan had enough valid readings to map")
-    t_wait = time.perf_counter()
-    slam.collect_loops(wait=True)
-    slam.timing["loop_wait"] = time.perf_counter() - t_wait
-    if cfg.loop.enabled:
-        slam.vet_candidates(final=True)
-        if cfg.loop.peaks_per_match > 0:
-            slam.vet_peaks(final=True)
-    if cfg.loop.enabled and slam.loops:
-        slam.optimise()
-    # loop_search: the matching's own time (on the worker thread when in the background)
-    slam.timing["local"] = total_local - slam.main_loop_time - slam.timing["optimise"]
-    if not slam.in_background:
-        slam.timing["local"] -= slam.timing["loop_search"]
-    NL = np.array(slam.node_local)
-    NG = np.array(slam.node_global)
-    # every scan: the optimised pose of its node times the local motion since that node
-    j = node_of_scan
-    glob = pose2.compose(NG[j], pose2.between(NL[j], local))
-    first_node_scan = slam.node_scan[0]
-    glob[:first_node_scan] = local[:first_node_scan]
-    warnings = dict(log_.warnings)
-    if empty:
-        warnings["scans with fewer than 3 valid readings (pose from the prior)"] = empty
-    if recovered:
-        warnings["scans re-localised by the wide search (the prior was off)"] = recovered
-    if poor_scans:
-        warnings["scans far below the run's match score, not inserted"] = poor_scans
-    if rejected_tilt:
-        warnings["scans rejected by the IMU tilt (pose from the prior)"] = rejected_tilt
-    return Slam2dResult(
-        log_.t_ns.copy(), glob, local, None if log_.odom_xy_yaw is None else log_.odom_xy_yaw.copy(),
-        np.array(slam.node_scan), len(slam.submaps), slam.loops, slam.loops_searched, dict(slam.timing),
-        warnings, float(np.mean(slam.scores)) if slam.scores else 0.0, cfg, log_.source, rejected_tilt,
-        match_score=match_score,
-        extra={f"loop_{k}": float(v) for k, v in slam.loop_stats.items()},
-    )  # fmt: skip
-
-
-def render_map(
-    log_: LaserLog, poses_xy_yaw: FloatArray, cfg: Slam2dConfig, stride: int = 1
-) -> ProbabilityGrid:
-    """All scans (every ``stride``-th) inserted at the given poses into one probability grid (scans
-    unwarped with the motion between consecutive poses when the log gives beam times)."""
-    P = np.asarray(poses_xy_yaw)
-    pts_all = scan_points(log_, cfg, with_time=True)
-    for k in range(len(P)):
-        q = pts_all[k]
-        if log_.time_increment > 0 and k > 0:
-            dt = max(float(log_.t_ns[k] - log_.t_ns[k - 1]) * 1e-9, 1e-3)
-            step_k = pose2.between(P[k - 1], P[k])
-            pts_all[k] = pose2.act_each(step_k[None] * (q[:, 2] / dt)[:, None], q[:, :2])
-        else:
-            pts_all[k] = q[:, :2]
-    grid = ProbabilityGrid(GridParams(resolution=cfg.map_resolution), P[0, :2], 10.0)
-    allp = np.concatenate(
-        [pose2.act(P[k], pts_all[k]) for k in range(0, len(P), stride)] or [P[:1, :2]]
-    )
-    grid.ensure_contains(
-        np.minimum(allp.min(axis=0), P[:, :2].min(axis=0)),
-        np.maximum(allp.max(axis=0), P[:, :2].max(axis=0)),
-    )
-    for k in range(0, len(P), stride):
-        if len(pts_all[k]):
-            grid.insert(pose2.act(P[k], log_.T_b_l[None, :2])[0], pose2.act(P[k], pts_all[k]))
-    return grid

@@ -97,13 +97,13 @@ def _seed(d: Any) -> int:
     return int(digest(d), 16) % (2**63)
 
 
-def expand(study: StudyConfig) -> list[Cell]:
-    """Every cell of every claim, in a fixed order (claims, scenarios, imu, alignment, estimators, seeds)."""
+def expand(study: StudyConfig, seeds: dict[str, list[int]] | None = None) -> list[Cell]:
+    """Every cell of every claim, in a fixed order (claims, scenarios, imu, alignment, estimators, seeds):
+    over ``seeds[claim]`` where given, else over the claim's first seeds (``ClaimSpec.first_seeds``)."""
     cells = []
     for c in study.claims:
-        for sc, imu, al, est, seed in product(
-            c.scenarios, c.imu, c.alignment, c.estimators, c.seeds or study.seeds
-        ):
+        these = (seeds or {}).get(c.name) or c.first_seeds(study.seeds)
+        for sc, imu, al, est, seed in product(c.scenarios, c.imu, c.alignment, c.estimators, these):
             cells.append(
                 Cell(
                     claim=c.name,

@@ -140,6 +140,19 @@ class ClaimSpec(_Strict):
         None, description="this claim's alignment window; default: the study's"
     )
     eval_align: Literal["se3", "sim3", "yaw", "first", "none"] = "se3"
+    # enough evidence, decided before the run (study/sequential.py): required when levels are compared
+    practical_bound: float | None = Field(
+        None,
+        gt=0,
+        description="the smallest difference of the metric that matters in practice, metric units",
+    )
+    reason: str = Field("", description="why that bound: one line")
+    max_seeds: int | None = Field(
+        None, ge=2, le=MAX_SEED_COUNT, description="seed budget: seeds are added up to this many"
+    )
+    seed_batch: int | None = Field(
+        None, ge=1, description="seeds added per look; default: as many as the first seeds"
+    )
 
     @field_validator("seeds", mode="before")
     @classmethod
@@ -171,7 +184,38 @@ class ClaimSpec(_Strict):
             raise ValueError(
                 f"claim '{self.name}': two estimator entries share the label {labels}; give each a label"
             )
+        if len(lv) >= 2:
+            missing = [k for k in ("practical_bound", "max_seeds") if getattr(self, k) is None]
+            if missing:
+                raise ValueError(
+                    f"claim '{self.name}' compares {len(lv)} levels of '{self.compare}' but states no "
+                    f"{' and no '.join(missing)}; expected the smallest difference of {self.metric} "
+                    "that matters (practical_bound, with its reason) and a seed budget (max_seeds)"
+                )
+            if not self.reason.strip():
+                raise ValueError(
+                    f"claim '{self.name}': practical_bound {self.practical_bound:g} has no reason; "
+                    "expected one line saying why that difference matters"
+                )
+        if (
+            self.max_seeds is not None
+            and self.seeds is not None
+            and len(self.seeds) > self.max_seeds
+        ):
+            raise ValueError(
+                f"claim '{self.name}': {len(self.seeds)} seeds but max_seeds {self.max_seeds}; "
+                "expected at most max_seeds"
+            )
         return self
+
+    def first_seeds(self, study_seeds: list[int]) -> list[int]:
+        """The seeds of the first look: the claim's, else the study's (at most ``max_seeds``)."""
+        first = list(dict.fromkeys(self.seeds or study_seeds))
+        return first[: self.max_seeds] if self.max_seeds is not None else first
+
+    def batch(self, study_seeds: list[int]) -> int:
+        """Seeds added per look (``seed_batch``, default as many as the first look has)."""
+        return self.seed_batch or max(1, len(self.first_seeds(study_seeds)))
 
 
 class StudyConfig(_Strict):

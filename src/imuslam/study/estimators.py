@@ -268,7 +268,8 @@ def _vio_prepare(cell: Cell) -> tuple[str, Callable[..., Any], tuple[Any, ...]]:
     cpu_per_s=0.05,
 )
 def run_vio_cell(inp: CellInput) -> Estimate:
-    from imuslam.vio.pipeline import VioConfig, run_vio
+    from imuslam.vio.config import VioConfig
+    from imuslam.vio.pipeline import run_vio
 
     o = inp.options
     assert isinstance(o, VioOptions)
@@ -307,7 +308,8 @@ class Map2dOptions(BaseModel):
 def run_map2d_cell(inp: CellInput) -> Estimate:
     from imuslam.eval.mapquality import map_quality, occupied_centres
     from imuslam.sim.robot2d import planar, simulate_robot2d, with_imu
-    from imuslam.slam2d.slam import Slam2dConfig, render_map, run_slam2d
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.pipeline import render_map, run_slam2d
 
     o = inp.options
     assert isinstance(o, Map2dOptions)

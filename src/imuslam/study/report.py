@@ -6,9 +6,11 @@ results.csv and the effective study.yaml.
 Statistics: for a level, the mean of the metric over seeds and its 95 % interval
 ``mean +- t_{0.975, n-1} s / sqrt(n)`` (Student t). For a pair (better, worse) of the claimed order,
 the per-seed difference ``d = worse - better`` (``better - worse`` when higher is better) between cells
-that differ only in the compared factor, so ``d > 0`` is the claimed direction; its mean and 95 %
-interval, and how many seeds agree. Verdict: 'holds' when the interval lies above 0, 'reversed' when it
-lies below, 'not resolved' otherwise (more seeds, or no real difference).
+that differ only in the compared factor, so ``d > 0`` is the claimed direction. Its verdict is the
+sequential one of :mod:`imuslam.study.sequential`: looked at after each batch of seeds of the claim's
+schedule, 'no practical difference' when the interval lies inside +-practical_bound, else 'holds' when
+it lies above 0, 'reversed' when below, 'not resolved' when the budget ended first (with the power it
+had); reported with the seeds it took, its mean and interval at that look, and how many seeds agree.
 """
 
 from __future__ import annotations
@@ -26,6 +28,16 @@ from scipy import stats
 
 from imuslam.io.atomic import write_atomic
 from imuslam.study.config import ClaimSpec, StudyConfig, dump_study
+from imuslam.study.sequential import (
+    FEW,
+    HOLDS,
+    NO_DIFF,
+    OPEN,
+    REVERSED,
+    decide,
+    look_sizes,
+    schedule,
+)
 
 FACTOR_COLUMN = {
     "scenario": "scenario",
@@ -71,6 +83,12 @@ class PairRow:
     hi: float
     agree: int
     verdict: str
+    bound: float = float("nan")
+    budget: int = 0
+    look: int = 0
+    looks: int = 0
+    level: float = float("nan")
+    power: float = float("nan")
 
 
 @dataclass
@@ -89,10 +107,24 @@ def _context_name(keys: tuple[Any, ...], cols: list[str]) -> str:
     return ", ".join(parts)
 
 
-def analyse(claim: ClaimSpec, df: pd.DataFrame) -> ClaimResult:
-    """Level means and paired differences of one claim (see the module docstring)."""
+def seed_plan(claim: ClaimSpec, study_seeds: list[int]) -> tuple[list[int], list[int]]:
+    """The claim's seeds in the order they run, and the seeds at each planned look."""
+    first = claim.first_seeds(study_seeds)
+    budget = claim.max_seeds or len(first)
+    return schedule(first, budget), look_sizes(len(first), budget, claim.batch(study_seeds))
+
+
+def analyse(
+    claim: ClaimSpec, df: pd.DataFrame, study_seeds: list[int] | None = None
+) -> ClaimResult:
+    """Level means and paired differences of one claim (see the module docstring). ``study_seeds``: the
+    study's seeds (the claim's first seeds when it has none of its own); default: the seeds in ``df``."""
     col = FACTOR_COLUMN[claim.compare]
     d = df[df["claim"] == claim.name]
+    if study_seeds is None:
+        study_seeds = sorted(int(x) for x in d["seed"].unique())
+    order_seeds, sizes = seed_plan(claim, study_seeds)
+    bound = float(claim.practical_bound or 0.0)
     ctx_cols = [c for c in CONTEXT if c != col and d[c].nunique() > 1] or ["scenario"]
     order = claim.expect or claim.levels()
     rest = [lv for lv in claim.levels() if lv not in order]
@@ -128,26 +160,33 @@ def analyse(claim: ClaimSpec, df: pd.DataFrame) -> ClaimResult:
             if better not in by_seed or worse not in by_seed:
                 pairs.append(PairRow(name, better, worse, 0, *(float("nan"),) * 3, 0, "no data"))
                 continue
-            diff = (sign * (by_seed[worse] - by_seed[better])).dropna().to_numpy(float)
-            m, lo, hi = mean_ci(diff)
-            verdict = (
-                ("holds" if lo > 0 else "reversed" if hi < 0 else "not resolved")
-                if len(diff) >= 2
-                else "too few seeds"
-            )
+            diff = sign * (by_seed[worse] - by_seed[better])
+            d_seq = diff.reindex(order_seeds).to_numpy(float)  # NaN: failed or not run (yet)
+            dec = decide(d_seq, sizes, bound)
+            used = d_seq[: sizes[dec.look - 1] if dec.look else 0]
+            agree = int((used[np.isfinite(used)] > 0).sum())
             pairs.append(
-                PairRow(name, better, worse, len(diff), m, lo, hi, int((diff > 0).sum()), verdict)
-            )
-    vs = [p.verdict for p in pairs]
+                PairRow(name, better, worse, dec.n, dec.mean, dec.lo, dec.hi, agree, dec.verdict,
+                        bound, sizes[-1], dec.look, dec.looks, dec.level, dec.power)
+            )  # fmt: skip
+    return ClaimResult(claim, levels, pairs, overall_verdict(claim, [p.verdict for p in pairs]), d)
+
+
+def overall_verdict(claim: ClaimSpec, vs: list[str]) -> str:
+    """The claim's verdict from its pairs' (in the claimed order)."""
     if not claim.expect:
-        overall = "comparison (no order claimed)"
-    elif vs and all(v == "holds" for v in vs):
-        overall = "supported"
-    elif any(v == "reversed" for v in vs):
-        overall = "contradicted (at least one pair reversed)"
-    else:
-        overall = "partly supported" if any(v == "holds" for v in vs) else "not resolved"
-    return ClaimResult(claim, levels, pairs, overall, d)
+        return "comparison (no order claimed)"
+    if not vs:
+        return "no data"
+    if all(v == HOLDS for v in vs):
+        return "supported"
+    if any(v == REVERSED for v in vs):
+        return "contradicted (at least one pair reversed)"
+    if all(v == NO_DIFF for v in vs):
+        return "no practical difference"
+    if HOLDS in vs and not any(v in (OPEN, FEW) for v in vs):
+        return "partly supported (the other pairs: no practical difference)"
+    return "partly supported" if HOLDS in vs else "not resolved"
 
 
 def _fmt(x: float) -> str:
@@ -167,13 +206,47 @@ def markdown(res: ClaimResult) -> str:
         lines.append(
             f"| {r.context} | {r.level} | {r.n} | {_fmt(r.mean)} | [{_fmt(r.lo)}, {_fmt(r.hi)}] | {_fmt(r.median)} | {r.failed} |"
         )
-    lines += ["", "| context | better | than | seeds | mean difference | 95 % CI | seeds agreeing | verdict |",
+    if c.practical_bound is not None:
+        lines += ["", f"Practical bound: {_fmt(c.practical_bound)} ({c.metric}): {c.reason.strip()}. "
+                  f"Seed budget: {c.max_seeds}."]  # fmt: skip
+    lines += ["", "| context | better | than | seeds (look) | mean difference | interval | seeds agreeing | verdict |",
               "|---|---|---|---:|---:|---|---:|---|"]  # fmt: skip
     for p in res.pairs:
         lines.append(
-            f"| {p.context} | {p.better} | {p.worse} | {p.n} | {_fmt(p.mean)} | [{_fmt(p.lo)}, {_fmt(p.hi)}] | {p.agree}/{p.n} | {p.verdict} |"
+            f"| {p.context} | {p.better} | {p.worse} | {pair_seeds(p)} | {_fmt(p.mean)} | {pair_interval(p)} | {p.agree}/{p.n} | {pair_verdict(p)} |"
         )
     return "\n".join(lines) + "\n"
+
+
+PAIR_COLUMNS = ("claim", "context", "pair", "difference", "interval", "bound", "verdict", "seeds")
+
+
+def pair_table_rows(res: ClaimResult) -> list[list[str]]:
+    """One row per pair for the terminal (:data:`PAIR_COLUMNS`): the effect with its interval, the
+    verdict and the seeds it took."""
+    return [
+        [res.claim.name, p.context, f"{p.better} > {p.worse}", _fmt(p.mean), pair_interval(p),
+         _fmt(p.bound), pair_verdict(p), pair_seeds(p)]
+        for p in res.pairs
+    ]  # fmt: skip
+
+
+def pair_seeds(p: PairRow) -> str:
+    """'6 (look 2 of 4)': the paired seeds the verdict took and at which planned look."""
+    return f"{p.n} (look {p.look} of {p.looks})" if p.looks else str(p.n)
+
+
+def pair_interval(p: PairRow) -> str:
+    """'[lo, hi] 98.8 %': the interval of the deciding look and its confidence."""
+    level = f" {100 * p.level:.4g} %" if np.isfinite(p.level) else ""
+    return f"[{_fmt(p.lo)}, {_fmt(p.hi)}]{level}"
+
+
+def pair_verdict(p: PairRow) -> str:
+    """The verdict; an unresolved one with the power it had to find a difference of one bound."""
+    if p.verdict == OPEN and np.isfinite(p.power):
+        return f"{p.verdict} (power {p.power:.2f} at the bound, budget {p.budget} spent)"
+    return p.verdict
 
 
 def figure_png(res: ClaimResult) -> bytes:
@@ -248,7 +321,7 @@ def write_outputs(
     study: StudyConfig, df: pd.DataFrame, out: Path, backend: str
 ) -> list[ClaimResult]:
     """results.parquet, results.csv, study.yaml, report.md and report.html in ``out`` (each atomic)."""
-    results = [analyse(c, df) for c in study.claims]
+    results = [analyse(c, df, study.seeds) for c in study.claims]
     md = "\n".join(markdown(r) for r in results)
     failed = df[df["status"] != "ok"]
     buf = io.BytesIO()
@@ -259,7 +332,8 @@ def write_outputs(
     write_atomic(out / "report.md", md)
     parts = [f"<h1>Study {html.escape(study.name)}</h1>",
              f"<p>{len(df)} cells ({df['key'].nunique()} distinct), {len(failed)} failed; seeds {study.seeds}; "
-             f"run on {html.escape(backend)}. Means with 95 % Student-t intervals over seeds; differences paired by seed.</p>"]  # fmt: skip
+             f"run on {html.escape(backend)}. Means with 95 % Student-t intervals over seeds; differences paired by seed, "
+             f"looked at after each batch of seeds, each look's interval at 1 - 0.05 / (planned looks).</p>"]  # fmt: skip
     for r in results:
         png = base64.b64encode(figure_png(r)).decode()
         parts.append(_md_table_html(markdown(r)))

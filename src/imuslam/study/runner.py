@@ -8,6 +8,10 @@ on where or in which order cells run: a Dask run equals a serial one. Each finis
 once to ``OUT/cells/<key>.json``; a study run again into the same folder takes those and runs only the
 rest (resume after an interruption, or extend a study with more seeds). A failing cell is a row with
 status 'error' and its error's line. Tables and the report are written only when every cell has a row.
+
+Seeds are added in batches (``study/sequential.py``): the first look runs every claim's first seeds;
+after each look, a claim with a pair still unresolved and seeds left in its budget gets its next batch,
+and the claims that need more run together in the next round (on the same cluster), until none does.
 """
 
 from __future__ import annotations
@@ -17,8 +21,8 @@ import logging
 import os
 import time
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -66,11 +70,11 @@ def check_estimator_configs(study: StudyConfig, source: str = "<study>") -> None
 
             return LioConfig
         if name == "vio":
-            from imuslam.vio.pipeline import VioConfig
+            from imuslam.vio.config import VioConfig
 
             return VioConfig
         if name == "map2d":
-            from imuslam.slam2d.slam import Slam2dConfig
+            from imuslam.slam2d.config import Slam2dConfig
 
             return Slam2dConfig
         return None
@@ -247,9 +251,12 @@ def execute(
     workers: int | None = None,
     serial: bool = False,
     progress: bool = True,
+    client_factory: Callable[[], Any] | None = None,
 ) -> tuple[dict[str, dict[str, Any]], int, str, dict[str, float]]:
     """Rows by cell key for every distinct cell (from the cache or run); the number taken from the
-    cache; the backend used; CPU seconds by worker (see :attr:`StudyRun.worker_cpu_s`)."""
+    cache; the backend used; CPU seconds by worker (see :attr:`StudyRun.worker_cpu_s`).
+    ``client_factory``: returns the Dask client to use (one kept open over several calls); default: a
+    client of ``scheduler`` or of a new local cluster, closed on return."""
     unique: dict[str, Cell] = {}
     for c in cells:
         unique.setdefault(c.key, c)
@@ -282,7 +289,8 @@ def execute(
                 _store(out, c, rows[c.key])
                 bar.update()
         return rows, n_cached, backend, {"serial": time.process_time() - cpu0}
-    with dask_client(scheduler, workers) as client:
+    ctx = nullcontext(client_factory()) if client_factory else dask_client(scheduler, workers)
+    with ctx as client:
         from distributed import as_completed
 
         n_workers = len(client.scheduler_info()["workers"])
@@ -336,6 +344,26 @@ def execute(
     return rows, n_cached, backend, cpu
 
 
+def next_seeds(
+    study: StudyConfig, df: pd.DataFrame, seeds: dict[str, list[int]]
+) -> dict[str, list[int]]:
+    """The claims that need another look (a pair not resolved, seeds left in the budget), each with its
+    seeds for that look (the next batch of its schedule added)."""
+    from imuslam.study.report import analyse, seed_plan
+    from imuslam.study.sequential import FEW, OPEN
+
+    more = {}
+    for c in study.claims:
+        have = seeds[c.name]
+        if c.max_seeds is None or len(have) >= c.max_seeds:
+            continue
+        if any(p.verdict in (OPEN, FEW) for p in analyse(c, df, study.seeds).pairs):
+            order, sizes = seed_plan(c, study.seeds)
+            n = next(k for k in sizes if k > len(have))
+            more[c.name] = order[:n]
+    return more
+
+
 def table(cells: list[Cell], rows: dict[str, dict[str, Any]]) -> pd.DataFrame:
     """One row per cell in the study's order (a cell shared by two claims appears under each)."""
     return pd.DataFrame([{**rows[c.key], **c.label} for c in cells])
@@ -358,7 +386,36 @@ def run_study(
         from imuslam.io.results import check_out_dir
 
         check_out_dir(out, "folder")
-    rows, n_cached, backend, cpu = execute(cells, out, scheduler, workers, serial, progress)
+    rows: dict[str, dict[str, Any]] = {}
+    n_cached, backend = 0, "cache"
+    cpu: dict[str, float] = {}
+    seeds = {c.name: c.first_seeds(study.seeds) for c in study.claims}
+    with ExitStack() as stack:
+        clients: list[Any] = []
+
+        def client() -> Any:  # one cluster for every look, started when a cell first needs it
+            if not clients:
+                clients.append(stack.enter_context(dask_client(scheduler, workers)))
+            return clients[0]
+
+        while True:
+            new = [c for c in cells if c.key not in rows]
+            if new:
+                got, n_c, be, cp = execute(new, out, scheduler, workers, serial, progress,
+                                           None if serial else client)  # fmt: skip
+                rows.update(got)
+                n_cached += n_c
+                backend = be if be != "cache" else backend
+                # serial: this process's CPU per round; Dask: each worker's since it started
+                cpu = {k: cpu.get(k, 0.0) + v for k, v in cp.items()} if serial else (cp or cpu)
+            more = next_seeds(study, table(cells, rows), seeds)
+            if not more:
+                break
+            for name, s in more.items():
+                log.info("claim %s: unresolved after %d seeds, %d more", name, len(seeds[name]),
+                         len(s) - len(seeds[name]))  # fmt: skip
+            seeds.update(more)
+            cells = expand(study, seeds)
     df = table(cells, rows)
     if out is not None:
         from imuslam.io.results import results_folder

@@ -1,6 +1,6 @@
 """The VIO filter's compiled frame step: everything the EKF does between two VO frames in one numba call.
 
-:func:`frame_step` runs, for one VO frame, what :class:`imuslam.vio.pipeline.VioFilter` does in Python
+:func:`frame_step` runs, for one VO frame, what :class:`imuslam.vio.filter.VioFilter` does in Python
 per event: the non-holonomic pseudo-measurements due before the frame's mid-time (predict to each, gated
 update, record), the prediction to the mid-time, the gated VO rate and VO velocity updates (the velocity
 conditioned on the rate), and the record. The prediction is the inertial core's (:func:`imuslam.ins.core.propagate`: its strapdown step, its

@@ -16,12 +16,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import InputError
+from imuslam.ins.coarse import level_rotation
 from imuslam.ins.core import ErrorLayout, InsState
 from imuslam.io.imulog import ImuLog
 from imuslam.io.navbag import OdometryLog
 from imuslam.io.trajectory import Trajectory
+from imuslam.vio.config import NoiseConfig, VioConfig
+from imuslam.vio.filter import GateStats, VioFilter
 from imuslam.vio.measurements import NonHolonomic, WheelSpeed, WheelYawRate
-from imuslam.vio.pipeline import GateStats, NoiseConfig, VioConfig, VioFilter, level_attitude
 
 FloatArray = NDArray[np.float64]
 
@@ -58,7 +60,7 @@ def run_wheel_ekf(
     ti = (imu_b.t_ns - t_ref) * 1e-9
     to = (odom.t_ns - t_ref) * 1e-9
     w0 = (ti >= 0) & (ti <= init_s)
-    R0 = level_attitude(imu_b.accel[w0])
+    R0 = level_rotation(imu_b.accel[w0])
     o0 = (to >= 0) & (to <= init_s)
     bg0 = imu_b.gyro[w0].mean(axis=0) - R0.T @ np.array([0.0, 0.0, odom.angular_b[o0, 2].mean()])
     v0 = R0 @ np.array([odom.linear_b[o0][0, 0], 0.0, 0.0])
