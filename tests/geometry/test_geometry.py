@@ -13,7 +13,6 @@ from imuslam.geometry import (
     quat_to_matrix,
     quat_to_rotvec,
     right_jacobian,
-    rk4_integrate_gyro,
     vee,
 )
 
@@ -61,17 +60,3 @@ def test_right_jacobian_first_order() -> None:
     lhs = exp(th + d)
     rhs = exp(th) @ exp((right_jacobian(th) @ d[..., None])[..., 0])
     assert np.max(np.abs(lhs - rhs)) < 1e-11
-
-
-def test_rk4_constant_rate_is_exact_and_batched() -> None:
-    """A constant rate integrates to exp(omega * T); RK4's error at 100 Hz is far below 1e-9 rad."""
-    rng = np.random.default_rng(4)
-    omega = rng.normal(size=(7, 3))
-    n = 301
-    w = np.repeat(omega[:, None, :], n, axis=1)
-    dt = np.full((7, n - 1), 0.01)
-    q = rk4_integrate_gyro(w, dt)
-    expected = exp(omega * 3.0)
-    np.testing.assert_allclose(quat_to_matrix(q), expected, atol=1e-9)
-    q0 = rk4_integrate_gyro(w[3], dt[3])
-    np.testing.assert_allclose(q0, q[3], atol=1e-15)

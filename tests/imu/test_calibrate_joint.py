@@ -3,9 +3,10 @@ cross-validation against the score of the true parameters."""
 
 import numpy as np
 import pytest
+from rk4_reference import rk4_integrate_gyro
 from scipy.spatial.transform import Rotation
 
-from imuslam.geometry import quat_to_matrix, rk4_integrate_gyro
+from imuslam.geometry import quat_to_matrix
 from imuslam.imu.calibrate import (
     CalibrationConfig,
     calibrate,

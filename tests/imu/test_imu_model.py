@@ -4,9 +4,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rk4_reference import rk4_integrate_gyro
 
 from imuslam.errors import InputError
-from imuslam.geometry import quat_to_matrix, rk4_integrate_gyro
+from imuslam.geometry import quat_to_matrix
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.imu.rk4 import integrate_segments
 from imuslam.interfaces.imu import ImuLog

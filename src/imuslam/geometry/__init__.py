@@ -1,5 +1,5 @@
-"""Pure maths: SO(3), SE(3), SE(2), Euler angles, Hamilton quaternions and their integration, pose
-interpolation, compiled SO(3) kernels. No I/O, no imports of ours.
+"""Pure maths: SO(3), SE(3), SE(2), Euler angles, Hamilton quaternions, pose interpolation, compiled
+SO(3) kernels. No I/O, no imports of ours.
 
 Modules: ``so3`` (functions re-exported here), ``se3``, ``se2`` (``from imuslam.geometry import se3``),
 ``euler``, ``interp``, ``quaternion``, ``so3_nb`` (numba kernels for inner loops).
@@ -24,7 +24,6 @@ from imuslam.geometry.quaternion import (
     quat_normalize,
     quat_to_matrix,
     quat_to_rotvec,
-    rk4_integrate_gyro,
 )
 from imuslam.geometry.so3 import (
     exp,
@@ -50,7 +49,6 @@ __all__ = [
     "quat_to_matrix",
     "quat_to_rotvec",
     "right_jacobian",
-    "rk4_integrate_gyro",
     "rminus",
     "rplus",
     "vee",

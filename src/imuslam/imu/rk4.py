@@ -3,7 +3,7 @@
 ``integrate_segments`` returns the rotations ``R_start_end`` (P, S, 3, 3) of the rates
 ``Ms[p] @ (w - offsets[p]) - Gs[p] @ f`` over each segment (S, 2) of samples, for P parameter sets at
 once: RK4 on the quaternion with the rate at the step midpoint taken as the mean of its ends (Tedaldi
-2014, eq. 14; the slow reference is ``imuslam.geometry.rk4_integrate_gyro``). Two implementations:
+2014, eq. 14; the slow reference is ``tests/imu/rk4_reference.py``). Two implementations:
 
 - ``integrate_segments`` (the default): the compiled kernel of ``imu.rk4_compiled``, for callers that
   integrate thousands of times (the joint fit, cross-validation, the pose planner);

@@ -41,7 +41,7 @@ def rk4_segments(
     """Integrated rotations R_start_end (P, S, 3, 3) of ``M_p (w - o_p) - G_p f`` over each segment [a, b].
 
     RK4 on the quaternion with the rate at the step midpoint taken as the mean of its ends
-    (Tedaldi 2014, eq. 14); the slow reference is ``imuslam.geometry.rk4_integrate_gyro``.
+    (Tedaldi 2014, eq. 14); the slow reference is ``tests/imu/rk4_reference.py``.
     """
     P = Ms.shape[0]
     S = segs.shape[0]
