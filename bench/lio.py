@@ -8,6 +8,7 @@
     PYTHONPATH=src python bench/lio.py frontend  # the compiled front end against its numpy reference
     PYTHONPATH=src python bench/lio.py consistency  # mean NEES of the reported covariance, 6 seeds x 2 modes
     PYTHONPATH=src python bench/lio.py rowmodel  # one scan's covariance against a map from the true poses
+    PYTHONPATH=src python bench/lio.py robust    # a wrong clock offset / extrinsic, without and with calibrate-lidar
 
 Options: --duration S (drive length), --cache DIR (simulated drives are cached there, keyed by their
 parameters). The street drive is seed 001's car loop around an urban block: VLP-16 at 10 Hz (about 28k
@@ -543,6 +544,85 @@ def rowmodel_bench(args: Any) -> None:
                   f"{time.process_time() - c0:.1f} |")  # fmt: skip
 
 
+RIG_T_I_L_RPY_DEG = (5.0, -3.0, 90.0)  # roll, pitch, yaw of the LiDAR on the IMU (the tests' rig)
+RIG_P_I_L = (0.1, -0.05, 0.15)
+
+
+def rig(duration: float, offset_s: float, cache: Path, seed: int = 1) -> Any:
+    """The excited LiDAR-IMU rig of tests/lio/test_lio_extrinsic.py (900 columns), cached."""
+    from scipy.spatial.transform import Rotation
+
+    from imuslam.sim.drive import simulate_lidar_imu_rig
+    from imuslam.sim.lidar import Lidar3dConfig
+
+    cache.mkdir(parents=True, exist_ok=True)
+    f = cache / f"rig_{duration:.2f}s_off{offset_s * 1e3:g}ms_seed{seed}.pkl"
+    if f.exists():
+        with open(f, "rb") as fh:
+            return pickle.load(fh)
+    T = np.eye(4)
+    r, p, y = RIG_T_I_L_RPY_DEG
+    T[:3, :3] = Rotation.from_euler("ZYX", [y, p, r], degrees=True).as_matrix()
+    T[:3, 3] = RIG_P_I_L
+    d = simulate_lidar_imu_rig(
+        "excited", duration, seed, T, offset_s, lidar=Lidar3dConfig(columns=900)
+    )
+    with open(f, "wb") as fh:
+        pickle.dump(d, fh)
+    return d
+
+
+def robust_bench(args: Any) -> None:
+    """LIO on the excited rig (30 s in the calibration room) when the config's clock offset is zero
+    while the LiDAR's clock is 5, 20 or 50 ms behind, and when the extrinsic is 2 deg / 10 cm off:
+    without and with the target-free calibration (``lio.extrinsic``) started from the wrong values.
+    The first row of each drive runs with the true values. ATE after an SE(3) alignment, also per
+    metre of path; the calibration's own errors (rotation deg, lever arm cm, offset ms)."""
+    from scipy.spatial.transform import Rotation
+
+    from imuslam.lio.extrinsic import calibrate_lidar_imu
+
+    dur = args.duration or 30.0
+    fe = FrontEndConfig(mode="features", scan_voxel=0.25, min_range=0.2)
+    mp = MapConfig(voxel=0.2)
+
+    def ext(R: FloatArr, p: FloatArr, off: float) -> ExtrinsicConfig:
+        x, y, z, w = Rotation.from_matrix(R).as_quat()
+        return ExtrinsicConfig(p_i_l=tuple(p), quat_wxyz_i_l=(w, x, y, z), time_offset_s=off)  # type: ignore[arg-type]
+
+    print("| drive | extrinsic / offset given | calibrated | ATE m | ATE % of path | rotation RMSE deg "
+          "| calib. rotation err deg | calib. lever-arm err cm | calib. offset err ms | s |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    dR = Rotation.from_rotvec(np.deg2rad(2.0) * np.ones(3) / np.sqrt(3)).as_matrix()
+    dp = 0.1 * np.array([1.0, -1.0, 1.0]) / np.sqrt(3)
+    cases: list[tuple[float, str, str]] = [(0.005, "truth", "no"), (0.005, "offset 0", "no"), (0.005, "offset 0", "yes"),
+                                           (0.02, "truth", "no"), (0.02, "offset 0", "no"), (0.02, "offset 0", "yes"),
+                                           (0.05, "truth", "no"), (0.05, "offset 0", "no"), (0.05, "offset 0", "yes"),
+                                           (0.02, "2 deg / 10 cm off", "no"), (0.02, "2 deg / 10 cm off", "yes"),
+                                           (0.02, "both", "no"), (0.02, "both", "yes")]  # fmt: skip
+    for off, given, cal in cases:
+        d = rig(dur, off, args.cache)
+        R, p = d.T_i_l[:3, :3], d.T_i_l[:3, 3]
+        start = {"truth": ext(R, p, off), "offset 0": ext(R, p, 0.0),
+                 "2 deg / 10 cm off": ext(dR @ R, p + dp, off), "both": ext(dR @ R, p + dp, 0.0)}[given]  # fmt: skip
+        imu = true_calibration().correct(d.imu)
+        t0 = time.perf_counter()
+        errs = ["", "", ""]
+        if cal == "yes":
+            c = calibrate_lidar_imu(d.scans, imu, LioConfig(extrinsic=start, frontend=fe, map=mp))
+            start = c.extrinsic()
+            e_rot = np.rad2deg(np.linalg.norm(Rotation.from_matrix(c.R_i_l @ R.T).as_rotvec()))
+            errs = [f"{e_rot:.3f}", f"{100 * np.linalg.norm(c.p_i_l - p):.2f}",
+                    f"{1e3 * (c.time_offset_s - off):+.2f}"]  # fmt: skip
+        cfg = LioConfig(extrinsic=start, frontend=fe, map=mp)
+        res = LioPipeline(MemoryDataset(d.scans, imu, "rig"), cfg, progress=False).run()
+        gt = truth(d)
+        ev, _, _ = evaluate(gt, res.trajectory, "se3", 1.0, "frames", 0.02)
+        ate = ev.ape_trans.rmse
+        print(f"| {off * 1e3:g} ms behind | {given} | {cal} | {ate:.4f} | {100 * ate / gt.path_length:.3f} | "
+              f"{ev.ape_rot_deg.rmse:.3f} | {' | '.join(errs)} | {time.perf_counter() - t0:.0f} |", flush=True)  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument(
@@ -556,6 +636,7 @@ def main() -> None:
             "frontend",
             "consistency",
             "rowmodel",
+            "robust",
         ],
     )
     ap.add_argument("--duration", type=float, default=None)
@@ -619,7 +700,7 @@ def main() -> None:
     t0 = time.perf_counter()
     {"main": main_bench, "imu": imu_bench, "rotating": rotating_bench, "corridor": corridor_bench,
      "memory": memory_bench, "frontend": frontend_bench,
-     "consistency": consistency_bench, "rowmodel": rowmodel_bench}[args.what](args)  # fmt: skip
+     "consistency": consistency_bench, "rowmodel": rowmodel_bench, "robust": robust_bench}[args.what](args)  # fmt: skip
     print(f"({time.perf_counter() - t0:.0f} s)")
 
 
