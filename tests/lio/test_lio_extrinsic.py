@@ -203,6 +203,11 @@ def test_missing_topic_is_one_line_naming_the_option(tmp_path: Path) -> None:
     assert r.exit_code == 2
     assert "/imu/raw" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "o").exists()
+    r = RUNNER.invoke(
+        app, ["calibrate-lidar", str(bag), "--out", str(bag / "calib")]
+    )  # inside the input
+    assert r.exit_code == 2 and "--out" in r.output and "Traceback" not in r.output
+    assert not (bag / "calib").exists()
 
 
 def test_a_bag_without_motion_is_refused_naming_what_cannot_be_seen(tmp_path: Path) -> None:
