@@ -71,7 +71,7 @@ OPTIONS: dict[str, tuple[list[str], dict[str, st.SearchStrategy[str]]]] = {
     "demo": ([], {"--poses": bad_int(12, 200), "--seed": bad_int(0)}),
     "lio": (["scans.bag"], {
         "--state": bad_choice(("reduced", "full")), "--mode": bad_choice(("features", "direct")),
-        "--align": bad_choice(("none", "kf", "stkf", "rwnn")), "--max-scans": bad_int(1),
+        "--align": bad_choice(("none", "kf", "stkf", "rwnn")), "--max-scans": bad_int(2),
     }),
     "vio": (["sim"], {
         "--sim-duration": bad_float(1.0, 3600.0), "--sim-rate": bad_float(1.0, 100.0), "--seed": bad_seed,

@@ -107,7 +107,7 @@ def test_lio_config_value_names_its_field(
     assert "cfg.yaml" in compact(r.output)
 
 
-@pytest.mark.parametrize("n", ["0", "-5"])
+@pytest.mark.parametrize("n", ["0", "-5", "1"])  # 1: the odometry needs a second scan
 def test_lio_max_scans(n: str, lio_bags: dict[str, Path], tmp_path: Path) -> None:
     r = run(["lio", lio_bags["good"], "--max-scans", n, "--out", tmp_path / "out"])
     assert_rejected(r, ["--max-scans"], tmp_path, codes=(2,))
@@ -147,6 +147,13 @@ def test_vio_sim_options(option: str, value: str, tmp_path: Path) -> None:
     """Each was a traceback (--sim-rate 1e6 ran until killed at 300 s); now refused before any work."""
     r = run(["vio", "sim", option, value, "--out", tmp_path / "out"])
     assert_rejected(r, [option], tmp_path, codes=(2,))
+
+
+def test_vio_sim_too_few_frames(tmp_path: Path) -> None:
+    """1 s at 1 Hz: one frame, reported as "1 common times with the estimates" after the run."""
+    r = run(["vio", "sim", "--sim-duration", "1", "--sim-rate", "1", "--out", tmp_path / "out"])
+    assert_rejected(r, ["--sim-rate"], tmp_path, codes=(2,))
+    assert "1 frame" in r.output
 
 
 @pytest.mark.parametrize(

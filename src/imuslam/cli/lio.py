@@ -38,7 +38,9 @@ def register(app: typer.Typer) -> None:
         mode: str | None = typer.Option(None, "--mode", help="features (LOAM) or direct"),
         align: str | None = typer.Option(None, "--align", help="none, kf, stkf or rwnn"),
         no_imu: bool = typer.Option(False, "--no-imu", help="LiDAR-only (constant-velocity model)"),
-        max_scans: int | None = typer.Option(None, min=1, help="stop after this many scans"),
+        max_scans: int | None = typer.Option(
+            None, min=2, help="stop after this many scans (at least 2: a scan and its motion)"
+        ),
     ) -> None:
         """LiDAR-inertial odometry (iterated ESKF) with a voxel map; LiDAR-only without an IMU."""
         os.environ.setdefault("OMP_NUM_THREADS", "1")  # before pykdtree loads its OpenMP pool

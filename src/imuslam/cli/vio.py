@@ -86,6 +86,11 @@ def register(app: typer.Typer) -> None:
 
         if align not in ("se3", "sim3", "yaw", "first"):
             raise InputError(f"--align: '{align}'; expected se3, sim3, yaw or first")
+        if dataset == "sim" and sim_duration * sim_rate < 3:
+            raise InputError(
+                f"--sim-duration {sim_duration:g} s at --sim-rate {sim_rate:g} Hz renders "
+                f"{int(sim_duration * sim_rate)} frame(s); the VO needs at least 3"
+            )
         cfg_d: dict = {}
         if config is not None:
             from imuslam.io.yamlfile import read_yaml
