@@ -139,9 +139,9 @@ def ekf_speed() -> list[tuple[str, ...]]:
     120 s ground-robot run (IMU 200 Hz, VO from the truth + noise at 20 Hz: no rendering) and on the
     EuRoC excerpt (real VO, 95 pairs: short, so call overhead counts)."""
     from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
+    from imuslam.vio.config import VioConfig
     from imuslam.vio.dataset import EurocStereo
     from imuslam.vio.frontend import VoConfig
-    from imuslam.vio.config import VioConfig
     from imuslam.vio.pipeline import compute_vo, run_vio
     from imuslam.vio.simvo import truth_vo_run
 
@@ -378,8 +378,8 @@ def calibrate_vo_cov(
     filters' NHC ``nhc`` (None: ``--calib-nhc``, off unless 'on')."""
     if nhc is None:
         nhc = NHC["calib_nhc"] == "on"
-    from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
     from imuslam.vio.config import VioConfig
+    from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
     from imuslam.vio.pipeline import run_vio
 
     # the VO covariance is calibrated on ANOTHER rendered run (seed + 1, its own truth) and then
@@ -626,9 +626,9 @@ def nhc_bias_removed(duration: float, rate: float, seeds: list[int], calib_durat
     ``const``), subtracted from each seed's VO, and the NHC off / on filters run again as in ``nhc``
     (covariance calibrated on seed + 1, untouched). An oracle experiment: it needs the truth."""
     from imuslam.eval.vio_compare import compare_tracks
+    from imuslam.vio.config import VioConfig
     from imuslam.vio.covcal import vo_errors
     from imuslam.vio.frontend import VoMeasurement
-    from imuslam.vio.config import VioConfig
     from imuslam.vio.pipeline import VoRun, run_vio
 
     runs = {s: _sim_vo(duration, rate, s) for s in seeds}
@@ -993,8 +993,8 @@ def vo_error_parts(duration: float, rate: float, seeds: list[int]) -> None:
     from dataclasses import replace
 
     from imuslam.eval.vio_compare import compare_tracks
-    from imuslam.vio.covcal import vo_errors
     from imuslam.vio.config import VioConfig
+    from imuslam.vio.covcal import vo_errors
     from imuslam.vio.pipeline import VoRun, run_vio
 
     variants = ("as rendered", "run mean removed", "shuffled in time", "shuffled, mean removed",
@@ -1140,8 +1140,8 @@ def vostats(rate: float, calib_seeds: list[int] | None) -> None:
     """The VO errors of the cached rendered runs against their truth (``sim`` renders them): the
     rate-velocity correlation, the NEES with the shape learnt on ``calib_seeds`` (default 1 and 3, 120 s),
     its variance (chi-square(3): 6) and tail, and the filter NIS variance with and without the shape."""
-    from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
     from imuslam.vio.config import VioConfig
+    from imuslam.vio.covcal import learn_vo_cov_correction, vo_errors
     from imuslam.vio.pipeline import run_vio
 
     runs = {}
