@@ -1,7 +1,8 @@
 """The LiDAR(-inertial) odometry pipeline: reads a dataset, cleans each scan, drives the pure estimator
 (:class:`~imuslam.lio.lidar_only.LidarOdometry` or :class:`~imuslam.lio.estimator.LioEstimator`), keeps
 timing, builds the global map and returns a :class:`LioResult` (KISS-ICP's ``OdometryPipeline`` beside
-``KissICP``). The results folder is written by :func:`imuslam.lio.report.write_results`.
+``KissICP``). The results folder is written by :func:`imuslam.lio.report.write_results` through the
+one writer, :func:`imuslam.io.results.write_results`.
 """
 
 from __future__ import annotations

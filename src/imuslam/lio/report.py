@@ -17,37 +17,43 @@ from imuslam.lio.pipeline import LioResult
 def write_results(
     result: LioResult, out_dir: str | Path, gt: Trajectory | None = None
 ) -> dict[str, Any]:
-    """Write the results folder atomically: trajectory.tum, map.ply, map.pcd, config.yaml, scans.csv,
-    trajectory.png and, with ``gt``, metrics.json. Returns the metrics (empty without ``gt``)."""
-    import json
-
-    import yaml
-
+    """The results folder through the one writer (:func:`imuslam.io.results.write_results`, all or
+    nothing): trajectory.tum, config.yaml (the resolved configuration), metrics.json (the run's figures
+    and, with ``gt``, ATE / RPE / KITTI drift), map.ply, map.pcd, scans.csv and trajectory.png. Returns
+    the metrics against ``gt`` (empty without it)."""
+    from imuslam.io import results
+    from imuslam.io.atomic import write_atomic
     from imuslam.io.pointcloud import write_pcd, write_ply
-    from imuslam.io.results import results_folder
-    from imuslam.io.trajectory import write_tum
 
     metrics: dict[str, Any] = {}
-    with results_folder(out_dir) as tmp:
-        write_tum(result.trajectory, tmp / "trajectory.tum")
+    if gt is not None:
+        from imuslam.eval.metrics import KITTI_LENGTHS, evaluate
+
+        res, _r, _aligned = evaluate(gt, result.trajectory, "se3", 1.0, "m", 0.02, KITTI_LENGTHS)
+        metrics = res.to_dict()
+    st = result.stats
+    run = {
+        "scans": len(st),
+        "scans_per_s": result.scans_per_s,
+        "path_length_m": result.trajectory.path_length,
+        "map_points": len(result.map_points),
+        "warnings": list(result.warnings),
+    }
+
+    def extra(tmp: Path) -> None:
         write_ply(tmp / "map.ply", result.map_points)
         write_pcd(tmp / "map.pcd", result.map_points)
-        (tmp / "config.yaml").write_text(
-            yaml.safe_dump(result.config.resolved().model_dump(mode="json"), sort_keys=False)
-        )
         rows = ["t_ns,n_points,n_dropped,n_used,iterations,n_corr,time_ms"] + [
             f"{s.t_ns},{s.n_points},{s.n_dropped},{s.n_used},{s.iterations},{s.n_corr},{s.time_s * 1e3:.3f}"
-            for s in result.stats
+            for s in st
         ]
-        (tmp / "scans.csv").write_text("\n".join(rows) + "\n")
-        aligned = None
-        if gt is not None:
-            from imuslam.eval.metrics import KITTI_LENGTHS, evaluate
-
-            res, _r, aligned = evaluate(gt, result.trajectory, "se3", 1.0, "m", 0.02, KITTI_LENGTHS)
-            metrics = res.to_dict()
-            (tmp / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+        write_atomic(tmp / "scans.csv", "\n".join(rows) + "\n")
         plot_top_view(result, tmp / "trajectory.png", gt)
+
+    results.write_results(
+        out_dir, config=result.config.resolved(), metrics={**metrics, "run": run},
+        trajectories={"trajectory": result.trajectory}, extra=extra,
+    )  # fmt: skip
     return metrics
 
 

@@ -11,7 +11,7 @@ import csv
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,6 +19,10 @@ from numpy.typing import NDArray
 from imuslam.errors import InputError
 from imuslam.io.imulog import ImuLog
 from imuslam.vio.calib import Rectification, StereoCalibration, read_calibration
+
+if TYPE_CHECKING:
+    from imuslam.interfaces import Trajectory
+    from imuslam.sim.stereo_run import StereoRunConfig
 
 U8Image = NDArray[np.uint8]
 
@@ -240,3 +244,43 @@ class BagStereo:
                         )
                 yield t, a, c
         self.counts.missing += sum(len(v) for v in pending.values())
+
+
+@dataclass
+class StereoSource:
+    """What :func:`open_stereo` opened: the dataset, its ground truth when it has one (the simulator),
+    and the frame times to score the tracks at (None: the VO's own times)."""
+
+    data: StereoDataset
+    truth: Trajectory | None = None
+    times_ns: NDArray[np.int64] | None = None
+
+
+def open_stereo(
+    dataset: str,
+    camchain: Path | None = None,
+    left_topic: str | None = None,
+    right_topic: str | None = None,
+    imu_topic: str | None = None,
+    sim: StereoRunConfig | None = None,
+) -> StereoSource:
+    """The reader for ``dataset``, picked in one place: ``sim`` (the rendered robot of ``sim``), a bag
+    (.bag, .mcap, .db3 or a ROS 2 folder: needs ``camchain`` and both image topics), else an EuRoC
+    folder (its own sensor.yaml files, or ``camchain``)."""
+    if dataset == "sim":
+        from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
+
+        run = SimStereoRun(sim or StereoRunConfig())
+        return StereoSource(run, run.truth(), run.t_frames_ns)  # type: ignore[arg-type]
+    from imuslam.vio.calib import read_kalibr_camchain
+
+    cal = read_kalibr_camchain(camchain) if camchain is not None else None
+    p = Path(dataset)
+    if p.suffix in (".bag", ".mcap", ".db3") or (p / "metadata.yaml").is_file():
+        if cal is None or left_topic is None or right_topic is None:
+            raise InputError(
+                f"{p}: a bag needs --camchain, --left-topic and --right-topic (image topics)"
+            )
+        return StereoSource(BagStereo(p, cal, left_topic, right_topic, imu_topic))
+    euroc = EurocStereo(p, cal)
+    return StereoSource(euroc, None, euroc.t_ns)

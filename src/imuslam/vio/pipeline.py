@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -322,3 +323,62 @@ def run_vio(
          "good": int((~cor).sum()), "good_rejected": int((~cor & ~va).sum())},
         bt, b, bs, cfg, meas_all, cor, va, filt.vo_scale.copy(),
     )  # fmt: skip
+
+
+class VioPipeline:
+    """Drives the filter over a stereo + IMU dataset (``run``), scores its tracks against a reference
+    (``evaluate``) and writes the results folder (``save``): trajectory.tum (fused), vo.tum, imu.tum,
+    config.yaml, metrics.json (the run's summary: frames, VO, gating, biases; and the errors against
+    the reference when one is given) and the plots (tracks.png, nis.png, biases.png)."""
+
+    def __init__(self, data: StereoImuDataset, cfg: VioConfig | None = None) -> None:
+        self.data = data
+        self.cfg = cfg or VioConfig()
+
+    def run(self, progress: Callable[[int], None] | None = None) -> VioResult:
+        """VO on every stereo pair and the filter over the IMU; ``progress(n)`` per frame."""
+        return run_vio(self.data, self.cfg, progress)
+
+    @staticmethod
+    def tracks(result: VioResult) -> dict[str, Trajectory]:
+        return {"fused": result.fused, "vo": result.vo, "imu": result.imu}
+
+    def evaluate(
+        self,
+        result: VioResult,
+        truth: Trajectory,
+        times_ns: NDArray[np.int64] | None = None,
+        align: str = "se3",
+    ) -> dict[str, Any]:
+        """ATE / RPE of the fused, VO and IMU tracks against ``truth`` at ``times_ns`` (default: the VO
+        times), ``align``-aligned: ``{track: EvalResult}``."""
+        from imuslam.eval.vio_compare import compare_tracks
+
+        tt = np.asarray(times_ns) if times_ns is not None else result.vo.t_ns
+        return compare_tracks(truth, self.tracks(result), tt, align=align)
+
+    def save(
+        self,
+        result: VioResult,
+        out: str | Path,
+        truth: Trajectory | None = None,
+        evaluation: dict[str, Any] | None = None,
+    ) -> Path:
+        """The results folder through the one writer (:func:`imuslam.io.results.write_results`)."""
+        from imuslam.eval.vio_compare import plot_vio
+        from imuslam.io.results import write_results
+
+        metrics = result.summary()
+        if evaluation is not None:
+            metrics["against_truth"] = {k: v.to_dict() for k, v in evaluation.items()}
+        nis = {
+            k: (np.asarray(v.nis), np.asarray(v.accepted_mask, bool), v.dof)
+            for k, v in result.gating.items()
+        }
+        bias = (result.bias_t_s, result.bias, result.bias_std)
+        tracks = self.tracks(result)
+        return write_results(
+            out, config=self.cfg, metrics=metrics,
+            trajectories={"trajectory": result.fused, "vo": result.vo, "imu": result.imu},
+            extra=lambda d: plot_vio(truth, tracks, nis, bias, str(d)),
+        )  # fmt: skip
