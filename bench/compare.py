@@ -6,7 +6,8 @@ anchor, ours' own median time; for the Allan rows also the CPU-time ratio), the 
 relative standard deviation of its per-round ratios, the standard error of a median of R rounds is about
 1.2533 s / sqrt(R) (a median of normal draws, asymptotically), and a change counts as a slip when it
 exceeds twice the standard error of the difference of the two medians, and 5 %. Rows whose goal is
-missed in the new table are marked. Exit status 1 when a row slipped (``--no-fail``: always 0), so
+missed in the new table are marked, and each row shows how its anchor's own median time changed (the
+anchors' times show how differently loaded the machine was in the two runs). Exit status 1 when a row slipped (``--no-fail``: always 0), so
 ``make bench`` notices; ``--strict`` also fails on a missed goal.
 
 Run: python bench/compare.py [RESULTS] [--reference FILE] [--no-fail]
@@ -17,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import statistics
 import sys
 from pathlib import Path
 from typing import Any
@@ -26,15 +28,24 @@ FLOOR = 0.05  # the smallest change reported as a slip, whatever the spreads say
 Z = 2.0  # standard errors of the difference of two medians
 
 
-def _clocks(row: dict[str, Any]) -> dict[str, tuple[float, float]]:
-    """clock name -> (value, spread) of one row."""
-    out = {}
+def _clocks(row: dict[str, Any]) -> dict[str, tuple[float, float, float | None]]:
+    """clock name -> (value, spread, the anchor's median time on that clock or None) of one row."""
+    same_run = row.get("anchor_kind") == "same run"
+    out: dict[str, tuple[float, float, float | None]] = {}
     if row.get("ratio") is not None:
-        out[f"{row['clock']} ratio"] = (row["ratio"], row["spread"])
+        out[f"{row['clock']} ratio"] = (
+            row["ratio"],
+            row["spread"],
+            row["anchor_s"] if same_run else None,
+        )
     else:
-        out[f"{row['clock']} time"] = (row["ours_s"], row["spread"])
+        out[f"{row['clock']} time"] = (row["ours_s"], row["spread"], None)
     if row.get("cpu_ratio") is not None:
-        out["cpu ratio"] = (row["cpu_ratio"], row["cpu_spread"])
+        out["cpu ratio"] = (
+            row["cpu_ratio"],
+            row["cpu_spread"],
+            statistics.median(row["anchor_cpu_times"]),
+        )
     return out
 
 
@@ -53,20 +64,22 @@ def compare(new: dict[str, Any], ref: dict[str, Any]) -> tuple[list[list[str]], 
         goal = _goal(row)
         missed += goal.endswith("MISSED")
         if old is None:
-            lines.append([row["name"], "-", "-", "-", "-", "not in the reference", goal])
+            lines.append([row["name"], "-", "-", "-", "-", "-", "not in the reference", goal])
             continue
         old_clocks = _clocks(old)
-        for clock, (v, s) in _clocks(row).items():
+        for clock, (v, s, a) in _clocks(row).items():
             if clock not in old_clocks:
                 continue
-            v0, s0 = old_clocks[clock]
+            v0, s0, a0 = old_clocks[clock]
+            # the anchor's own median time against the reference's: how differently loaded the machine was
+            drift = f"{100 * (a / a0 - 1):+.0f} %" if a and a0 else "-"
             change = v / v0 - 1.0
             lim = threshold(s, row["rounds"], s0, old["rounds"])
             slipped = change > lim
             slips += slipped
             verdict = "SLIPPED" if slipped else ("faster" if change < -lim else "within noise")
             lines.append([row["name"], clock, f"{v0:.4g}", f"{v:.4g}", f"{100 * change:+.0f} %",
-                          f"{verdict} (limit {100 * lim:.0f} %)", goal])  # fmt: skip
+                          drift, f"{verdict} (limit {100 * lim:.0f} %)", goal])  # fmt: skip
     return lines, slips, missed
 
 
@@ -96,7 +109,7 @@ def main() -> None:
         f"({ref['date']}, load {ref['load_start']}-{ref['load_end']}, numba {ref['env']['numba']} "
         f"{ref['env']['threading_layer']})"
     )
-    for c in ("row", "clock", "reference", "now", "change", "verdict", "goal now"):
+    for c in ("row", "clock", "reference", "now", "change", "anchor's time", "verdict", "goal now"):
         t.add_column(c, justify="left" if c in ("row", "verdict", "goal now") else "right")
     for line in lines:
         t.add_row(*line)
