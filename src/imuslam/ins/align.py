@@ -18,8 +18,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import InputError
+from imuslam.ins.aiding import AidingKind
 from imuslam.ins.core import ErrorLayout
-from imuslam.ins.kf import FilterDivergence, KfNoise, eskf_batch
+from imuslam.ins.kf import (
+    AidingEpochs,
+    FilterDivergence,
+    FilterStart,
+    KfNoise,
+    StrongTracking,
+    eskf_batch,
+)
 from imuslam.ins.rwnn import RwnnConfig, run_rwnn
 from imuslam.ins.strapdown import integrate
 from imuslam.interfaces.imu import ImuLog
@@ -40,8 +48,9 @@ class Aiding:
     std: float
 
     def __post_init__(self) -> None:
-        if self.kind not in ("position", "velocity", "zupt"):
+        if self.kind not in tuple(AidingKind):
             raise InputError(f"aiding kind '{self.kind}'; expected position, velocity or zupt")
+        self.kind = AidingKind(self.kind)
         self.t_s = np.asarray(self.t_s, dtype=float)
         self.values = np.asarray(self.values, dtype=float)
         if self.t_s.ndim != 1 or self.values.shape != (len(self.t_s), 3):
@@ -149,18 +158,23 @@ def run_alignment(
     aid_k = aid_k[:n_ok].astype(np.int64)
     blk = aid_k - np.concatenate([[0], aid_k[:-1]]) + 1  # samples in each block, both ends
     zaru_std = nz.gyro * np.sqrt(log.rate_hz / blk)
-    hba, hbg, hsa, hsg, hR, hp, hv, hf, p, v, R, _, _, bad = eskf_batch(
-        np.ascontiguousarray(log.accel, float), np.ascontiguousarray(log.gyro, float), t, aid_k,
-        np.ascontiguousarray(aiding.values[:n_ok], float), {"position": 0, "velocity": 1, "zupt": 2}[aiding.kind],
-        float(aiding.std), zaru_std, init.p_n.astype(float).copy(), init.v_n.astype(float).copy(),
-        np.ascontiguousarray(init.R_n_b, float), np.zeros(3), np.zeros(3), np.zeros(3), np.diag(p0).astype(float),
-        np.array([0.0, 0.0, -g]), q, method == "stkf", stkf_rho, stkf_beta, stkf_max_fading, layout.offsets,
-    )  # fmt: skip
+    epochs = AidingEpochs(
+        aid_k, aiding.values[:n_ok], AidingKind(aiding.kind), float(aiding.std), zaru_std
+    )
+    start = FilterStart(init.p_n.astype(float).copy(), init.v_n.astype(float).copy(), init.R_n_b,
+                        np.zeros(3), np.zeros(3), np.zeros(3), np.diag(p0).astype(float))  # fmt: skip
+    tracking = StrongTracking(method == "stkf", stkf_rho, stkf_beta, stkf_max_fading)
+    res = eskf_batch(
+        log.accel, log.gyro, t, epochs, start, np.array([0.0, 0.0, -g]), q, layout, tracking
+    )
+    bad = res.diverged_at
     if bad >= 0:
         raise FilterDivergence(
             f"filter diverged at sample {bad} (t = {t[min(bad, len(t) - 1)]:.3f} s): covariance not positive "
             "definite or state not finite; check the noise settings and the aiding"
         )
     return AlignmentResult(
-        method, aiding.t_s[:n_ok], hba, hsa, hbg, hsg, hR, hp, hv, hf, NavState(p, v, R)
-    )
+        method, aiding.t_s[:n_ok], res.accel_bias, res.accel_bias_std, res.gyro_bias,
+        res.gyro_bias_std, res.R_n_b, res.p_n, res.v_n, res.fading,
+        NavState(res.final_p, res.final_v, res.final_R),
+    )  # fmt: skip

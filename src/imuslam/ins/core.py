@@ -35,20 +35,26 @@ each iterate, gain in state dimension K = (H^T R^-1 H + P^-1)^-1 H^T R^-1, stop 
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Protocol
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import FilterDivergence, InputError
-from imuslam.geometry.so3_nb import exp_nb, log_nb
-from imuslam.interfaces.nav import ImuBias, NavState
-from imuslam.io.yamlfile import read_yaml
+from imuslam.geometry.so3_nb import exp_nb
+from imuslam.ins.measurement import (
+    BlockMeasurement,
+    Measurement,
+    PositionMeasurement,
+    UpdateResult,
+    VelocityMeasurement,
+    ZeroAngularRate,
+    chi2_threshold,
+    gate,
+)
+from imuslam.ins.noise import KfNoise
+from imuslam.ins.state import ErrorLayout, InsState, boxminus, boxplus, boxplus_attitude
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -76,167 +82,6 @@ __all__ = [
     "propagate_covariance",
     "strapdown_step",
 ]
-
-
-# ---------------------------------------------------------------------------------------------------
-# error-state layout
-
-
-@dataclass(frozen=True)
-class ErrorLayout:
-    """Which blocks the error state has and where: always TH (attitude), P, V; optionally BA, BG, G.
-
-    Blocks are 3 wide and in the order TH, P, V, BA, BG, G. ``offsets`` (6,) int64 gives each block's
-    first index or -1 (for compiled kernels). ``extra`` states follow them (from index ``base_dim``):
-    the propagation leaves them unchanged (identity transition, no process noise) and ``boxplus``
-    ignores them, so their owner keeps their nominal values (e.g. a stochastic clone of an earlier
-    pose, whose covariance with the current state the propagation carries along)."""
-
-    accel_bias: bool = True
-    gyro_bias: bool = True
-    gravity: bool = False
-    extra: int = 0
-
-    @property
-    def offsets(self) -> IntArray:
-        off = []
-        i = 0
-        for present in (True, True, True, self.accel_bias, self.gyro_bias, self.gravity):
-            off.append(i if present else -1)
-            i += 3 if present else 0
-        return np.array(off, dtype=np.int64)
-
-    @property
-    def base_dim(self) -> int:
-        """The inertial blocks' dimension (without ``extra``)."""
-        return 9 + 3 * (int(self.accel_bias) + int(self.gyro_bias) + int(self.gravity))
-
-    @property
-    def dim(self) -> int:
-        return self.base_dim + self.extra
-
-    def _slice(self, k: int, name: str) -> slice:
-        o = int(self.offsets[k])
-        if o < 0:
-            raise KeyError(f"the error state {self.dim} has no {name} block")
-        return slice(o, o + 3)
-
-    @property
-    def TH(self) -> slice:
-        return self._slice(0, "attitude")
-
-    @property
-    def P(self) -> slice:
-        return self._slice(1, "position")
-
-    @property
-    def V(self) -> slice:
-        return self._slice(2, "velocity")
-
-    @property
-    def BA(self) -> slice:
-        return self._slice(3, "accelerometer bias")
-
-    @property
-    def BG(self) -> slice:
-        return self._slice(4, "gyro bias")
-
-    @property
-    def G(self) -> slice:
-        return self._slice(5, "gravity")
-
-    @classmethod
-    def full(cls, gravity: bool = False) -> ErrorLayout:
-        """15 states [dtheta, dp, dv, db_a, db_g] (18 with dg)."""
-        return cls(True, True, gravity)
-
-    @classmethod
-    def reduced(cls) -> ErrorLayout:
-        """12 states [dtheta, dp, dv, dg]: no biases (a LIO on a corrected IMU)."""
-        return cls(False, False, True)
-
-    def diag(self, *, theta: float, p: float, v: float, ba: float = 0.0, bg: float = 0.0,
-             g: float = 0.0) -> FloatArray:  # fmt: skip
-        """A covariance diagonal (dim,) from per-block variances, e.g. ``layout.diag(theta=0.05**2, ...)``."""
-        d = np.zeros(self.dim)
-        for k, val in enumerate((theta, p, v, ba, bg, g)):
-            o = int(self.offsets[k])
-            if o >= 0:
-                d[o : o + 3] = val
-        return d
-
-
-@dataclass
-class InsState:
-    """Nominal state: p_n (3,) m, v_n (3,) m/s, R_n_b (3, 3), accel_bias (3,) m/s^2, gyro_bias (3,) rad/s
-    (measured = true + bias), g_n (3,) m/s^2 gravity in n."""
-
-    p_n: FloatArray
-    v_n: FloatArray
-    R_n_b: FloatArray
-    accel_bias: FloatArray = field(default_factory=lambda: np.zeros(3))
-    gyro_bias: FloatArray = field(default_factory=lambda: np.zeros(3))
-    g_n: FloatArray = field(default_factory=lambda: np.array([0.0, 0.0, -9.80665]))
-
-    @classmethod
-    def from_nav(cls, nav: NavState, bias: ImuBias | None = None, g: float = 9.80665) -> InsState:
-        b = bias or ImuBias()
-        return cls(np.array(nav.p_n, float), np.array(nav.v_n, float), np.array(nav.R_n_b, float),
-                   np.array(b.accel_b, float), np.array(b.gyro_b, float), np.array([0.0, 0.0, -g]))  # fmt: skip
-
-    @property
-    def nav(self) -> NavState:
-        return NavState(self.p_n, self.v_n, self.R_n_b)
-
-    @property
-    def bias(self) -> ImuBias:
-        return ImuBias(self.accel_bias, self.gyro_bias)
-
-    def copy(self) -> InsState:
-        return InsState(self.p_n.copy(), self.v_n.copy(), self.R_n_b.copy(), self.accel_bias.copy(),
-                        self.gyro_bias.copy(), self.g_n.copy())  # fmt: skip
-
-
-@numba.njit(cache=True, inline="always")
-def boxplus_attitude(
-    R: FloatArray, dtheta: FloatArray
-) -> FloatArray:  # pragma: no cover - compiled
-    """``R exp(dtheta)``: the one attitude perturbation (right, body frame)."""
-    return R @ exp_nb(dtheta)
-
-
-def boxplus(x: InsState, dx: FloatArray, layout: ErrorLayout) -> InsState:
-    """``x ⊞ dx``: vector blocks add, the attitude is perturbed on the right."""
-    o = layout.offsets
-    y = x.copy()
-    y.R_n_b = boxplus_attitude(
-        np.ascontiguousarray(x.R_n_b), np.ascontiguousarray(dx[o[0] : o[0] + 3])
-    )
-    y.p_n = x.p_n + dx[o[1] : o[1] + 3]
-    y.v_n = x.v_n + dx[o[2] : o[2] + 3]
-    if o[3] >= 0:
-        y.accel_bias = x.accel_bias + dx[o[3] : o[3] + 3]
-    if o[4] >= 0:
-        y.gyro_bias = x.gyro_bias + dx[o[4] : o[4] + 3]
-    if o[5] >= 0:
-        y.g_n = x.g_n + dx[o[5] : o[5] + 3]
-    return y
-
-
-def boxminus(x1: InsState, x0: InsState, layout: ErrorLayout) -> FloatArray:
-    """``x1 ⊟ x0``: the dx with ``x0 ⊞ dx = x1`` (attitude ``log(R0^T R1)``)."""
-    o = layout.offsets
-    dx = np.zeros(layout.dim)
-    dx[o[0] : o[0] + 3] = log_nb(np.ascontiguousarray(x0.R_n_b.T @ x1.R_n_b))
-    dx[o[1] : o[1] + 3] = x1.p_n - x0.p_n
-    dx[o[2] : o[2] + 3] = x1.v_n - x0.v_n
-    if o[3] >= 0:
-        dx[o[3] : o[3] + 3] = x1.accel_bias - x0.accel_bias
-    if o[4] >= 0:
-        dx[o[4] : o[4] + 3] = x1.gyro_bias - x0.gyro_bias
-    if o[5] >= 0:
-        dx[o[5] : o[5] + 3] = x1.g_n - x0.g_n
-    return dx
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -460,168 +305,8 @@ def kalman_update(
     return dx, P, V, fading
 
 
-@functools.lru_cache(maxsize=256)
-def chi2_threshold(prob: float, dof: int) -> float:
-    """The chi-square quantile: P(chi2_dof <= threshold) = prob (2 * gammaincinv(dof / 2, prob)).
-    Cached: a filter gates every update with the same few (prob, dof) pairs."""
-    from scipy.special import gammaincinv
-
-    if not 0.0 < prob < 1.0:
-        raise InputError(f"gate probability must be in (0, 1), got {prob}")
-    return float(2.0 * gammaincinv(0.5 * dof, prob))
-
-
-def gate(
-    r: FloatArray, H: FloatArray, R: FloatArray, P: FloatArray, prob: float
-) -> tuple[bool, float]:
-    """Chi-square gate: the normalised innovation squared nis = r^T (H P H^T + R)^-1 r against the
-    ``prob`` quantile of chi2 with len(r) degrees of freedom. Returns (accepted, nis)."""
-    S = H @ P @ H.T + R
-    nis = float(r @ np.linalg.solve(S, r))
-    return bool(nis <= chi2_threshold(prob, len(r))), nis
-
-
-class Measurement(Protocol):
-    """A measurement that linearises itself at a state (pyins' ``Measurement.compute_matrices``):
-    innovation r = z - h(x) (k,), Jacobian H = dh/d(dx) (k, m) in the layout's error state, noise R
-    (k, k). ``kind`` names the model (the strong tracking filter keeps one innovation covariance per
-    kind)."""
-
-    kind: str
-
-    def linearize(
-        self, x: InsState, layout: ErrorLayout
-    ) -> tuple[FloatArray, FloatArray, FloatArray]: ...
-
-
-_BLOCK_STATE = {"P": "p_n", "V": "v_n", "BA": "accel_bias", "BG": "gyro_bias", "G": "g_n"}
-
-
-@dataclass
-class BlockMeasurement:
-    """A direct measurement of one 3-vector block of the state (``block``: P, V, BA, BG or G) with
-    1-sigma ``std`` per axis: r = value - x_block, H = [0 .. I .. 0]."""
-
-    value: FloatArray
-    std: float
-    kind: str
-    block: str
-
-    def linearize(
-        self, x: InsState, layout: ErrorLayout
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        H = np.zeros((3, layout.dim))
-        H[:, getattr(layout, self.block)] = np.eye(3)
-        r = np.asarray(self.value, float) - getattr(x, _BLOCK_STATE[self.block])
-        return r, H, np.eye(3) * self.std**2
-
-
-class PositionMeasurement(BlockMeasurement):
-    """Position in n, m."""
-
-    def __init__(self, p_n: FloatArray, std: float) -> None:
-        super().__init__(p_n, std, "position", "P")
-
-
-class VelocityMeasurement(BlockMeasurement):
-    """Velocity in n, m/s (zeros: a zero-velocity update)."""
-
-    def __init__(self, v_n: FloatArray, std: float) -> None:
-        super().__init__(v_n, std, "velocity", "V")
-
-
-class ZeroAngularRate(BlockMeasurement):
-    """On a still base the mean raw rate (3,) over a block is the gyro bias (earth rate neglected)."""
-
-    def __init__(self, gyro_mean: FloatArray, std: float) -> None:
-        super().__init__(gyro_mean, std, "zaru", "BG")
-
-
-@dataclass
-class UpdateResult:
-    """What an update did: accepted by the gate, its nis (normalised innovation squared), the innovation
-    r at the prior, the correction dx applied (zeros when rejected), and the iterations (1 for a plain
-    update)."""
-
-    accepted: bool
-    nis: float
-    r: FloatArray
-    dx: FloatArray
-    iterations: int = 1
-
-
 # ---------------------------------------------------------------------------------------------------
-# noise and the filter
-
-
-@dataclass
-class KfNoise:
-    """Continuous noise densities: accel (m/s^2/sqrt(Hz)), gyro (rad/s/sqrt(Hz)), bias random walks."""
-
-    accel: float = 3e-3
-    gyro: float = 2e-4
-    accel_bias_rw: float = 1e-4
-    gyro_bias_rw: float = 2e-5
-
-    def __post_init__(self) -> None:
-        for name in ("accel", "gyro", "accel_bias_rw", "gyro_bias_rw"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise InputError(f"noise '{name}' must be a positive number, got {v}")
-
-    @property
-    def q(self) -> FloatArray:
-        """[accel^2, gyro^2, accel_bias_rw^2, gyro_bias_rw^2] for :func:`propagate_covariance`."""
-        return np.array([self.accel**2, self.gyro**2, self.accel_bias_rw**2, self.gyro_bias_rw**2])
-
-    @classmethod
-    def from_kalibr_yaml(cls, path: str | Path) -> KfNoise:
-        """Read a Kalibr ``imu.yaml`` (as ``imuslam allan`` writes): the four noise fields."""
-        p = Path(path)
-        if not p.is_file():
-            raise InputError(f"{p}: no such noise file")
-        d = read_yaml(p, "a Kalibr imu.yaml (noise densities and random walks)")
-        keys = ("accelerometer_noise_density", "gyroscope_noise_density", "accelerometer_random_walk",
-                "gyroscope_random_walk")  # fmt: skip
-        vals = []
-        for k in keys:
-            v = d.get(k) if isinstance(d, dict) else None
-            if not isinstance(v, (int, float)) or isinstance(v, bool):
-                raise InputError(f"{p}: field '{k}' must be a number (Kalibr imu.yaml), got {v!r}")
-            vals.append(float(v))
-        try:
-            return cls(*vals)
-        except InputError as e:
-            raise InputError(f"{p}: {e}") from None
-
-    @classmethod
-    def from_log(cls, accel: FloatArray, gyro: FloatArray, rate_hz: float,
-                 floor: KfNoise | None = None) -> KfNoise:  # fmt: skip
-        """White-noise densities as the log shows them, vibration included, never below ``floor``.
-
-        The Allan variance at the shortest cluster time tau0 = 1 / rate is E[(x[k+1] - x[k])^2] / 2, and
-        for white noise of density N it equals N^2 / tau0 (IEEE Std 952-1997, annex C), so
-        N = std(diff x) / sqrt(2 rate). On a moving robot this sees the vibration that a bench Allan
-        analysis does not (EuRoC's MAV: 0.04-0.10 m/s^2/sqrt(Hz) against the ADIS16448's 0.002), plus the
-        signal's own change between samples, which is small at IMU rates. Axes are combined as RMS; the
-        random walks cannot be seen in a short log and come from ``floor``.
-        """
-        fl = floor or cls()
-        a = np.asarray(accel, float)
-        w = np.asarray(gyro, float)
-        if a.ndim != 2 or a.shape[1] != 3 or a.shape != w.shape or len(a) < 3:
-            raise InputError(
-                f"noise estimate needs (N >= 3, 3) accel and gyro, got {a.shape} and {w.shape}"
-            )
-        if not (np.isfinite(rate_hz) and rate_hz > 0):
-            raise InputError(f"noise estimate needs a positive sample rate, got {rate_hz}")
-
-        def density(x: FloatArray) -> float:
-            return float(np.sqrt(np.mean(np.var(np.diff(x, axis=0), axis=0)) / (2.0 * rate_hz)))
-
-        return cls(
-            max(density(a), fl.accel), max(density(w), fl.gyro), fl.accel_bias_rw, fl.gyro_bias_rw
-        )
+# the filter
 
 
 class Eskf:

@@ -1,5 +1,6 @@
 """Fine alignment by the error-state Kalman filter of :mod:`imuslam.ins.core`, and its strong tracking
-variant, compiled end to end over a log (:func:`eskf_batch`).
+variant, compiled end to end over a log (:func:`eskf_batch`: typed records in and out, the compiled loop
+:func:`eskf_kernel` inside).
 
 The model, the error-state layout ``[dtheta, dp, dv, db_a, db_g (, dg)]`` and the update are the core's
 (``Eskf``, ``propagate``, ``kalman_update``); this module only drives them epoch by epoch in one compiled
@@ -13,12 +14,16 @@ A covariance that loses positive definiteness, or a NaN, is reported as divergen
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import FilterDivergence
+from imuslam.ins.aiding import AidingKind
 from imuslam.ins.core import (
+    ErrorLayout,
     Eskf,
     KfNoise,
     boxplus_attitude,
@@ -29,11 +34,21 @@ from imuslam.ins.core import (
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["Eskf", "FilterDivergence", "KfNoise", "eskf_batch"]
+__all__ = [
+    "AidingEpochs",
+    "AidingKind",
+    "Eskf",
+    "EskfBatchResult",
+    "FilterDivergence",
+    "FilterStart",
+    "KfNoise",
+    "StrongTracking",
+    "eskf_batch",
+]
 
 
 @numba.njit(cache=True)
-def eskf_batch(
+def eskf_kernel(
     accel: FloatArray,
     gyro: FloatArray,
     t: FloatArray,
@@ -60,7 +75,9 @@ def eskf_batch(
     FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
     FloatArray, FloatArray, FloatArray, FloatArray, int, int,
 ]:  # fmt: skip  # pragma: no cover - compiled
-    """The filter over every aiding epoch j (sample ``aid_k[j]``): predict, then update by ``kind`` (0
+    """The compiled loop of :func:`eskf_batch`, positional arrays in and out.
+
+    The filter over every aiding epoch j (sample ``aid_k[j]``): predict, then update by ``kind`` (0
     position, 1 velocity, 2 zupt = zero velocity and the block's mean rate with 1-sigma ``zaru_std[j]``).
     Returns the histories (M, ...) of b_a, b_g, their 1-sigma, R, p, v, fading; the final p, v, R, P; the
     number of epochs done and, on divergence, the sample index (else -1). ``off``: the layout's
@@ -147,3 +164,86 @@ def eskf_batch(
         hp[j] = p
         hv[j] = v
     return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, M_, -1
+
+
+@dataclass(frozen=True)
+class StrongTracking:
+    """Strong tracking of the filter (a fading factor on the predicted covariance): off for the plain
+    KF; ``rho`` the forgetting of the innovation covariance, ``beta`` the softening, ``max_fading`` the cap."""
+
+    enabled: bool = False
+    rho: float = 0.95
+    beta: float = 3.0
+    max_fading: float = 5.0
+
+
+@dataclass
+class AidingEpochs:
+    """The aiding as the filter takes it: at sample ``sample[j]`` (M,) of the log, ``values`` (M, 3) of
+    ``kind`` with 1-sigma ``std`` (m or m/s), and the 1-sigma ``zaru_std`` (M,) of each block's mean rate
+    (rad/s; zupt only)."""
+
+    sample: NDArray[np.int64]
+    values: FloatArray
+    kind: AidingKind
+    std: float
+    zaru_std: FloatArray
+
+
+@dataclass
+class FilterStart:
+    """The state the filter starts from: p_n, v_n (3,), R_n_b (3, 3), accelerometer and gyro bias (3,),
+    gravity correction dg (3,), and the covariance P in the layout's order."""
+
+    p_n: FloatArray
+    v_n: FloatArray
+    R_n_b: FloatArray
+    accel_bias: FloatArray
+    gyro_bias: FloatArray
+    dg: FloatArray
+    P: FloatArray
+
+
+@dataclass
+class EskfBatchResult:
+    """The histories at the aiding epochs (M, ...): biases, their 1-sigma, R_n_b, p_n, v_n, fading
+    factors; the final p, v, R, P; the epochs done and, on divergence, the sample index (else -1)."""
+
+    accel_bias: FloatArray
+    gyro_bias: FloatArray
+    accel_bias_std: FloatArray
+    gyro_bias_std: FloatArray
+    R_n_b: FloatArray
+    p_n: FloatArray
+    v_n: FloatArray
+    fading: FloatArray
+    final_p: FloatArray
+    final_v: FloatArray
+    final_R: FloatArray
+    final_P: FloatArray
+    epochs_done: int
+    diverged_at: int
+
+
+def eskf_batch(
+    accel: FloatArray,
+    gyro: FloatArray,
+    t_s: FloatArray,
+    aiding: AidingEpochs,
+    start: FilterStart,
+    g_n: FloatArray,
+    q: FloatArray,
+    layout: ErrorLayout,
+    tracking: StrongTracking,
+) -> EskfBatchResult:
+    """The error-state KF (or STKF) over a log (accel, gyro (N, 3) at t_s (N,), SI, body frame) at every
+    aiding epoch: predict, then update (:func:`eskf_kernel`). ``q``: the process noise densities
+    (``KfNoise.q``); ``g_n`` (3,) gravity in n; ``layout`` with both bias blocks."""
+    out = eskf_kernel(
+        np.ascontiguousarray(accel, float), np.ascontiguousarray(gyro, float), t_s, aiding.sample,
+        np.ascontiguousarray(aiding.values, float), aiding.kind.code, float(aiding.std),
+        aiding.zaru_std, start.p_n, start.v_n, np.ascontiguousarray(start.R_n_b, float),
+        start.accel_bias, start.gyro_bias, start.dg, start.P, g_n, q, tracking.enabled,
+        tracking.rho, tracking.beta, tracking.max_fading, layout.offsets,
+    )  # fmt: skip
+    return EskfBatchResult(*out)

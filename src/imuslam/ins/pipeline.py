@@ -195,9 +195,9 @@ class AlignPipeline:
                 reason = f"initial attitude, position and velocity from {src}"
         noise, noise_src = self._noise(log)
         res = run_alignment(log, aid, start, c.method, noise, g=c.g)
-        out = AlignOutput(c.method, reason, None, res, log, noise, noise_src, aid.kind)
+        out = AlignOutput(c.method, reason, None, res, log, noise, noise_src, str(aid.kind))
         m: dict[str, Any] = {
-            "method": c.method, "aiding": aid.kind, "accel_bias": res.accel_bias[-1].tolist(),
+            "method": c.method, "aiding": str(aid.kind), "accel_bias": res.accel_bias[-1].tolist(),
             "accel_bias_std": res.accel_bias_std[-1].tolist(), "gyro_bias": res.gyro_bias[-1].tolist(),
             "gyro_bias_std": res.gyro_bias_std[-1].tolist(), "init": reason,
             "noise": {"accel": noise.accel, "gyro": noise.gyro, "accel_bias_rw": noise.accel_bias_rw,

@@ -62,6 +62,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, Field
 
 from imuslam.errors import InputError
+from imuslam.ins.aiding import AidingKind
 from imuslam.ins.core import boxplus_attitude, strapdown_step
 
 FloatArray = NDArray[np.float64]
@@ -503,8 +504,7 @@ def run_rwnn(
     """Run the RWNN observer over a log (SI, body frame) with position, velocity or zupt aiding of
     1-sigma ``aid_std`` (m or m/s); ``accel_noise`` is the accelerometer's white noise density
     (m/s^2/sqrt(Hz)) for the learning's measurement variance (:func:`innovation_variance`)."""
-    kinds = {"position": 0, "velocity": 1, "zupt": 2}
-    if aid_kind not in kinds:
+    if aid_kind not in tuple(AidingKind):
         raise InputError(f"aiding kind '{aid_kind}'; expected position, velocity or zupt")
     if not (np.isfinite(aid_std) and aid_std > 0):
         raise InputError(f"aiding 1-sigma must be positive, got {aid_std}")
@@ -525,7 +525,7 @@ def run_rwnn(
     var = innovation_variance(c.omega, aid_kind == "position", aid_std, accel_noise, h_a)
     ea, eg, P, V, R, sd, net, th = _rwnn_observer(
         t, np.ascontiguousarray(accel, float), np.ascontiguousarray(gyro, float), idx[ok], at[ok], vals,
-        var, kinds[aid_kind], np.asarray(p0, float), np.asarray(v0, float),
+        var, AidingKind(aid_kind).code, np.asarray(p0, float), np.asarray(v0, float),
         np.ascontiguousarray(R0, float), g, gains,
     )  # fmt: skip
     bad = ~(np.isfinite(ea).all(axis=1) & np.isfinite(eg).all(axis=1) & np.isfinite(P).all(axis=1)
