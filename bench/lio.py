@@ -9,6 +9,7 @@
     PYTHONPATH=src python bench/lio.py consistency  # mean NEES of the reported covariance, 6 seeds x 2 modes
     PYTHONPATH=src python bench/lio.py rowmodel  # one scan's covariance against a map from the true poses
     PYTHONPATH=src python bench/lio.py robust    # a wrong clock offset / extrinsic, without and with calibrate-lidar
+    PYTHONPATH=src python bench/lio.py calib     # the LiDAR-IMU calibration's errors and 1-sigma per seed, and on the street
 
 Options: --duration S (drive length), --cache DIR (simulated drives are cached there, keyed by their
 parameters). The street drive is seed 001's car loop around an urban block: VLP-16 at 10 Hz (about 28k
@@ -623,6 +624,49 @@ def robust_bench(args: Any) -> None:
               f"{ev.ape_rot_deg.rmse:.3f} | {' | '.join(errs)} | {time.perf_counter() - t0:.0f} |", flush=True)  # fmt: skip
 
 
+def calib_bench(args: Any) -> None:
+    """The target-free LiDAR-IMU calibration (``lio.extrinsic``) on the excited rig (the tests' drive,
+    20 s by default) for each of ``--calib-seeds``, and on the street loop (yaw only), started 2 deg /
+    10 cm / 20 ms from the truth: errors and reported 1-sigma per IMU axis, the verdict, the time."""
+    from scipy.spatial.transform import Rotation
+
+    from imuslam.lio.extrinsic import calibrate_lidar_imu
+    from imuslam.sim.drive import simulate_lidar_imu_rig
+    from imuslam.sim.lidar import Lidar3dConfig
+
+    dur = args.duration or 20.0
+    T = np.eye(4)
+    r, p, y = RIG_T_I_L_RPY_DEG
+    T[:3, :3] = Rotation.from_euler("ZYX", [y, p, r], degrees=True).as_matrix()
+    T[:3, 3] = RIG_P_I_L
+    dR = Rotation.from_rotvec(np.deg2rad(2.0) * np.ones(3) / np.sqrt(3)).as_matrix()
+    x, yq, z, w = Rotation.from_matrix(dR @ T[:3, :3]).as_quat()
+    p0 = T[:3, 3] + 0.1 * np.array([1.0, -1.0, 1.0]) / np.sqrt(3)
+    start = ExtrinsicConfig(p_i_l=tuple(p0), quat_wxyz_i_l=(w, x, yq, z), time_offset_s=0.0)  # type: ignore[arg-type]
+
+    def f3(v: FloatArr, k: float = 1.0, fmt: str = "+.3f") -> str:
+        return ", ".join(f"{k * a:{fmt}}" for a in v)
+
+    print("| drive | seed | rotation err deg (x, y, z) | 1-sigma deg | lever-arm err mm | 1-sigma mm "
+          "| offset err ms | 1-sigma ms | unobservable | s |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    runs = [("excited", s) for s in args.calib_seeds] + [("street", 4)]
+    for motion, seed in runs:
+        d = simulate_lidar_imu_rig(motion, dur, seed, T, 0.02, lidar=Lidar3dConfig(columns=900))
+        t0 = time.perf_counter()
+        c = calibrate_lidar_imu(
+            d.scans, true_calibration().correct(d.imu), LioConfig(extrinsic=start)
+        )
+        dt = time.perf_counter() - t0
+        rot = np.rad2deg(Rotation.from_matrix(c.R_i_l @ T[:3, :3].T).as_rotvec())
+        un = ", ".join([f"p_{a}" for a, o in zip("xyz", c.observable_p, strict=True) if not o]
+                       + [f"rot_{a}" for a, o in zip("xyz", c.observable_rot, strict=True) if not o])  # fmt: skip
+        print(f"| {motion} {dur:g} s | {seed} | {f3(rot)} | {f3(c.sigma_rot_deg, fmt='.3f')} | "
+              f"{f3(c.p_i_l - T[:3, 3], 1e3, '+.1f')} | {f3(c.sigma_p_m, 1e3, '.1f')} | "
+              f"{1e3 * (c.time_offset_s - 0.02):+.2f} | {1e3 * c.sigma_time_offset_s:.2f} | {un or '-'} | {dt:.0f} |",
+              flush=True)  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument(
@@ -637,6 +681,7 @@ def main() -> None:
             "consistency",
             "rowmodel",
             "robust",
+            "calib",
         ],
     )
     ap.add_argument("--duration", type=float, default=None)
@@ -652,6 +697,9 @@ def main() -> None:
         nargs="+",
         default=[5, 7, 11, 13, 17, 19],
         help="consistency: the street drive's seeds",
+    )
+    ap.add_argument(
+        "--calib-seeds", type=int, nargs="+", default=[1, 2, 3], help="calib: the rig's seeds"
     )
     ap.add_argument("--state", default="full", help="consistency: reduced or full")
     ap.add_argument("--map-voxel", type=float, default=0.5, help="consistency: map.voxel, m")
@@ -700,7 +748,7 @@ def main() -> None:
     t0 = time.perf_counter()
     {"main": main_bench, "imu": imu_bench, "rotating": rotating_bench, "corridor": corridor_bench,
      "memory": memory_bench, "frontend": frontend_bench,
-     "consistency": consistency_bench, "rowmodel": rowmodel_bench, "robust": robust_bench}[args.what](args)  # fmt: skip
+     "consistency": consistency_bench, "rowmodel": rowmodel_bench, "robust": robust_bench, "calib": calib_bench}[args.what](args)  # fmt: skip
     print(f"({time.perf_counter() - t0:.0f} s)")
 
 
