@@ -42,6 +42,7 @@ def test_sim3_copy_is_recovered_and_written(tmp_path: Path) -> None:
 
     out = pipe.save(res, tmp_path / "out", plots=False, gt="ref.tum", est="est.tum")
     assert sorted(p.name for p in out.iterdir()) == [
+        ".imuslam-results.json",
         "config.yaml",
         "estimate_aligned.tum",
         "metrics.json",

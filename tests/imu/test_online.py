@@ -213,9 +213,9 @@ def test_hardware_path_waits_for_the_gimbal_before_t_init() -> None:
     the session's samples start only once the gimbal has arrived there, and the gyro bias from T_init is
     the true one within 4 sigma of the reported covariance."""
     from imuslam.hw.gimbal import Pca9685Gimbal, ServoSpec
-    from imuslam.hw.session import run_online
     from imuslam.hw.witmotion import WitMotionImu
     from imuslam.imu.online import OnlineCalibrator
+    from imuslam.imu.online_session import run_online
     from imuslam.sim.imu_errors import SEED000_GYRO
     from imuslam.sim.multipose import GimbalImuStream
 

@@ -36,7 +36,8 @@ def test_calibrate_pipeline_xsens_results_folder(shared_data: Path, tmp_path: Pa
     pipeline.save(out, tmp_path / "calib", plots=False)
     folder = tmp_path / "calib"
     assert sorted(p.name for p in folder.iterdir()) == [
-        "acc.calib", "calibration.yaml", "config.yaml", "gyro.calib", "metrics.json"
+        ".imuslam-results.json", "acc.calib", "calibration.yaml", "config.yaml", "gyro.calib",
+        "metrics.json",
     ]  # fmt: skip
     m = json.loads((folder / "metrics.json").read_text())
     assert m["accel_rms_m_s2"] <= IMUTK_ACC_RMS + 5e-6

@@ -1,4 +1,4 @@
-"""2-axis servo gimbals: a protocol, a PCA9685 (I2C PWM) driver for hobby servos, and a simulated gimbal.
+"""2-axis servo gimbals (the protocol is :class:`imuslam.interfaces.gimbal.Gimbal`): a PCA9685 (I2C PWM) driver for hobby servos, and a simulated gimbal.
 
 Why the PCA9685: one cheap, common board drives both servos with hardware-timed 50 Hz PWM from a
 Raspberry Pi's I2C bus, so servo pulses do not jitter with the Pi's CPU load (software PWM on GPIO does).
@@ -17,30 +17,22 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.sim.multipose import GIMBAL_RESOLUTION_DEG, PITCH_LIMITS_DEG, ROLL_LIMITS_DEG
+from imuslam.interfaces.gimbal import (
+    GIMBAL_RESOLUTION_DEG,
+    PITCH_LIMITS_DEG,
+    ROLL_LIMITS_DEG,
+)
 
 FloatArray = NDArray[np.float64]
 
 MODE1, PRESCALE, LED0_ON_L = 0x00, 0xFE, 0x06
 SLEEP, AUTO_INCREMENT, RESTART = 0x10, 0x20, 0x80
 OSC_HZ = 25_000_000
-
-
-class Gimbal(Protocol):
-    """Two joints [roll, pitch] in degrees."""
-
-    limits_deg: tuple[tuple[float, float], tuple[float, float]]
-
-    def move_to(self, angles_deg: tuple[float, float]) -> None: ...
-
-    def angles_deg(self) -> tuple[float, float]: ...
-
-    def settle_time_s(self, target_deg: tuple[float, float]) -> float: ...
 
 
 def prescale_for(freq_hz: float) -> int:

@@ -136,7 +136,7 @@ class OnlinePipeline:
             run = run_simulated_robot(plan, ds.duration_s, drift, rng, cfg, self.history)
             return OnlineOutput(plan, list(run.calibrator.events), self.history.versions(), pred,
                                 sessions=list(run.sessions))  # fmt: skip
-        from imuslam.hw.session import run_online
+        from imuslam.imu.online_session import run_online
 
         buf_t: list[int] = []
         buf: list[FloatArray] = []

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from imuslam.imu.calibrate.accel import accel_residual_jacobian
 from imuslam.imu.calibrate.gyro import gyro_residuals
 from imuslam.imu.model import ImuCalibration, TriadModel
+from imuslam.interfaces.gimbal import GIMBAL_RESOLUTION_DEG
 from imuslam.sim.imu_errors import (
     BWT901CL_ACCEL_DENSITY,
     BWT901CL_GYRO_DENSITY,
@@ -28,7 +29,6 @@ from imuslam.sim.imu_errors import (
     SEED000_GYRO,
 )
 from imuslam.sim.multipose import (
-    GIMBAL_RESOLUTION_DEG,
     gimbal_kinematics,
     gimbal_up_i,
     min_jerk,

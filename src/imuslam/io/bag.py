@@ -180,7 +180,7 @@ class Bag:
     def trajectory(self, topic: str | None = None) -> Trajectory:
         """Poses of a PoseStamped / Odometry / PointStamped topic, by header stamp."""
         tp = self.topic_of_type([rosmsg.POSESTAMPED, rosmsg.ODOMETRY, rosmsg.POINTSTAMPED], topic)
-        from imuslam.io.trajectory import check_poses, check_times
+        from imuslam.io.posecheck import check_poses, check_times
 
         rows = [rosmsg.pose_from_msg(m) for _, _, m in self.messages([tp])]
         src = f"{self.path}:{tp}"

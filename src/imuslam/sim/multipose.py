@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.geometry import quat_to_matrix
+from imuslam.interfaces.gimbal import GIMBAL_RESOLUTION_DEG, PITCH_LIMITS_DEG, ROLL_LIMITS_DEG
 from imuslam.interfaces.imu import ImuLog
 from imuslam.sim.imu_errors import (
     BWT901CL_ACCEL_DENSITY,
@@ -30,10 +31,6 @@ from imuslam.sim.imu_errors import (
 )
 
 FloatArray = NDArray[np.float64]
-
-GIMBAL_RESOLUTION_DEG = 360.0 / 4096.0
-ROLL_LIMITS_DEG = (-90.0, 90.0)
-PITCH_LIMITS_DEG = (-180.0, 180.0)
 
 
 def up_to_gimbal_deg(up_i: FloatArray) -> FloatArray:

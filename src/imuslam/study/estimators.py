@@ -222,7 +222,7 @@ class VioOptions(BaseModel):
 def _vio_scene(cell: Cell, image_hz: float) -> Any:
     """The simulator's stereo run over the cell's drive, frames over the estimation window only."""
     from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
-    from imuslam.study.pipeline import scene
+    from imuslam.study.scenes import scene
 
     traj, world, _ = scene(cell.scenario.name)
     t0 = cell.align.duration_s
@@ -395,7 +395,7 @@ class LioOptions(BaseModel):
 def _lio_scans(cell_d: dict[str, Any], columns: int) -> list[Any]:
     """The LiDAR scans over the cell's estimation window (shared by every IMU and alignment level)."""
     from imuslam.sim.lidar import Lidar3dConfig, simulate_lidar3d_scan
-    from imuslam.study.pipeline import scene
+    from imuslam.study.scenes import scene
 
     cell = Cell.model_validate(cell_d)
     traj, world, _ = scene(cell.scenario.name)

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from imuslam.errors import EstimatorError, InputError, raise_if_interrupted
+from imuslam.errors import EstimatorError, raise_if_interrupted
 from imuslam.eval.metrics import evaluate
 from imuslam.geometry import exp as so3_exp
 from imuslam.geometry import log as so3_log
@@ -29,38 +29,18 @@ from imuslam.ins.kf import KfNoise
 from imuslam.interfaces import NavState, Trajectory
 from imuslam.sim.imu import simulate_imu
 from imuslam.sim.trajectory import (
-    CarLoop,
-    CorridorDrive,
-    DiffDriveFigureEight,
     EulerTrajectory,
-    Handheld,
-    SquareLoopCcwCw,
 )
-from imuslam.sim.world import World, corridor, room_8x8, urban_block
 from imuslam.study.cells import Cell, digest
 from imuslam.study.conditions import calibration_age_h, gimbal_calibration, sensor_spec
 from imuslam.study.config import DriftSpec
 from imuslam.study.estimators import CellInput, get_estimator
+from imuslam.study.scenes import scene
 
 G = 9.80665
 METRICS = ("ape_rmse_m", "ape_max_m", "ape_rot_rmse_deg", "rpe_trans_rmse_m", "rpe_rot_rmse_deg",
            "final_err_m", "path_length_m", "align_att_err_deg", "align_heading_err_deg")  # fmt: skip
 STAGES = ("simulate", "calibrate", "align", "estimate", "evaluate")
-
-
-def scene(name: str) -> tuple[EulerTrajectory, World, float]:
-    """Trajectory, world and IMU rate of a navigation scenario (as ``sim/scenario.py``)."""
-    if name == "room":
-        return DiffDriveFigureEight(), room_8x8(), 100.0
-    if name == "square":  # seed 000's validation drive: round the room CCW, turn at A, CW back
-        return SquareLoopCcwCw(), room_8x8(), 100.0
-    if name == "street":
-        return CarLoop(), urban_block(), 200.0
-    if name == "corridor":
-        return CorridorDrive(), corridor(), 100.0
-    if name == "handheld":
-        return Handheld(), room_8x8(), 200.0
-    raise InputError(f"unknown scenario '{name}'")
 
 
 # (raw IMU log, truth) of the scenes this process simulated last, by content hash: the cells that

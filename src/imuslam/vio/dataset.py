@@ -247,7 +247,7 @@ class BagStereo:
 
 
 @dataclass
-class StereoSource:
+class OpenedStereo:
     """What :func:`open_stereo` opened: the dataset, its ground truth when it has one (the simulator),
     and the frame times to score the tracks at (None: the VO's own times)."""
 
@@ -263,7 +263,7 @@ def open_stereo(
     right_topic: str | None = None,
     imu_topic: str | None = None,
     sim: StereoRunConfig | None = None,
-) -> StereoSource:
+) -> OpenedStereo:
     """The reader for ``dataset``, picked in one place: ``sim`` (the rendered robot of ``sim``), a bag
     (.bag, .mcap, .db3 or a ROS 2 folder: needs ``camchain`` and both image topics), else an EuRoC
     folder (its own sensor.yaml files, or ``camchain``)."""
@@ -271,7 +271,7 @@ def open_stereo(
         from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
 
         run = SimStereoRun(sim or StereoRunConfig())
-        return StereoSource(run, run.truth(), run.t_frames_ns)  # type: ignore[arg-type]
+        return OpenedStereo(run, run.truth(), run.t_frames_ns)  # type: ignore[arg-type]
     from imuslam.vio.calib import read_kalibr_camchain
 
     cal = read_kalibr_camchain(camchain) if camchain is not None else None
@@ -281,6 +281,6 @@ def open_stereo(
             raise InputError(
                 f"{p}: a bag needs --camchain, --left-topic and --right-topic (image topics)"
             )
-        return StereoSource(BagStereo(p, cal, left_topic, right_topic, imu_topic))
+        return OpenedStereo(BagStereo(p, cal, left_topic, right_topic, imu_topic))
     euroc = EurocStereo(p, cal)
-    return StereoSource(euroc, None, euroc.t_ns)
+    return OpenedStereo(euroc, None, euroc.t_ns)

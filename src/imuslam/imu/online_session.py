@@ -1,4 +1,6 @@
-"""The online calibrator on the robot's hardware: a WitMotion IMU on a serial port and a servo gimbal.
+"""The online calibrator's session loop on the robot: an IMU's samples (a WitMotion on a serial port) fed to
+the calibrator while it turns a gimbal (a servo gimbal) through the pose plan. The loop knows the devices
+only by their protocols, so the hardware drivers (``imuslam.hw``) plug into it from above.
 
 The sensor's samples carry the host's clock (epoch nanoseconds), so a session is started at the first
 sample's time stamp, never at 0: the calibrator holds T_init only from the time the gimbal has arrived
@@ -13,21 +15,21 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.hw.gimbal import Gimbal
 from imuslam.imu.history import CalibrationHistory
 from imuslam.imu.online import Event, OnlineCalibrator, OnlineConfig
+from imuslam.interfaces.gimbal import Gimbal
 
 FloatArray = NDArray[np.float64]
 
 
-class ImuSource(Protocol):
+class SampleStream(Protocol):
     """What the loop needs of an IMU: :class:`imuslam.hw.witmotion.WitMotionImu` provides it."""
 
     def samples(self, rate_hz: float = 100.0) -> Iterator[tuple[int, FloatArray, FloatArray]]: ...
 
 
 def run_online(
-    imu: ImuSource,
+    imu: SampleStream,
     gimbal: Gimbal,
     plan_deg: FloatArray,
     config: OnlineConfig | None = None,
