@@ -238,7 +238,8 @@ GENERIC = [NAN, INF, -INF, "abc"]  # and a list, where a number is expected
 FIELDS: dict[str, dict[str, list[object]]] = {
     "lio": {"filter.lidar_std": [0, -1], "filter.g": [0, 98.1, 1.0], "map.voxel": [1e-9, 0, 1e3],
             "frontend.scan_voxel": [1e-9, -0.5], "extrinsic.time_offset_s": [1.7e9, -5],
-            "filter.max_iterations": [0, 10**6, 1.5], "align_seconds": [0, 1e7], "map.radius": [0, 1e9]},
+            "filter.max_iterations": [0, 10**6, 1.5], "align_seconds": [0, 1e7], "map.radius": [0, 1e9],
+            "map.max_per_voxel": [0, 10**5]},
     "vio": {"noise.gyro": [0, -1], "nhc_rate_hz": [0, 1e6], "vo.max_features": [0, 5],
             "g": [0, 98.1], "outlier_fraction": [1.0, -0.1], "outlier_seed": [-1, 2**40]},
     "map2d": {"resolution": [1e-9, 0, 5], "loop.min_score": [0, 1, 2], "max_range": [0, -3],

@@ -94,6 +94,7 @@ def test_lio_point_step_smaller_than_a_point(lio_bags: dict[str, Path], tmp_path
         ("map:\n  voxel: 1.0e-9\n", "map.voxel"),
         ("frontend:\n  scan_voxel: 1.0e-9\n", "frontend.scan_voxel"),
         ("filter:\n  g: 98.1\n", "filter.g"),
+        ("map:\n  max_per_voxel: 100000\n", "map.max_per_voxel"),  # was a MemoryError traceback
     ],
 )
 def test_lio_config_value_names_its_field(

@@ -69,7 +69,7 @@ class MapConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     voxel: float = Field(0.5, ge=0.01, le=100.0)
-    max_per_voxel: int = Field(1, ge=1)
+    max_per_voxel: int = Field(1, ge=1, le=100)
     radius: float = Field(100.0, gt=0, le=1e4)
     knn: Literal["ivox", "pykdtree", "small_gicp", "scipy"] = "ivox"
     max_residual: float = Field(0.1, gt=0)
