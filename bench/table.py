@@ -15,6 +15,9 @@ Rows (``--only`` picks groups):
   by this bench (goal <= 0.2 x). Run in a fresh process as a user's would, imuslam imported first.
 - ``inproc``: in-process calls: APE + RPE of a 5000-pose pair against evo's classes (SE(3), Sim(3)), and
   the xsens calibration (``calibrate``, default joint fit) against imu_tk's ``calibrateAccGyro``.
+- ``lio``: LiDAR-inertial odometry (features and direct mode, full state) on a 20 s simulated street
+  drive (bench/lio.py's, about 200 VLP-16 scans) against KISS-ICP on the same scans: wall time per scan
+  (goal <= 0.4 x, i.e. 2.5x KISS-ICP's scans/s).
 - ``process``: whole processes timed from outside (CPU time of the process and its children, the figure
   that holds on a busy machine): ``imuslam calibrate`` doing imu_tk's job against imu_tk's program (goal
   <= 0.6 x), ``imuslam eval`` KITTI 00 Sim(3) against ``evo_ape`` (goal <= 0.7 x), every ``--help``
@@ -26,7 +29,7 @@ is cached under ``bench/.cache/``, never committed). Without it the imu_tk rows 
 in ../shared/data/README.md (0.9-1.1 s, taken as 1.0 s) and are marked as a recorded, not same-run,
 anchor; the in-process imu_tk row is then left out.
 
-Run: python bench/table.py [--rounds N] [--only allan,inproc,process] [--imutk-src DIR] [--out FILE]
+Run: python bench/table.py [--rounds N] [--only allan,inproc,lio,process] [--imutk-src DIR] [--out FILE]
 """
 
 from __future__ import annotations
@@ -190,6 +193,29 @@ def _worker_inproc(rounds: int, imutk: str | None) -> dict[str, Any]:
     return out
 
 
+LIO_DRIVE_S = 20.0  # the street drive of bench/lio.py, shortened: about 200 VLP-16 scans
+LIO_MODES = ("features", "direct")
+
+
+def _worker_lio(rounds: int) -> dict[str, Any]:
+    from dataclasses import replace
+
+    import lio as bench_lio  # bench/lio.py (its OMP_NUM_THREADS=1 for pykdtree applies here)
+
+    d = bench_lio.simulate_lidar_drive("street", LIO_DRIVE_S, 1)
+    for mode in LIO_MODES:  # load the compiled kernels before any timing
+        bench_lio.run_imuslam(replace(d, scans=d.scans[:20]), mode, "full")
+    out: dict[str, Any] = {"n_scans": len(d.scans), "kiss": []}
+    out.update({m: [] for m in LIO_MODES})
+    for _ in range(rounds):
+        _, kiss_sps, _ = bench_lio.run_kiss(d)
+        out["kiss"].append(1.0 / kiss_sps)
+        for mode in LIO_MODES:
+            res, _ = bench_lio.run_imuslam(d, mode, "full")
+            out[mode].append(1.0 / res.scans_per_s)
+    return out
+
+
 def _run_worker(kind: str, rounds: int, imutk: str | None = None) -> dict[str, Any]:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), str(BENCH)])
@@ -264,6 +290,24 @@ def rows_inproc(rounds: int, imutk: str | None) -> list[dict[str, Any]]:
             "wall", "imu_tk calibrateAccGyro (C++, Ceres)",
         ))  # fmt: skip
     return rows
+
+
+def rows_lio(rounds: int) -> list[dict[str, Any]]:
+    w = _run_worker("lio", rounds)
+    return [
+        make_row(
+            f"lio {mode} full state, {LIO_DRIVE_S:g} s street drive (wall s per scan)",
+            w[mode],
+            w["kiss"],
+            0.4,
+            "ratio",
+            f"python bench/lio.py main --duration {LIO_DRIVE_S:g}  (headline: 137.5 s drive)",
+            "wall",
+            "KISS-ICP 1.x register_frame (C++, all cores)",
+            n_scans=w["n_scans"],
+        )  # fmt: skip
+        for mode in LIO_MODES
+    ]
 
 
 def rows_process(rounds: int, imutk: str | None) -> list[dict[str, Any]]:
@@ -432,7 +476,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--rounds", type=int, default=7)
     ap.add_argument("--allan-rounds", type=int, default=5, help="allantools takes 5-15 s a call")
-    ap.add_argument("--only", default="allan,inproc,process")
+    ap.add_argument("--only", default="allan,inproc,lio,process")
+    ap.add_argument("--lio-rounds", type=int, default=3)
     ap.add_argument("--imutk-src", type=Path, default=os.environ.get("IMUTK_SRC") or None)
     ap.add_argument("--out", type=Path, default=BENCH / "results.json")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
@@ -443,6 +488,9 @@ def main() -> None:
         return
     if a.worker == "inproc":
         print(json.dumps(_worker_inproc(a.rounds, a.imutk)))
+        return
+    if a.worker == "lio":
+        print(json.dumps(_worker_lio(a.rounds)))
         return
 
     imutk = None
@@ -460,6 +508,8 @@ def main() -> None:
         rows += r
     if "inproc" in groups:
         rows += rows_inproc(a.rounds, imutk)
+    if "lio" in groups:
+        rows += rows_lio(a.lio_rounds)
     if "process" in groups:
         rows += rows_process(a.rounds, imutk)
     res = {
