@@ -59,13 +59,13 @@ def test_cli_writes_the_results_folder_and_counts_bad_frames(
         "trajectory.tum",
         "vo.tum",
         "imu.tum",
-        "gating.json",
+        "metrics.json",
         "config.yaml",
         "tracks.png",
         "nis.png",
     ):
         assert (out / f).is_file(), f
-    g = json.loads((out / "gating.json").read_text())
+    g = json.loads((out / "metrics.json").read_text())
     assert g["frames"]["unreadable"] == 1
     assert g["vo"]["skipped_few_features"] + g["vo"]["skipped_few_inliers"] >= 1
     assert "1 unreadable" in text
@@ -161,13 +161,13 @@ def test_bad_inputs_are_one_line_errors(
 
 
 def test_cli_reports_the_online_covariance_scales(shared_data: Path, tmp_path: Path) -> None:
-    """With ``vo_cov_adapt_n`` in the config, gating.json carries the learnt scales. On this excerpt the
+    """With ``vo_cov_adapt_n`` in the config, metrics.json carries the learnt scales. On this excerpt the
     MAV stands still and the front end's covariance over-states the VO's error (mean NIS well below 3
     with the scales fixed), so both scales must come out below one."""
     d = _copy(shared_data, tmp_path / "ds", 14)
     fixed, adapt = tmp_path / "fixed", tmp_path / "adapt"
     assert _run(str(d), "--out", str(fixed), "--g", "9.81")[0] == 0
-    g0 = json.loads((fixed / "gating.json").read_text())
+    g0 = json.loads((fixed / "metrics.json").read_text())
     assert "vo_cov_adapted_scale" not in g0
     assert g0["gating"]["vo_velocity"]["nis_mean_accepted"] < 1.5
     assert g0["gating"]["vo_rate"]["nis_mean_accepted"] < 1.5
@@ -175,7 +175,7 @@ def test_cli_reports_the_online_covariance_scales(shared_data: Path, tmp_path: P
     cfg.write_text("vo_cov_adapt_n: 10\n")
     code, text = _run(str(d), "--out", str(adapt), "--g", "9.81", "--config", str(cfg))
     assert code == 0, text
-    s = json.loads((adapt / "gating.json").read_text())["vo_cov_adapted_scale"]
+    s = json.loads((adapt / "metrics.json").read_text())["vo_cov_adapted_scale"]
     print(s)
     assert 0.05 <= s["rate"] < 1.0 and 0.05 <= s["velocity"] < 1.0
 
@@ -193,7 +193,7 @@ def test_example_config_sets_the_front_end(tmp_path: Path) -> None:
         assert code == 0, text
         written = yaml.safe_load((tmp_path / name / "config.yaml").read_text())
         assert written["vo"]["redetect_below"] == (1.0 if name == "every" else 0.7)
-        vo = json.loads((tmp_path / name / "gating.json").read_text())["vo"]
+        vo = json.loads((tmp_path / name / "metrics.json").read_text())["vo"]
         tracked[name] = vo["mean_tracked"]
         # where the front end's time went, by part (no timing is asserted: only that each part is there)
         parts = vo["ms_per_frame"]

@@ -57,7 +57,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "study": ("study", "Run a study: cells on Dask, results.parquet/.csv, report.html per claim."),
     "vio": (
         "vio",
-        "Stereo VO + IMU EKF: trajectory.tum (fused), vo.tum, imu.tum, gating.json, plots.",
+        "Stereo VO + IMU EKF: trajectory.tum (fused), vo.tum, imu.tum, metrics.json, plots.",
     ),
     "map2d": (
         "map2d",

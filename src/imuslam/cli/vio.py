@@ -1,14 +1,18 @@
 """``imuslam vio``: stereo visual odometry fused with the IMU in an EKF (non-holonomic constraints,
-chi-square gating); fused, VO-only and IMU-only trajectories, gating statistics and plots."""
+chi-square gating); fused, VO-only and IMU-only trajectories, metrics (gating, frames, errors against a reference) and plots."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from imuslam.cli import validate
-from imuslam.cli.common import console, friendly_errors, table, write_json
+from imuslam.cli.common import console, friendly_errors, table
+
+if TYPE_CHECKING:
+    from imuslam.vio.config import VioConfig
 
 
 def register(app: typer.Typer) -> None:
@@ -70,131 +74,104 @@ def register(app: typer.Typer) -> None:
             callback=validate.number(0.0, 1.0, hi_open=True, what="a share"),
         ),
     ) -> None:
-        """Stereo VO + IMU EKF: trajectory.tum (fused), vo.tum, imu.tum, gating.json, plots."""
-        import numpy as np
-        import yaml
-        from pydantic import ValidationError
+        """Stereo VO + IMU EKF: trajectory.tum (fused), vo.tum, imu.tum, metrics.json, plots."""
         from tqdm import tqdm
 
-        from imuslam.config import describe_validation_error
         from imuslam.errors import InputError
-        from imuslam.eval.vio_compare import compare_tracks, plot_vio
-        from imuslam.io.results import results_folder
-        from imuslam.io.trajectory import read_trajectory, write_tum
-        from imuslam.vio.config import VioConfig
-        from imuslam.vio.pipeline import run_vio
+        from imuslam.sim.stereo_run import StereoRunConfig
+        from imuslam.vio.dataset import open_stereo
+        from imuslam.vio.pipeline import VioPipeline
 
-        if align not in ("se3", "sim3", "yaw", "first"):
-            raise InputError(f"--align: '{align}'; expected se3, sim3, yaw or first")
         if dataset == "sim" and sim_duration * sim_rate < 3:
             raise InputError(
                 f"--sim-duration {sim_duration:g} s at --sim-rate {sim_rate:g} Hz renders "
                 f"{int(sim_duration * sim_rate)} frame(s); the VO needs at least 3"
             )
-        cfg_d: dict = {}
-        if config is not None:
-            from imuslam.io.yamlfile import read_yaml
-
-            cfg_d = read_yaml(config, "a mapping of VioConfig fields (--config)", empty={})
-        if nhc is not None:
-            cfg_d["nhc"] = nhc
-        if g is not None:
-            cfg_d["g"] = g
-        if outliers:
-            cfg_d["outlier_fraction"] = outliers
-        if detector is not None:
-            if detector not in ("sift", "orb"):
-                raise InputError(f"--detector: '{detector}'; expected sift or orb")
-            cfg_d.setdefault("vo", {})["detector"] = detector
-        try:
-            cfg = VioConfig.model_validate(cfg_d)
-        except ValidationError as exc:
-            raise InputError(f"{config or 'options'}: {describe_validation_error(exc)}") from None
-
-        truth = None
-        if dataset == "sim":
-            from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
-
-            data = SimStereoRun(
-                StereoRunConfig(duration_s=sim_duration, image_hz=sim_rate, seed=seed)
-            )
-            truth = data.truth()
-            times = data.t_frames_ns
-        else:
-            from imuslam.vio.calib import read_kalibr_camchain
-            from imuslam.vio.dataset import BagStereo, EurocStereo
-
-            cal = read_kalibr_camchain(camchain) if camchain is not None else None
-            p = Path(dataset)
-            if p.suffix in (".bag", ".mcap", ".db3") or (p / "metadata.yaml").is_file():
-                if cal is None or left_topic is None or right_topic is None:
-                    raise InputError(
-                        f"{p}: a bag needs --camchain, --left-topic and --right-topic (image topics)"
-                    )
-                data = BagStereo(p, cal, left_topic, right_topic, imu_topic)  # type: ignore[assignment]
-                times = None
-            else:
-                data = EurocStereo(p, cal)  # type: ignore[assignment]
-                times = data.t_ns  # type: ignore[attr-defined]
+        cfg = _config(config, nhc, g, outliers, detector)
+        sim = StereoRunConfig(duration_s=sim_duration, image_hz=sim_rate, seed=seed)
+        src = open_stereo(dataset, camchain, left_topic, right_topic, imu_topic, sim)
+        data, truth = src.data, src.truth
         if calib is not None:
             from imuslam.imu.model import ImuCalibration
 
-            data.imu = ImuCalibration.load_yaml(calib).correct(data.imu.to_si())
+            data.imu = ImuCalibration.load_yaml(calib).correct(data.imu.to_si())  # type: ignore[misc]
         if dataset != "sim":
             from imuslam.io.plausible import check_units
 
             check_units(data.imu, hint="EuRoC's imu0 and a sensor_msgs/Imu carry m/s^2 and rad/s")
         if gt is not None:
+            from imuslam.io.trajectory import read_trajectory
+
             fmt = gt_format if gt_format != "auto" else ("euroc" if gt.suffix == ".csv" else "tum")
             truth = read_trajectory(gt, fmt)
-
+        pipeline = VioPipeline(data, cfg)  # type: ignore[arg-type]
         with tqdm(total=len(data), unit="frame", desc="vio") as bar:
 
             def tick(n: int) -> None:
                 bar.update(n)
 
-            res = run_vio(data, cfg, tick)
-        summary = res.summary()
-        tracks = {"fused": res.fused, "vo": res.vo, "imu": res.imu}
-        metrics = None
+            res = pipeline.run(tick)
+        ev = None
         if truth is not None:
-            tt = np.asarray(times) if times is not None else res.vo.t_ns
-            ev = compare_tracks(truth, tracks, tt, align=align)
-            metrics = {k: v.to_dict() for k, v in ev.items()}
-            rows = [
-                [k, f"{v.ape_trans.rmse:.4g}", f"{v.rpe_trans.rmse:.4g}", f"{v.ape_rot_deg.rmse:.3g}", str(v.n_pairs)]
-                for k, v in ev.items()
-            ]  # fmt: skip
-            console.print(table(f"against {truth.source} ({align} aligned, at the frame times)",
-                                ["quantity", "ATE [m]", "RPE/frame [m]", "ATE rot [deg]", "poses"], rows))  # fmt: skip
-        rows = []
-        for kind, st in summary["gating"].items():
-            rows.append([kind, str(st["accepted"]), str(st["rejected"]),
-                         f"{st.get('nis_mean_accepted', float('nan')):.3g}", str(st["dof"])])  # fmt: skip
+            ev = pipeline.evaluate(res, truth, src.times_ns, align)
+            _print_errors(ev, f"against {truth.source} ({align} aligned, at the frame times)")
+        _print_summary(res.summary())
+        pipeline.save(res, out, truth, ev)
         console.print(
-            table("gating", ["quantity", "accepted", "rejected", "mean NIS", "dof"], rows)
+            f"wrote {out}/trajectory.tum, vo.tum, imu.tum, metrics.json, config.yaml, plots"
         )
-        fr = summary["frames"]
-        console.print(
-            f"frames: {fr['used']} used, {fr['missing']} missing, {fr['unreadable']} unreadable; VO: "
-            f"{summary['vo']['measurements']} measurements, {summary['vo']['skipped_few_features']} "
-            f"skipped (too few features), {summary['vo']['skipped_few_inliers']} (too few inliers)"
-        )
-        with results_folder(out) as tmp:
-            write_tum(res.fused, tmp / "trajectory.tum")
-            write_tum(res.vo, tmp / "vo.tum")
-            write_tum(res.imu, tmp / "imu.tum")
-            write_json(tmp / "gating.json", summary)
-            if metrics is not None:
-                write_json(tmp / "metrics.json", metrics)
-            (tmp / "config.yaml").write_text(
-                yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False)
-            )
-            nis = {
-                k: (np.asarray(v.nis), np.asarray(v.accepted_mask, bool), v.dof)
-                for k, v in res.gating.items()
-            }
-            plot_vio(truth, tracks, nis, (res.bias_t_s, res.bias, res.bias_std), str(tmp))
-        console.print(
-            f"wrote {out}/trajectory.tum, vo.tum, imu.tum, gating.json, config.yaml, plots"
-        )
+
+
+def _config(
+    config: Path | None, nhc: bool | None, g: float | None, outliers: float, detector: str | None
+) -> VioConfig:
+    """The effective configuration: the --config file's fields, then the options given."""
+    from pydantic import ValidationError
+
+    from imuslam.config import describe_validation_error
+    from imuslam.errors import InputError
+    from imuslam.vio.config import VioConfig
+
+    cfg_d: dict[str, Any] = {}
+    if config is not None:
+        from imuslam.io.yamlfile import read_yaml
+
+        cfg_d = read_yaml(config, "a mapping of VioConfig fields (--config)", empty={})
+    if nhc is not None:
+        cfg_d["nhc"] = nhc
+    if g is not None:
+        cfg_d["g"] = g
+    if outliers:
+        cfg_d["outlier_fraction"] = outliers
+    if detector is not None:
+        if detector not in ("sift", "orb"):
+            raise InputError(f"--detector: '{detector}'; expected sift or orb")
+        cfg_d.setdefault("vo", {})["detector"] = detector
+    try:
+        return VioConfig.model_validate(cfg_d)
+    except ValidationError as exc:
+        raise InputError(f"{config or 'options'}: {describe_validation_error(exc)}") from None
+
+
+def _print_errors(ev: dict[str, Any], title: str) -> None:
+    rows = [
+        [k, f"{v.ape_trans.rmse:.4g}", f"{v.rpe_trans.rmse:.4g}", f"{v.ape_rot_deg.rmse:.3g}", str(v.n_pairs)]
+        for k, v in ev.items()
+    ]  # fmt: skip
+    console.print(
+        table(title, ["quantity", "ATE [m]", "RPE/frame [m]", "ATE rot [deg]", "poses"], rows)
+    )
+
+
+def _print_summary(summary: dict[str, Any]) -> None:
+    rows = []
+    for kind, st in summary["gating"].items():
+        rows.append([kind, str(st["accepted"]), str(st["rejected"]),
+                     f"{st.get('nis_mean_accepted', float('nan')):.3g}", str(st["dof"])])  # fmt: skip
+    console.print(table("gating", ["quantity", "accepted", "rejected", "mean NIS", "dof"], rows))
+    fr = summary["frames"]
+    console.print(
+        f"frames: {fr['used']} used, {fr['missing']} missing, {fr['unreadable']} unreadable; VO: "
+        f"{summary['vo']['measurements']} measurements, {summary['vo']['skipped_few_features']} "
+        f"skipped (too few features), {summary['vo']['skipped_few_inliers']} (too few inliers)"
+    )
