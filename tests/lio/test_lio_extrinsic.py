@@ -89,6 +89,14 @@ def test_excited_rig_recovers_the_extrinsic_and_the_offset(
 
 
 @pytest.mark.slow
+def test_no_starting_guess_is_needed(excited: tuple[LidarImuRig, LidarImuCalibration]) -> None:
+    """From the default config (identity rotation, zero lever arm and offset: the LiDAR is 90 deg away
+    in yaw) the coarse stage finds the rotation and offset and the estimate meets the same bounds."""
+    d = excited[0]
+    _check_excited(d, calibrate_lidar_imu(d.scans, calibrated(d), LioConfig()))
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [2, 3])
 def test_excited_rig_on_more_seeds(seed: int) -> None:
     d = simulate_lidar_imu_rig("excited", 20.0, seed, true_T_i_l(), OFFSET_S, lidar=SMALL)
