@@ -4,11 +4,18 @@ folders): trajectory.tum, map.ply / map.pcd, config.yaml, scans.csv, trajectory.
 from __future__ import annotations
 
 import os
+from enum import StrEnum
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from imuslam.cli.common import console, friendly_errors, table
+
+if TYPE_CHECKING:
+    from imuslam.interfaces import ImuLog, Trajectory
+    from imuslam.lio.config import LioConfig
+    from imuslam.lio.pipeline import LioResult
 
 
 def register(app: typer.Typer) -> None:
@@ -32,11 +39,17 @@ def register(app: typer.Typer) -> None:
         gt: str | None = typer.Option(
             None, "--gt", help="ground truth: a TUM file or a pose topic of the bag"
         ),
-        state: str | None = typer.Option(
-            None, "--state", help="reduced (12, corrected IMU) or full (18)"
+        state: StateChoice | None = typer.Option(
+            None,
+            "--state",
+            help="reduced (12, corrected IMU) or full (18) [default: the config's, full]",
         ),
-        mode: str | None = typer.Option(None, "--mode", help="features (LOAM) or direct"),
-        align: str | None = typer.Option(None, "--align", help="none, kf, stkf or rwnn"),
+        mode: ModeChoice | None = typer.Option(
+            None, "--mode", help="features (LOAM) or direct [default: the config's, direct]"
+        ),
+        align: AlignChoice | None = typer.Option(
+            None, "--align", help="the start's alignment [default: the config's, none]"
+        ),
         no_imu: bool = typer.Option(False, "--no-imu", help="LiDAR-only (constant-velocity model)"),
         max_scans: int | None = typer.Option(
             None, min=2, help="stop after this many scans (at least 2: a scan and its motion)"
@@ -44,92 +57,117 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """LiDAR-inertial odometry (iterated ESKF) with a voxel map; LiDAR-only without an IMU."""
         os.environ.setdefault("OMP_NUM_THREADS", "1")  # before pykdtree loads its OpenMP pool
-        import numpy as np
-
-        from imuslam.config import load_config
-        from imuslam.errors import InputError
-        from imuslam.lio.config import LioConfig
+        from imuslam.lio.datasets import open_lidar_dataset
         from imuslam.lio.pipeline import LioPipeline
         from imuslam.lio.report import write_results
 
-        cfg = load_config(config, LioConfig) if config is not None else LioConfig()
-        upd: dict[str, object] = {}
-        for opt, val, allowed in (("--state", state, ("reduced", "full")), ("--mode", mode, ("features", "direct")),
-                                  ("--align", align, ("none", "kf", "stkf", "rwnn"))):  # fmt: skip
-            if val is not None and val not in allowed:
-                raise InputError(f"{opt}: '{val}'; expected {' or '.join(allowed)}")
-        if state is not None:
-            cfg.filter.state = state  # type: ignore[assignment]
-        if mode is not None:
-            cfg.frontend.mode = mode  # type: ignore[assignment]
-        if align is not None:
-            upd["align"] = align
-        if no_imu:
-            upd["use_imu"] = False
-        cfg = cfg.model_copy(update=upd)
-        if not source.exists():
-            raise InputError(f"{source}: no such bag or folder")
-        truth = None
-        if source.is_dir() and any(source.glob("*.pcd")):
-            from imuslam.lio.datasets import PcdFolder
+        cfg = _config(config, state, mode, align, no_imu)
+        data = open_lidar_dataset(source, points_topic, imu_topic, use_imu=cfg.use_imu)
+        from imuslam.lio.datasets import BagLidarDataset
 
-            data: object = PcdFolder(source)
-        elif source.is_dir() and (any(source.glob("*.bin")) or (source / "velodyne").is_dir()):
-            from imuslam.lio.datasets import KittiFolder
-
-            data = KittiFolder(source)
-        else:
-            from imuslam.lio.datasets import BagLidarDataset
-
-            data = BagLidarDataset(source, points_topic, imu_topic, use_imu=cfg.use_imu)
-            if (
-                gt is not None and gt.startswith("/") and not Path(gt).exists()
-            ):  # a topic, not a file
-                from imuslam.io.bag import Bag
-
-                with Bag(source) as b:
-                    truth = b.trajectory(gt)
-        if gt is not None and truth is None:
-            from imuslam.io.trajectory import read_trajectory
-
-            truth = read_trajectory(Path(gt), "tum")
-        imu = data.imu()  # type: ignore[attr-defined]
-        if imu is not None and calib is not None:
-            from imuslam.imu.model import ImuCalibration
-
-            imu = ImuCalibration.load_yaml(calib).correct(imu)
+        bag = isinstance(data, BagLidarDataset)
+        truth = _reference(gt, source, bag) if gt is not None else None
+        imu = data.imu()
         if imu is not None:
-            from imuslam.io.plausible import check_units
-
-            check_units(
-                imu, hint="a sensor_msgs/Imu carries m/s^2 and rad/s (convert the bag's IMU)"
-            )
-            span = (imu.t_ns[0], imu.t_ns[-1])
-            console.print(f"IMU {imu.source}: {len(imu)} samples, {imu.rate_hz:.0f} Hz, "
-                          f"{(span[1] - span[0]) * 1e-9:.1f} s")  # fmt: skip
+            imu = _checked_imu(imu, calib)
         res = LioPipeline(data, cfg, imu=imu, max_scans=max_scans).run()  # type: ignore[arg-type]
         metrics = write_results(res, out, truth)
-        st = res.stats
-        tms = np.array([s.time_s for s in st]) * 1e3
-        rows = [
-            ["scans", f"{len(st)}", ""],
-            ["speed", f"{res.scans_per_s:.1f}", "scans/s"],
-            ["time per scan (median / max)", f"{np.median(tms):.1f} / {np.max(tms):.1f}", "ms"],
-            ["iterations (mean)", f"{np.mean([s.iterations for s in st]):.2f}", ""],
-            ["points registered (mean)", f"{np.mean([s.n_used for s in st]):.0f}", "points"],
-            ["path length", f"{res.trajectory.path_length:.1f}", "m"],
-            ["map points (exported)", f"{len(res.map_points)}", "points"],
-        ]
-        if metrics:
-            rows += [["ATE (SE(3) aligned)", f"{metrics['ape_trans']['rmse']:.4g}", "m"],
-                     ["rotation RMSE", f"{metrics['ape_rot_deg']['rmse']:.4g}", "deg"],
-                     ["RPE per metre", f"{metrics['rpe_trans']['rmse']:.4g}", "m"]]  # fmt: skip
-            if "kitti_mean_trans_pct" in metrics:
-                rows.append(
-                    ["KITTI drift (100-800 m)", f"{metrics['kitti_mean_trans_pct']:.4g}", "%"]
-                )
-        console.print(table(f"imuslam lio {source}", ["quantity", "value", "unit"], rows))
+        console.print(
+            table(f"imuslam lio {source}", ["quantity", "value", "unit"], _rows(res, metrics))
+        )
         for w in res.warnings:
             console.print(f"warning: {w}", markup=False, highlight=False, soft_wrap=True)
-        console.print(f"wrote {out}/trajectory.tum, map.ply, map.pcd, config.yaml, scans.csv, trajectory.png"
-                      + (", metrics.json" if metrics else ""))  # fmt: skip
+        console.print(f"wrote {out}/trajectory.tum, map.ply, map.pcd, config.yaml, scans.csv, "
+                      "trajectory.png, metrics.json")  # fmt: skip
+
+
+class StateChoice(StrEnum):
+    reduced = "reduced"
+    full = "full"
+
+
+class ModeChoice(StrEnum):
+    features = "features"
+    direct = "direct"
+
+
+class AlignChoice(StrEnum):
+    none = "none"
+    kf = "kf"
+    stkf = "stkf"
+    rwnn = "rwnn"
+
+
+def _config(
+    config: Path | None,
+    state: StateChoice | None,
+    mode: ModeChoice | None,
+    align: AlignChoice | None,
+    no_imu: bool,
+) -> LioConfig:
+    """The effective configuration: the --config file (unknown keys refused), then the options, as
+    one validated copy (nothing is changed after validation)."""
+    from imuslam.config import load_config
+    from imuslam.lio.config import LioConfig
+
+    cfg = load_config(config, LioConfig) if config is not None else LioConfig()
+    upd: dict[str, Any] = {}
+    if state is not None:
+        upd["filter"] = cfg.filter.model_copy(update={"state": state.value})
+    if mode is not None:
+        upd["frontend"] = cfg.frontend.model_copy(update={"mode": mode.value})
+    if align is not None:
+        upd["align"] = align.value
+    if no_imu:
+        upd["use_imu"] = False
+    return cfg.model_copy(update=upd)
+
+
+def _reference(gt: str, source: Path, bag: bool) -> Trajectory:
+    """--gt: a pose topic of the bag (a name starting with / that is no file), else a TUM file."""
+    if bag and gt.startswith("/") and not Path(gt).exists():
+        from imuslam.io.bag import Bag
+
+        with Bag(source) as b:
+            return b.trajectory(gt)
+    from imuslam.io.trajectory import read_trajectory
+
+    return read_trajectory(Path(gt), "tum")
+
+
+def _checked_imu(imu: ImuLog, calib: Path | None) -> ImuLog:
+    """The IMU corrected by ``calib``, its units checked against what a vehicle can do."""
+    from imuslam.io.plausible import check_units
+
+    if calib is not None:
+        from imuslam.imu.model import ImuCalibration
+
+        imu = ImuCalibration.load_yaml(calib).correct(imu)
+    check_units(imu, hint="a sensor_msgs/Imu carries m/s^2 and rad/s (convert the bag's IMU)")
+    span = (imu.t_ns[0], imu.t_ns[-1])
+    console.print(f"IMU {imu.source}: {len(imu)} samples, {imu.rate_hz:.0f} Hz, "
+                  f"{(span[1] - span[0]) * 1e-9:.1f} s")  # fmt: skip
+    return imu
+
+
+def _rows(res: LioResult, metrics: dict[str, Any]) -> list[list[str]]:
+    import numpy as np
+
+    st = res.stats
+    tms = np.array([s.time_s for s in st]) * 1e3
+    rows = [
+        ["scans", f"{len(st)}", ""],
+        ["speed", f"{res.scans_per_s:.1f}", "scans/s"],
+        ["time per scan (median / max)", f"{np.median(tms):.1f} / {np.max(tms):.1f}", "ms"],
+        ["iterations (mean)", f"{np.mean([s.iterations for s in st]):.2f}", ""],
+        ["points registered (mean)", f"{np.mean([s.n_used for s in st]):.0f}", "points"],
+        ["path length", f"{res.trajectory.path_length:.1f}", "m"],
+        ["map points (exported)", f"{len(res.map_points)}", "points"],
+    ]
+    if metrics:
+        rows += [["ATE (SE(3) aligned)", f"{metrics['ape_trans']['rmse']:.4g}", "m"],
+                 ["rotation RMSE", f"{metrics['ape_rot_deg']['rmse']:.4g}", "deg"],
+                 ["RPE per metre", f"{metrics['rpe_trans']['rmse']:.4g}", "m"]]  # fmt: skip
+        if "kitti_mean_trans_pct" in metrics:
+            rows.append(["KITTI drift (100-800 m)", f"{metrics['kitti_mean_trans_pct']:.4g}", "%"])
+    return rows

@@ -227,3 +227,20 @@ class BagLidarDataset:
                     if len(s.ring) and not np.any(s.ring):
                         s.ring = np.zeros(0, np.uint16)
                 yield s
+
+
+def open_lidar_dataset(
+    source: Path,
+    points_topic: str | None = None,
+    imu_topic: str | None = None,
+    use_imu: bool = True,
+) -> PcdFolder | KittiFolder | BagLidarDataset:
+    """The reader for ``source``, picked in one place (KISS-ICP's dataset factory): a folder of .pcd
+    scans, a KITTI folder (.bin scans, or a velodyne/ folder), else a ROS 1 / ROS 2 / MCAP bag."""
+    if not source.exists():
+        raise InputError(f"{source}: no such bag or folder")
+    if source.is_dir() and any(source.glob("*.pcd")):
+        return PcdFolder(source)
+    if source.is_dir() and (any(source.glob("*.bin")) or (source / "velodyne").is_dir()):
+        return KittiFolder(source)
+    return BagLidarDataset(source, points_topic, imu_topic, use_imu=use_imu)
