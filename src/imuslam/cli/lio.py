@@ -42,13 +42,13 @@ def register(app: typer.Typer) -> None:
         state: StateChoice | None = typer.Option(
             None,
             "--state",
-            help="reduced (12, corrected IMU) or full (18) [default: the config's, full]",
+            help="reduced (12, corrected IMU) or full (18); default: the config's, full",
         ),
         mode: ModeChoice | None = typer.Option(
-            None, "--mode", help="features (LOAM) or direct [default: the config's, direct]"
+            None, "--mode", help="features (LOAM) or direct; default: the config's, features"
         ),
         align: AlignChoice | None = typer.Option(
-            None, "--align", help="the start's alignment [default: the config's, none]"
+            None, "--align", help="the start's alignment; default: the config's, none"
         ),
         no_imu: bool = typer.Option(False, "--no-imu", help="LiDAR-only (constant-velocity model)"),
         max_scans: int | None = typer.Option(
