@@ -113,11 +113,12 @@ def register(app: typer.Typer) -> None:
         rows = [[f"lever arm p_i_l {a}", f"{res.p_i_l[k]:.4f}", f"{res.sigma_p_m[k]:.4f}", "m",
                  obs(bool(res.observable_p[k]))] for k, a in enumerate(AXES)]  # fmt: skip
         rpy = res.rpy_deg_i_l
-        rows += [[f"rotation R_i_l {n} (about IMU {a})", f"{rpy[k]:.3f}", f"{res.sigma_rot_deg[k]:.3f}",
-                  "deg", obs(bool(res.observable_rot[k]))]
-                 for k, (n, a) in enumerate(zip(("roll", "pitch", "yaw"), AXES, strict=True))]  # fmt: skip
+        rows += [[f"R_i_l {n} (Z-Y-X Euler)", f"{rpy[k]:.3f}", "", "deg", ""]
+                 for k, n in enumerate(("roll", "pitch", "yaw"))]  # fmt: skip
+        rows += [[f"R_i_l rotation about IMU {a}", "", f"{res.sigma_rot_deg[k]:.3f}", "deg",
+                  obs(bool(res.observable_rot[k]))] for k, a in enumerate(AXES)]  # fmt: skip
         rows += [
-            ["clock offset (t_imu = t_lidar + offset)", f"{res.time_offset_s * 1e3:.2f}",
+            ["clock offset t_imu - t_lidar", f"{res.time_offset_s * 1e3:.2f}",
              f"{res.sigma_time_offset_s * 1e3:.2f}", "ms", obs(res.observable_time)],
             ["gyro residual RMS", f"{res.rms_gyro:.4f}", "", "rad/s", ""],
             ["accelerometer residual RMS", f"{res.rms_accel:.4f}", "", "m/s^2", ""],
