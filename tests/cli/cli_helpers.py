@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from imuslam.cli import app
 from imuslam.imu.model import ImuCalibration, TriadModel
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.rosbag import write_imu_bag
 
 runner = CliRunner()

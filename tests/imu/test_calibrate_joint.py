@@ -19,7 +19,7 @@ from imuslam.imu.joint import measured_noise
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.imu.rk4 import integrate_segments
 from imuslam.imu.score import detect_poses, pose_errors, rms
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO
 from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
 

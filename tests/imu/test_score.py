@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 from imuslam.cli import app
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.imu.score import detect_poses, score_calibrations
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.interfaces.imu import ImuLog, InputError
 from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO
 from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
 

@@ -87,7 +87,7 @@ def test_network_follows_errors_a_constant_bias_cannot(name: str) -> None:
     average the change, the network's node weights follow it. Over the last 20 s the RMS of the estimated
     accelerometer error against the truth must drop by a fifth with the network, averaged over two seeds
     (measured: 0.55-0.75 of the error without it)."""
-    from imuslam.io.imulog import ImuLog
+    from imuslam.interfaces.imu import ImuLog
 
     ratios = []
     for seed in (3, 11):

@@ -160,7 +160,7 @@ def test_start_covariance_moves_the_lidar_registrations_to_the_imu_pose() -> Non
     Jacobian of the IMU's [theta, p] in w, here by central differences of the composed poses
     T_w_i = T_w_l0 T_l0_l1 T_l_i (a rotated, offset LiDAR; a levelled world)."""
     from imuslam.geometry import exp as so3_exp
-    from imuslam.io.imulog import ImuLog
+    from imuslam.interfaces.imu import ImuLog
     from imuslam.lio.estimator import LioEstimator
 
     q = np.array([0.9, 0.1, -0.2, 0.3])

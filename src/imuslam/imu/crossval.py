@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from imuslam.imu.calibrate import CalibrationConfig, calibrate
 from imuslam.imu.model import ImuCalibration
 from imuslam.imu.score import detect_poses, pose_errors, rms, worst
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.interfaces.imu import ImuLog, InputError
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from imuslam.imu.model import ImuCalibration
 from imuslam.imu.rk4 import integrate_segments
 from imuslam.imu.static import detect, init_variance_norm, window_half_size, windowed_variance_norm
-from imuslam.io.imulog import ImuLog, InputError
+from imuslam.interfaces.imu import ImuLog, InputError
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -12,8 +12,8 @@ from typing import Literal
 import numpy as np
 
 from imuslam.errors import InputError
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.carmen import read_breezyslam, read_carmen
-from imuslam.io.imulog import ImuLog
 from imuslam.io.laserlog import LaserLog, check_time_order, clean_ranges, odometry_jumps
 
 LaserFormat = Literal["auto", "carmen", "breezyslam", "sim", "bag"]

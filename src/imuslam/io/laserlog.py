@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import InputError
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 
 FloatArray = NDArray[np.float64]
 

@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from imuslam.errors import InputError
 from imuslam.interfaces import Scan3d
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.pointcloud import read_kitti_bin, read_pcd
 
 log = logging.getLogger(__name__)

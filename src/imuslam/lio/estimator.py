@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from imuslam.errors import FilterDivergence, InputError
 from imuslam.ins.coarse import level_rotation
 from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise, boxplus, propagate_covariance
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.lio.config import LioConfig
 from imuslam.lio.deskew import deskew
 from imuslam.lio.frontend import select_indices, select_points

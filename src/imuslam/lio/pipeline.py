@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from imuslam.errors import EstimatorError, InputError
 from imuslam.interfaces import Scan3d
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.trajectory import Trajectory
 from imuslam.lio.config import LioConfig
 from imuslam.lio.features import voxel_downsample

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from imuslam.geometry import exp
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.sim.imu import ImuErrorSpec, ImuTruth, simulate_imu
 from imuslam.sim.lidar import Lidar3dConfig, Scan3d, simulate_lidar3d_scan
 from imuslam.sim.trajectory import CarLoop, CorridorDrive, EulerTrajectory

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.laserlog import LaserLog, clean_ranges
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.lidar import Lidar2dConfig, simulate_lidar2d_scan

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import InputError
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.vio.calib import Rectification, StereoCalibration, read_calibration
 
 if TYPE_CHECKING:

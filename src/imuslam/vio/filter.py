@@ -28,7 +28,7 @@ from imuslam.ins.core import (
     chi2_threshold,
     gate,
 )
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.trajectory import Trajectory
 from imuslam.vio.config import VioConfig
 from imuslam.vio.measurements import (

@@ -22,7 +22,7 @@ from imuslam.ins.core import (
     InsState,
     integrate_nominal,
 )
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.trajectory import Trajectory
 from imuslam.vio.config import VioConfig
 from imuslam.vio.covcal import apply_vo_cov_correction

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from imuslam.errors import InputError
 from imuslam.ins.coarse import level_rotation
 from imuslam.ins.core import ErrorLayout, InsState
-from imuslam.io.imulog import ImuLog
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.navbag import OdometryLog
 from imuslam.io.trajectory import Trajectory
 from imuslam.vio.config import NoiseConfig, VioConfig
