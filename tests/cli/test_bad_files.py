@@ -243,7 +243,7 @@ FIELDS: dict[str, dict[str, list[object]]] = {
     "vio": {"noise.gyro": [0, -1], "nhc_rate_hz": [0, 1e6], "vo.max_features": [0, 5],
             "g": [0, 98.1], "outlier_fraction": [1.0, -0.1], "outlier_seed": [-1, 2**40]},
     "map2d": {"resolution": [1e-9, 0, 5], "loop.min_score": [0, 1, 2], "max_range": [0, -3],
-              "matcher.max_iterations": [0, -2]},
+              "matcher.max_iterations": [0, -2], "matcher.linear_window": [1e3, -1]},
     "study": {"claims.0.scenarios.0.duration_s": [0, -1, 1e9], "align.fix_rate_hz": [0, -10],
               "seeds": [[-1], [2**40], ["x"], 10**9], "drift.age_h": [-1], "claims.0.metric": ["happiness"]},
 }  # fmt: skip

@@ -231,6 +231,10 @@ def test_vio_imu_stamps_shared(shared_data: Path, tmp_path: Path) -> None:
         (b"resolution: 1.0e-9\n", "resolution"),
         (b"max_range: .inf\n", "max_range"),
         (b"loop:\n  min_score: .nan\n", "loop.min_score"),
+        (
+            b"matcher:\n  linear_window: 1000.0\n",
+            "matcher.linear_window",
+        ),  # ran over 10 min, 30 scans
     ],
 )
 def test_map2d_config(content: bytes, name: str, sim_room: Path, tmp_path: Path) -> None:

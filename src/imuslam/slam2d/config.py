@@ -13,8 +13,13 @@ class MatcherConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     use_correlative: bool = True
-    linear_window: float = Field(0.15, ge=0, description="correlative search half-window, m")
-    angular_window_deg: float = Field(10.0, ge=0, description="correlative search half-window, deg")
+    # the local search's windows are bounded: its cost grows with their area (1 km never ended)
+    linear_window: float = Field(
+        0.15, ge=0, le=1.0, description="correlative search half-window, m"
+    )
+    angular_window_deg: float = Field(
+        10.0, ge=0, le=180.0, description="correlative search half-window, deg"
+    )
     step_range: float = Field(
         10.0, gt=0, description="angular step: one cell at this range, m (Olson 2009)"
     )
@@ -61,7 +66,9 @@ class MatcherConfig(BaseModel):
         le=180.0,
         description="wide search half-window where the odometry is trusted, deg",
     )
-    recovery_linear_window: float = Field(1.0, gt=0, description="wide search half-window, m")
+    recovery_linear_window: float = Field(
+        1.0, gt=0, le=5.0, description="wide search half-window, m"
+    )
     # +-90 deg: a corridor scores almost as well turned by 180 deg (MIT-CSAIL with +-180: a scan flipped
     # at 0.44 against a run median of 0.68, and the map broke)
     recovery_angular_window_deg: float = Field(90.0, gt=0, le=180.0)
