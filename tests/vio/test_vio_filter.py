@@ -262,6 +262,7 @@ def _mean_nis(run: SimStereoRun, vo: VoRun, **kw: object) -> dict[str, tuple[flo
     return out
 
 
+@pytest.mark.slow  # a 180 s run at 5 Hz: the NIS band needs that many updates
 def test_nis_in_band_on_white_vo_with_an_exact_constraint() -> None:
     """VO made from the truth with white noise of the covariance it reports (180 s, 5 Hz, the rendered
     study's sizes): the filter's mean NIS of every kind lies in its 99.9 % chi-square band with the
@@ -282,6 +283,7 @@ def test_nis_in_band_on_white_vo_with_an_exact_constraint() -> None:
     assert loose["nhc"][0] < 0.5 * loose["nhc"][1]
 
 
+@pytest.mark.slow  # a 180 s run at 5 Hz: the NIS band needs that many updates
 def test_a_slowly_varying_vo_error_modelled_keeps_the_nis_in_band() -> None:
     """VO from the truth whose velocity error has, besides white noise of the reported covariance
     (1.5e-3 m/s), a first-order Gauss-Markov part (1e-3 m/s, 0.6 s, drawn here): read as white, the
@@ -317,6 +319,7 @@ def test_a_slowly_varying_vo_error_modelled_keeps_the_nis_in_band() -> None:
             assert lo <= m <= hi
 
 
+@pytest.mark.slow  # a 180 s run at 5 Hz: the NIS band needs that many updates
 def test_online_vo_covariance_scales_learn_a_misstated_covariance() -> None:
     """VO from the truth with white noise whose reported covariance is misstated by known factors
     (velocity reported at 1/4 of its variance, rate at 4x: true scales 4 and 1/4). Without adaptation the
