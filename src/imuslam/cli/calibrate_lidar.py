@@ -52,18 +52,16 @@ def register(app: typer.Typer) -> None:
         from imuslam.errors import InputError
         from imuslam.io.results import write_results
         from imuslam.lio.config import LioConfig
-        from imuslam.lio.datasets import BagLidarDataset
+        from imuslam.lio.datasets import BagLidarDataset, open_lidar_dataset
         from imuslam.lio.extrinsic import AXES, calibrate_lidar_imu
         from imuslam.lio.threads import blas_threads
 
         cfg = load_config(config, LioConfig) if config is not None else LioConfig()
-        if not bag.exists():
-            raise InputError(f"{bag}: no such bag")
-        if bag.is_dir() and (any(bag.glob("*.pcd")) or any(bag.glob("*.bin"))):
+        data = open_lidar_dataset(bag, points_topic, imu_topic, use_imu=True)  # the readers of lio
+        if not isinstance(data, BagLidarDataset):
             raise InputError(
                 f"{bag}: a folder of scans has no IMU; expected a bag with an Imu topic"
             )
-        data = BagLidarDataset(bag, points_topic, imu_topic, use_imu=True)
         imu = data.imu()
         if imu is None:
             raise InputError(f"{bag}: no sensor_msgs/Imu topic; name one with --imu-topic")
