@@ -3,8 +3,10 @@ body over :class:`imuslam.ins.pipeline.AlignPipeline`."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from enum import StrEnum
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -124,22 +126,12 @@ def register(app: typer.Typer) -> None:
         ),
     ) -> None:
         """Estimate attitude and the IMU's remaining biases; write them, plots and the corrected IMU."""
-        import numpy as np
-
         from imuslam.ins.kf import KfNoise
         from imuslam.ins.pipeline import AlignConfig, AlignDataset, AlignPipeline
-        from imuslam.io.load import detect_format, write_imu
         from imuslam.io.plausible import check_at_rest, check_units
         from imuslam.io.trajectory import read_euroc_state, read_trajectory
 
-        if init == Init.aiding and aiding == "zupt":
-            raise InputError("--init aiding needs a trajectory as --aiding")
-        if aiding != "zupt" and not Path(aiding).exists():
-            raise InputError(f"--aiding {aiding}: no such file; expected 'zupt' or a trajectory")
-        if noise not in ("auto", "datasheet") and not Path(noise).is_file():
-            raise InputError(
-                f"--noise {noise}: no such file; expected auto, datasheet or a Kalibr imu.yaml"
-            )
+        _check_sources(init, aiding, noise)
         cfg = AlignConfig(method=method.value, aiding_std=aiding_std, init=init.value, noise=noise, g=g,
                           t_still_s=t_still, lat_deg=lat_deg, heading_deg=heading_deg)  # fmt: skip
         au = None if accel_unit is None else accel_unit.value
@@ -163,49 +155,80 @@ def register(app: typer.Typer) -> None:
             "truth": None if truth is None else str(truth),
         }
         if res.coarse is not None:
-            ca = res.coarse
-            rows = [["roll", f"{np.rad2deg(ca.roll):.3f}", f"{np.rad2deg(ca.roll_pitch_std):.2g}", "deg"],
-                    ["pitch", f"{np.rad2deg(ca.pitch):.3f}", f"{np.rad2deg(ca.roll_pitch_std):.2g}", "deg"],
-                    ["yaw", "unobservable" if ca.yaw is None else f"{np.rad2deg(ca.yaw):.2f}",
-                     "-" if ca.yaw_std is None else f"{np.rad2deg(ca.yaw_std):.2g}", "deg"]]  # fmt: skip
-            console.print(table("Coarse alignment", ["quantity", "value", "1-sigma", "unit"], rows))
-            console.print(ca.reason)
+            _print_coarse(res.coarse)
             files = pipeline.save(res, out, plots, None, **inputs)
             console.print(f"wrote {out}/{', '.join(files)}")
             return
-        a, kn = res.alignment, res.noise
-        assert a is not None and kn is not None
-        console.print(
-            f"IMU white noise {kn.accel:.3g} m/s^2/sqrt(Hz), {kn.gyro:.3g} rad/s/sqrt(Hz) "
-            f"({res.noise_source}); bias random walks {kn.accel_bias_rw:.3g}, {kn.gyro_bias_rw:.3g}"
-        )
-        tb, tbg = res.truth_accel_bias, res.truth_gyro_bias
-        cols = (
-            ["quantity", "estimate", "1-sigma"]
-            + (["truth", "|err|/sigma"] if tb is not None else [])
-            + ["unit"]
-        )
-        rows = []
-        for name, est, sd, tru, unit, f in (
-            ("accel bias", a.accel_bias, a.accel_bias_std, tb, "m/s^2", "{:+.5f}"),
-            ("gyro bias", a.gyro_bias, a.gyro_bias_std, tbg, "rad/s", "{:+.6f}"),
-        ):
-            for j in range(3):
-                row = [f"{name} {'xyz'[j]}", f.format(est[-1, j]), f"{sd[-1, j]:.2g}"]
-                if tru is not None:
-                    row += [f.format(tru[-1, j]), f"{abs(est[-1, j] - tru[-1, j]) / sd[-1, j]:.1f}"]
-                rows.append(row + [unit])
-        console.print(table(f"Alignment ({method.value}, {res.aiding_kind} aiding)", cols, rows))  # fmt: skip
-
-        def corrected_imu(folder: Path) -> list[str]:
-            if detect_format(log_path) == "bag" and fmt.value in ("auto", "bag"):
-                # a bag stays a bag: a copy with the IMU topic replaced, every other message untouched
-                dst = folder / ("corrected_imu" + (log_path.suffix if log_path.is_file() else ""))
-                t_topic = topic or full.source.rsplit(":", 1)[-1]
-                write_imu(a.corrected(full), dst, "bag", template=log_path, topic=t_topic)
-                return [f"{dst.name} (the input bag, {t_topic} corrected)"]
-            write_imu(a.corrected(full), folder / "corrected_imu.csv", "euroc")
-            return ["corrected_imu.csv (EuRoC format)"]
-
+        _print_alignment(res, method.value)
+        corrected_imu = _corrected_writer(log_path, fmt.value, topic, full, res.alignment)
         files = pipeline.save(res, out, plots, corrected_imu, **inputs)
         console.print(f"wrote {out}/{', '.join(files)}")
+
+
+def _check_sources(init: Init, aiding: str, noise: str) -> None:
+    """--aiding and --noise name what exists, and --init aiding has a trajectory to start from."""
+    if init == Init.aiding and aiding == "zupt":
+        raise InputError("--init aiding needs a trajectory as --aiding")
+    if aiding != "zupt" and not Path(aiding).exists():
+        raise InputError(f"--aiding {aiding}: no such file; expected 'zupt' or a trajectory")
+    if noise not in ("auto", "datasheet") and not Path(noise).is_file():
+        raise InputError(
+            f"--noise {noise}: no such file; expected auto, datasheet or a Kalibr imu.yaml"
+        )
+
+
+def _print_coarse(ca: Any) -> None:
+    import numpy as np
+
+    rows = [["roll", f"{np.rad2deg(ca.roll):.3f}", f"{np.rad2deg(ca.roll_pitch_std):.2g}", "deg"],
+            ["pitch", f"{np.rad2deg(ca.pitch):.3f}", f"{np.rad2deg(ca.roll_pitch_std):.2g}", "deg"],
+            ["yaw", "unobservable" if ca.yaw is None else f"{np.rad2deg(ca.yaw):.2f}",
+             "-" if ca.yaw_std is None else f"{np.rad2deg(ca.yaw_std):.2g}", "deg"]]  # fmt: skip
+    console.print(table("Coarse alignment", ["quantity", "value", "1-sigma", "unit"], rows))
+    console.print(ca.reason)
+
+
+def _print_alignment(res: Any, method: str) -> None:
+    """The noise used, then the biases at the end with their 1-sigma (and the truth, when given)."""
+    a, kn = res.alignment, res.noise
+    assert a is not None and kn is not None
+    console.print(
+        f"IMU white noise {kn.accel:.3g} m/s^2/sqrt(Hz), {kn.gyro:.3g} rad/s/sqrt(Hz) "
+        f"({res.noise_source}); bias random walks {kn.accel_bias_rw:.3g}, {kn.gyro_bias_rw:.3g}"
+    )
+    tb, tbg = res.truth_accel_bias, res.truth_gyro_bias
+    cols = (
+        ["quantity", "estimate", "1-sigma"]
+        + (["truth", "|err|/sigma"] if tb is not None else [])
+        + ["unit"]
+    )
+    rows = []
+    for name, est, sd, tru, unit, f in (
+        ("accel bias", a.accel_bias, a.accel_bias_std, tb, "m/s^2", "{:+.5f}"),
+        ("gyro bias", a.gyro_bias, a.gyro_bias_std, tbg, "rad/s", "{:+.6f}"),
+    ):
+        for j in range(3):
+            row = [f"{name} {'xyz'[j]}", f.format(est[-1, j]), f"{sd[-1, j]:.2g}"]
+            if tru is not None:
+                row += [f.format(tru[-1, j]), f"{abs(est[-1, j] - tru[-1, j]) / sd[-1, j]:.1f}"]
+            rows.append(row + [unit])
+    console.print(table(f"Alignment ({method}, {res.aiding_kind} aiding)", cols, rows))
+
+
+def _corrected_writer(
+    log_path: Path, fmt: str, topic: str | None, full: Any, a: Any
+) -> Callable[[Path], list[str]]:
+    """Writes the corrected IMU into the results folder: a bag stays a bag (a copy with the IMU topic
+    replaced, every other message untouched), anything else becomes EuRoC csv."""
+    from imuslam.io.load import detect_format, write_imu
+
+    def corrected_imu(folder: Path) -> list[str]:
+        if detect_format(log_path) == "bag" and fmt in ("auto", "bag"):
+            dst = folder / ("corrected_imu" + (log_path.suffix if log_path.is_file() else ""))
+            t_topic = topic or full.source.rsplit(":", 1)[-1]
+            write_imu(a.corrected(full), dst, "bag", template=log_path, topic=t_topic)
+            return [f"{dst.name} (the input bag, {t_topic} corrected)"]
+        write_imu(a.corrected(full), folder / "corrected_imu.csv", "euroc")
+        return ["corrected_imu.csv (EuRoC format)"]
+
+    return corrected_imu
