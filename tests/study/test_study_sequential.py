@@ -15,7 +15,7 @@ from scipy import stats
 from imuslam.study import runner as study_runner
 from imuslam.study.cells import Cell
 from imuslam.study.config import parse_study
-from imuslam.study.report import analyse
+from imuslam.study.report import analyse, pair_verdict
 from imuslam.study.runner import next_seeds, run_study
 from imuslam.study.sequential import (
     FEW,
@@ -163,6 +163,10 @@ def test_report_gives_the_seeds_a_pair_took() -> None:
     assert analyse(claim, _rows(0.0, 0.05, list(range(12))), study.seeds).verdict == (
         "no practical difference"
     )
+    # mid-run (only the first look's seeds): the pair is open at look 1, not at the budget's end
+    p = analyse(claim, _rows(0.3, 2.0, [0, 1, 2]), study.seeds).pairs[0]
+    assert (p.verdict, p.n, p.look, p.scheduled) == (OPEN, 3, 1, 3)
+    assert pair_verdict(p).endswith("look 1 of 4)")
 
 
 def test_next_seeds_adds_a_batch_until_resolved_or_spent() -> None:

@@ -89,6 +89,7 @@ class PairRow:
     looks: int = 0
     level: float = float("nan")
     power: float = float("nan")
+    scheduled: int = 0  # seeds of the schedule up to the deciding (or last) look
 
 
 @dataclass
@@ -161,13 +162,17 @@ def analyse(
                 pairs.append(PairRow(name, better, worse, 0, *(float("nan"),) * 3, 0, "no data"))
                 continue
             diff = sign * (by_seed[worse] - by_seed[better])
-            d_seq = diff.reindex(order_seeds).to_numpy(float)  # NaN: failed or not run (yet)
+            # the schedule's seeds that have run (their cells may have failed: NaN), in order
+            run = set(int(x) for x in d["seed"].unique())
+            n_run = next((i for i, sd in enumerate(order_seeds) if sd not in run), len(order_seeds))
+            d_seq = diff.reindex(order_seeds[:n_run]).to_numpy(float)
             dec = decide(d_seq, sizes, bound)
             used = d_seq[: sizes[dec.look - 1] if dec.look else 0]
             agree = int((used[np.isfinite(used)] > 0).sum())
             pairs.append(
                 PairRow(name, better, worse, dec.n, dec.mean, dec.lo, dec.hi, agree, dec.verdict,
-                        bound, sizes[-1], dec.look, dec.looks, dec.level, dec.power)
+                        bound, sizes[-1], dec.look, dec.looks, dec.level, dec.power,
+                        sizes[dec.look - 1] if dec.look else 0)
             )  # fmt: skip
     return ClaimResult(claim, levels, pairs, overall_verdict(claim, [p.verdict for p in pairs]), d)
 
@@ -245,7 +250,10 @@ def pair_interval(p: PairRow) -> str:
 def pair_verdict(p: PairRow) -> str:
     """The verdict; an unresolved one with the power it had to find a difference of one bound."""
     if p.verdict == OPEN and np.isfinite(p.power):
-        return f"{p.verdict} (power {p.power:.2f} at the bound, budget {p.budget} spent)"
+        when = (
+            f"budget {p.budget} spent" if p.scheduled >= p.budget else f"look {p.look} of {p.looks}"
+        )
+        return f"{p.verdict} (power {p.power:.2f} at the bound, {when})"
     return p.verdict
 
 
