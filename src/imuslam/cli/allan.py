@@ -83,54 +83,10 @@ def register(app: typer.Typer) -> None:
         res = allan(log)
         white = float(np.median([t.white for t in res.gyro_terms]))
         check_gyro_noise(white, log.source, log.gyro_unit, hint="give --gyro-unit deg/s")
-        rows = []
-        data = []
-        for sensor, terms, u in (
-            ("accel", res.accel_terms, res.accel_unit),
-            ("gyro", res.gyro_terms, res.gyro_unit),
-        ):
-            for j, t in enumerate(terms):
-                rw = (
-                    "-"
-                    if t.random_walk is None
-                    else f"{t.random_walk:.3g} ± {100 * (t.random_walk_rel_std or 0):.0f}%"
-                )
-                rows.append([f"{sensor} {'xyz'[j]}", f"{t.white:.3g} ± {100 * t.white_rel_std:.1f}%",
-                             f"{t.bias_instability:.3g} @ {t.bias_instability_tau_s:.3g} s", rw,
-                             f"{u}/sqrt(Hz) | {u} | {u}*sqrt(Hz)"])  # fmt: skip
-                data.append({"sensor": sensor, "axis": "xyz"[j], **t.__dict__})
-        console.print(
-            table(
-                "Allan noise terms",
-                ["term", "white (N)", "bias instability (B)", "random walk (K)", "unit"],
-                rows,
-            )
-        )
-        kalibr = res.kalibr(topic or "/imu0")
+        data = _print_terms(res)
+        kalibr_ok = _kalibr_or_why_not(res, topic)
         written = ["allan.png", "allan.csv", "noise_terms.json", "config.yaml", "metrics.json"]
-        kalibr_ok: dict[str, Any] | None = None
-        if "counts" in (res.accel_unit, res.gyro_unit):
-            res.warnings.append(
-                "imu.yaml not written: the log is in raw counts and Kalibr needs m/s^2 and rad/s "
-                "(correct it with a calibration first, or give --accel-unit / --gyro-unit)"
-            )
-        elif bad := [k for k, v in kalibr.items() if isinstance(v, float) and not np.isfinite(v)]:
-            res.warnings.append(
-                f"imu.yaml not written: no finite {', '.join(bad)} (no +1/2 slope in the Allan "
-                "deviation: record a longer static log)"
-            )
-        else:
-            for sensor, terms in (
-                ("accelerometer", res.accel_terms),
-                ("gyroscope", res.gyro_terms),
-            ):
-                if all(t.random_walk is None for t in terms):
-                    res.warnings.append(
-                        f"{sensor}_random_walk in imu.yaml is an upper bound from the longest tau "
-                        f"({res.taus[-1]:.0f} s): the log is too short to show the random walk"
-                    )
-            kalibr_ok = kalibr
-            written.append("imu.yaml (Kalibr)")
+        written += ["imu.yaml (Kalibr)"] if kalibr_ok is not None else []
         for w in res.warnings:
             console.print(f"[yellow]warning:[/] {w}")
         summary = {
@@ -145,6 +101,61 @@ def register(app: typer.Typer) -> None:
             out, config=inputs, metrics=summary, extra=lambda d: _write(res, summary, kalibr_ok, d)
         )
         console.print(f"wrote {out}/{', '.join(written)}")
+
+
+def _print_terms(res: Any) -> list[dict[str, Any]]:
+    """The noise terms per axis as a table; returns them as records for metrics.json."""
+    rows = []
+    data = []
+    for sensor, terms, u in (
+        ("accel", res.accel_terms, res.accel_unit),
+        ("gyro", res.gyro_terms, res.gyro_unit),
+    ):
+        for j, t in enumerate(terms):
+            rw = (
+                "-"
+                if t.random_walk is None
+                else f"{t.random_walk:.3g} ± {100 * (t.random_walk_rel_std or 0):.0f}%"
+            )
+            rows.append([f"{sensor} {'xyz'[j]}", f"{t.white:.3g} ± {100 * t.white_rel_std:.1f}%",
+                         f"{t.bias_instability:.3g} @ {t.bias_instability_tau_s:.3g} s", rw,
+                         f"{u}/sqrt(Hz) | {u} | {u}*sqrt(Hz)"])  # fmt: skip
+            data.append({"sensor": sensor, "axis": "xyz"[j], **t.__dict__})
+    console.print(
+        table(
+            "Allan noise terms",
+            ["term", "white (N)", "bias instability (B)", "random walk (K)", "unit"],
+            rows,
+        )
+    )
+    return data
+
+
+def _kalibr_or_why_not(res: Any, topic: str | None) -> dict[str, Any] | None:
+    """Kalibr's imu.yaml fields, or None with the reason added to ``res.warnings`` (raw counts, no
+    finite term); an upper-bound random walk is written with a warning."""
+    import numpy as np
+
+    kalibr = res.kalibr(topic or "/imu0")
+    if "counts" in (res.accel_unit, res.gyro_unit):
+        res.warnings.append(
+            "imu.yaml not written: the log is in raw counts and Kalibr needs m/s^2 and rad/s "
+            "(correct it with a calibration first, or give --accel-unit / --gyro-unit)"
+        )
+        return None
+    if bad := [k for k, v in kalibr.items() if isinstance(v, float) and not np.isfinite(v)]:
+        res.warnings.append(
+            f"imu.yaml not written: no finite {', '.join(bad)} (no +1/2 slope in the Allan "
+            "deviation: record a longer static log)"
+        )
+        return None
+    for sensor, terms in (("accelerometer", res.accel_terms), ("gyroscope", res.gyro_terms)):
+        if all(t.random_walk is None for t in terms):
+            res.warnings.append(
+                f"{sensor}_random_walk in imu.yaml is an upper bound from the longest tau "
+                f"({res.taus[-1]:.0f} s): the log is too short to show the random walk"
+            )
+    return dict(kalibr)
 
 
 def _write(
