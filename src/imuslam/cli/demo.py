@@ -34,13 +34,9 @@ def register(app: typer.Typer) -> None:
         from imuslam.demo import ins_benefit
         from imuslam.imu.calibrate import CalibrationConfig, calibrate
         from imuslam.imu.model import (
-            ACCEL_PARAM_NAMES,
-            GYRO_PARAM_NAMES,
             ImuCalibration,
             TriadModel,
         )
-        from imuslam.io.figures import save_figure
-        from imuslam.io.load import write_imu
         from imuslam.io.results import results_folder
         from imuslam.sim.imu import ImuErrorSpec
         from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
@@ -66,42 +62,47 @@ def register(app: typer.Typer) -> None:
         cols = ["IMU, start of the free run", "attitude error [deg]", "position error [m]"]
         rows = [[r.name, f"{r.attitude_err_deg:.2f}", f"{r.position_err_m:.2f}"] for r in runs]
         console.print(table(title, cols, rows))
-        from matplotlib.figure import Figure
-
-        fig = Figure(figsize=(9, 5))
-        ax = fig.subplots()
-        for r in runs:
-            ax.semilogy(r.t_s, np.maximum(r.err_m, 1e-3), label=r.name)
-        ax.set_xlabel("time without fixes [s]")
-        ax.set_ylabel("position error [m]")
-        ax.legend()
-        ax.grid(True, which="both", alpha=0.3)
         with results_folder(out) as tmp:
-            write_imu(sim.log, tmp / "raw_imu.mcap", "bag", topic="/imu/data")
-            write_imu(
-                res.calibration.correct(sim.log),
-                tmp / "corrected_imu.mcap",
-                "bag",
-                topic="/imu/data",
-            )
-            write_outputs(res, sim.log, tmp, extra_html=_ins_html(title, cols, rows),
-                          truth_accel=truth.accel_params, truth_gyro=truth.gyro_params)  # fmt: skip
-            save_figure(fig, tmp / "ins_benefit.png")
-            ins_rows = [{"variant": r.name, "attitude_err_deg": r.attitude_err_deg,
-                         "position_err_m": r.position_err_m} for r in runs]  # fmt: skip
-            write_json(tmp / "ins_benefit.json", ins_rows)
-            # metrics.json as every command writes it: the calibration against the simulator's truth
-            # (estimate - truth per parameter, and the fit's 1-sigma) and the INS runs.
-            cal = res.calibration
-            write_json(tmp / "metrics.json", {
-                "accel": _param_metrics(ACCEL_PARAM_NAMES, cal.accel_params, truth.accel_params, cal.cov_accel),
-                "gyro": _param_metrics(GYRO_PARAM_NAMES, cal.gyro_params, truth.gyro_params, cal.cov_gyro),
-                "ins_benefit": ins_rows,
-            })  # fmt: skip
+            _save(tmp, sim.log, res, truth, runs, _ins_html(title, cols, rows))
         console.print(
             f"wrote {out}/report.html (calibration and INS), calibration.yaml, acc.calib, gyro.calib, "
             "raw and corrected MCAP bags, ins_benefit.png, ins_benefit.json, config.yaml, metrics.json"
         )
+
+
+def _save(tmp: Path, log: Any, res: Any, truth: Any, runs: list[Any], ins_html: str) -> None:
+    """Into the results folder: the raw and corrected IMU as MCAP bags, the calibration's files and
+    report, the INS runs (PNG, JSON) and metrics.json (the calibration against the simulator's truth:
+    estimate - truth per parameter and the fit's 1-sigma; the INS runs)."""
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
+    from imuslam.io.figures import save_figure
+    from imuslam.io.load import write_imu
+
+    write_imu(log, tmp / "raw_imu.mcap", "bag", topic="/imu/data")
+    write_imu(res.calibration.correct(log), tmp / "corrected_imu.mcap", "bag", topic="/imu/data")
+    write_outputs(res, log, tmp, extra_html=ins_html,
+                  truth_accel=truth.accel_params, truth_gyro=truth.gyro_params)  # fmt: skip
+    fig = Figure(figsize=(9, 5))
+    ax = fig.subplots()
+    for r in runs:
+        ax.semilogy(r.t_s, np.maximum(r.err_m, 1e-3), label=r.name)
+    ax.set_xlabel("time without fixes [s]")
+    ax.set_ylabel("position error [m]")
+    ax.legend()
+    ax.grid(True, which="both", alpha=0.3)
+    save_figure(fig, tmp / "ins_benefit.png")
+    ins_rows = [{"variant": r.name, "attitude_err_deg": r.attitude_err_deg,
+                 "position_err_m": r.position_err_m} for r in runs]  # fmt: skip
+    write_json(tmp / "ins_benefit.json", ins_rows)
+    cal = res.calibration
+    write_json(tmp / "metrics.json", {
+        "accel": _param_metrics(ACCEL_PARAM_NAMES, cal.accel_params, truth.accel_params, cal.cov_accel),
+        "gyro": _param_metrics(GYRO_PARAM_NAMES, cal.gyro_params, truth.gyro_params, cal.cov_gyro),
+        "ins_benefit": ins_rows,
+    })  # fmt: skip
 
 
 def _param_metrics(
