@@ -240,7 +240,7 @@ FIELDS: dict[str, dict[str, list[object]]] = {
             "frontend.scan_voxel": [1e-9, -0.5], "extrinsic.time_offset_s": [1.7e9, -5],
             "filter.max_iterations": [0, 10**6, 1.5], "align_seconds": [0, 1e7], "map.radius": [0, 1e9],
             "map.max_per_voxel": [0, 10**5]},
-    "vio": {"noise.gyro": [0, -1], "nhc_rate_hz": [0, 1e6], "vo.max_features": [0, 5],
+    "vio": {"noise.gyro": [0, -1], "nhc_rate_hz": [0, 1e6], "vo.max_features": [0, 5, 10**7], "vo.search_coarse_px": [0, 10**5], "vo.blur_sigma": [-1, 1e6],
             "g": [0, 98.1], "outlier_fraction": [1.0, -0.1], "outlier_seed": [-1, 2**40]},
     "map2d": {"resolution": [1e-9, 0, 5], "loop.min_score": [0, 1, 2], "max_range": [0, -3],
               "matcher.max_iterations": [0, -2], "matcher.linear_window": [1e3, -1]},

@@ -165,6 +165,8 @@ def test_vio_sim_too_few_frames(tmp_path: Path) -> None:
         (RANDOM, "not a text file"),
         (b"- 1\n- 2\n", "a list"),
         (b"noise:\n  gyro: .inf\n", "noise.gyro"),
+        (b"vo:\n  search_coarse_px: 100000\n", "vo.search_coarse_px"),  # a numba SystemError
+        (b"vo:\n  blur_sigma: 1.0e6\n", "vo.blur_sigma"),  # 22 GB and 210 s for 2 s of images
     ],
 )
 def test_vio_config_file(content: bytes, expect: str, tmp_path: Path) -> None:

@@ -44,15 +44,21 @@ class VoConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     detector: Literal["sift", "orb"] = "sift"
-    max_features: int = Field(300, ge=20, description="features kept per frame")
+    max_features: int = Field(300, ge=20, le=10000, description="features kept per frame")
     redetect_below: float = Field(
         0.7, gt=0, le=1, description="detect when fewer tracks than this share"
     )
-    cell_px: int = Field(16, ge=4, description="at most one new feature per cell of this size")
-    patch_half: int = Field(5, ge=2, description="ZNCC patch half-size at full resolution")
-    patch_half_coarse: int = Field(3, ge=2, description="ZNCC patch half-size at half resolution")
-    search_coarse_px: int = Field(8, ge=1, description="tracking search radius at half resolution")
-    search_fine_px: int = Field(2, ge=1, description="refinement radius at full resolution")
+    cell_px: int = Field(
+        16, ge=4, le=256, description="at most one new feature per cell of this size"
+    )
+    patch_half: int = Field(5, ge=2, le=32, description="ZNCC patch half-size at full resolution")
+    patch_half_coarse: int = Field(
+        3, ge=2, le=32, description="ZNCC patch half-size at half resolution"
+    )
+    search_coarse_px: int = Field(
+        8, ge=1, le=64, description="tracking search radius at half resolution"
+    )
+    search_fine_px: int = Field(2, ge=1, le=16, description="refinement radius at full resolution")
     min_zncc: float = Field(0.8, gt=-1, lt=1, description="tracking acceptance")
     stereo_min_zncc: float = Field(0.8, gt=-1, lt=1)
     stereo_uniqueness: float = Field(0.97, gt=0, le=1, description="second peak below this x best")
@@ -96,10 +102,13 @@ class VoConfig(BaseModel):
         description="refine each disparity with the window slanted by the disparity's slopes (surfaces "
         "not facing the camera, such as the floor ahead)",
     )
-    plane_step_px: int = Field(3, ge=1, description="px; the disparity's slopes span twice this")
+    plane_step_px: int = Field(
+        3, ge=1, le=32, description="px; the disparity's slopes span twice this"
+    )
     blur_sigma: float = Field(
         1.0,
         ge=0,
+        le=10,
         description="Gaussian pre-blur for matching, px: without it, interpolation averaging "
         "the image noise pulls sub-pixel peaks toward half pixels (0.08 px of disparity measured)",
     )
