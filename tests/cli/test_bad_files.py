@@ -245,7 +245,7 @@ FIELDS: dict[str, dict[str, list[object]]] = {
     "map2d": {"resolution": [1e-9, 0, 5], "loop.min_score": [0, 1, 2], "max_range": [0, -3],
               "matcher.max_iterations": [0, -2], "matcher.linear_window": [1e3, -1]},
     "study": {"claims.0.scenarios.0.duration_s": [0, -1, 1e9], "align.fix_rate_hz": [0, -10],
-              "seeds": [[-1], [2**40], ["x"], 10**9], "drift.age_h": [-1], "claims.0.metric": ["happiness"]},
+              "seeds": [[-1], [2**40], ["x"], 10**9], "drift.age_h": [-1, 1e9], "align.duration_s": [0, 1e9], "claims.0.metric": ["happiness"]},
 }  # fmt: skip
 STUDY = {"name": "t", "seeds": [0], "claims": [{
     "name": "c", "scenarios": [{"name": "street", "duration_s": 2.0}], "estimators": [{"name": "ins"}],

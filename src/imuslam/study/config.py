@@ -99,7 +99,7 @@ class DriftSpec(_Strict):
     """How the IMU's errors move with working time (seed 000: time and temperature), from seed 000's
     table-2 errors. ``age_h``: hours between the offline calibration and the run."""
 
-    age_h: float = Field(4.0, ge=0)
+    age_h: float = Field(4.0, ge=0, le=8760, description="at most a year")
     accel_bias_per_h: tuple[float, float, float] = (0.01, -0.008, 0.012)  # m/s^2 per hour, raw
     gyro_bias_per_h_dps: tuple[float, float, float] = (0.05, -0.04, 0.03)  # deg/s per hour, raw
     scale_per_h: float = Field(5e-4, description="relative change of every scale factor per hour")
@@ -109,10 +109,14 @@ class AlignSpec(_Strict):
     """The alignment window before the run: position fixes (RTK / motion capture), and the initial
     attitude error a coarse levelling and a rough heading leave (1-sigma roll, pitch, yaw)."""
 
-    duration_s: float = Field(60.0, gt=0)
-    fix_rate_hz: float = Field(10.0, gt=0)
-    fix_std_m: float = Field(0.02, gt=0)
-    init_attitude_err_deg: tuple[float, float, float] = (0.5, 0.5, 2.0)
+    duration_s: float = Field(60.0, gt=0, le=3600)
+    fix_rate_hz: float = Field(10.0, gt=0, le=1000)
+    fix_std_m: float = Field(0.02, gt=0, le=100)
+    init_attitude_err_deg: tuple[
+        Annotated[float, Field(ge=0, le=180)],
+        Annotated[float, Field(ge=0, le=180)],
+        Annotated[float, Field(ge=0, le=180)],
+    ] = (0.5, 0.5, 2.0)
 
 
 class ClaimSpec(_Strict):
