@@ -15,6 +15,7 @@ from imuslam.errors import HardwareError, InputError
 
 if TYPE_CHECKING:
     from imuslam.imu.history import CalibrationHistory
+    from imuslam.imu.online_pipeline import RobotDevices
 
 SEED_POSES = 40  # seed 000's pose count (imuslam.imu.online_pipeline.SEED_POSES)
 SEED_T_INIT_S = 50.0  # seed 000's initial still period, s
@@ -108,7 +109,6 @@ def register(app: typer.Typer) -> None:
         from imuslam.imu.online_pipeline import (
             OnlinePipeline,
             OnlineRunConfig,
-            RobotDevices,
             SimulatedRobot,
         )
 
@@ -125,29 +125,8 @@ def register(app: typer.Typer) -> None:
         else:
             if imu_port is None:
                 raise InputError("give --sim, or --imu-port for a WitMotion IMU on the robot")
-            from imuslam.hw.gimbal import Pca9685Gimbal, ServoSpec
-            from imuslam.hw.witmotion import WitMotionImu
-
-            try:  # the drivers import smbus2 and pyserial (the hw extra) when they open a device
-                g = Pca9685Gimbal(ServoSpec(0), ServoSpec(1, min_deg=-180, max_deg=180))
-            except ImportError as exc:
-                raise InputError(_NO_HW.format(exc.name)) from None
-            except OSError as exc:
-                raise HardwareError(
-                    f"--gimbal {gimbal.value}: cannot open its I2C bus ({exc})"
-                ) from None
-            console.print(
-                f"gimbal: PCA9685 hobby servos, {g.resolution_deg:.2f} deg per PWM count "
-                "(seed 000's gimbal: 0.088 deg); plans are predicted at the reachable angles"
-            )
-            try:
-                imu = WitMotionImu(imu_port)
-            except ImportError as exc:
-                raise InputError(_NO_HW.format(exc.name)) from None
-            except OSError as exc:
-                raise HardwareError(f"--imu-port {imu_port}: cannot open ({exc})") from None
-            imu.configure(rate)
-            dataset = RobotDevices(imu, g)
+            devices = _open_devices(imu_port, gimbal.value, rate)
+            dataset, imu = devices, devices.imu
             inputs.update(imu_port=imu_port, gimbal=gimbal.value)
         pipeline = OnlinePipeline(dataset, cfg, out / "history")
 
@@ -169,3 +148,30 @@ def register(app: typer.Typer) -> None:
                     console.print(f"{e.t_ns * 1e-9:8.1f} s  {e.kind:<13} {e.detail}")
         _print_history(pipeline.history)
         pipeline.save(res, out, **inputs)
+
+
+def _open_devices(imu_port: str, gimbal: str, rate: float) -> RobotDevices:
+    """The robot's devices: a WitMotion IMU on ``imu_port`` at ``rate`` Hz and the PCA9685 servo
+    gimbal; a missing hw extra is bad input (exit 2), a device that does not open a hardware error."""
+    from imuslam.hw.gimbal import Pca9685Gimbal, ServoSpec
+    from imuslam.hw.witmotion import WitMotionImu
+    from imuslam.imu.online_pipeline import RobotDevices
+
+    try:  # the drivers import smbus2 and pyserial (the hw extra) when they open a device
+        g = Pca9685Gimbal(ServoSpec(0), ServoSpec(1, min_deg=-180, max_deg=180))
+    except ImportError as exc:
+        raise InputError(_NO_HW.format(exc.name)) from None
+    except OSError as exc:
+        raise HardwareError(f"--gimbal {gimbal}: cannot open its I2C bus ({exc})") from None
+    console.print(
+        f"gimbal: PCA9685 hobby servos, {g.resolution_deg:.2f} deg per PWM count "
+        "(seed 000's gimbal: 0.088 deg); plans are predicted at the reachable angles"
+    )
+    try:
+        imu = WitMotionImu(imu_port)
+    except ImportError as exc:
+        raise InputError(_NO_HW.format(exc.name)) from None
+    except OSError as exc:
+        raise HardwareError(f"--imu-port {imu_port}: cannot open ({exc})") from None
+    imu.configure(rate)
+    return RobotDevices(imu, g)
