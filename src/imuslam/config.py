@@ -38,7 +38,8 @@ def describe_validation_error(exc: ValidationError) -> str:
     """One line for a configuration's validation errors: per error the field and what was expected
     (a check across fields, which has no field, by its message alone)."""
     return "; ".join(
-        f"field '{'.'.join(map(str, e['loc']))}': {e['msg']} (got {e.get('input')!r:.40})"
+        f"field '{'.'.join(map(str, e['loc']))}': {str(e['msg']).removeprefix('Value error, ')} "
+        f"(got {e.get('input')!r:.40})"
         if e["loc"]
         else str(e["msg"]).removeprefix("Value error, ")
         for e in exc.errors()

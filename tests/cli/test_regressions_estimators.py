@@ -95,6 +95,7 @@ def test_lio_point_step_smaller_than_a_point(lio_bags: dict[str, Path], tmp_path
         ("frontend:\n  scan_voxel: 1.0e-9\n", "frontend.scan_voxel"),
         ("filter:\n  g: 98.1\n", "filter.g"),
         ("map:\n  max_per_voxel: 100000\n", "map.max_per_voxel"),  # was a MemoryError traceback
+        ("frontend:\n  min_range: 200.0\n", "frontend.min_range"),  # beyond max_range: exit 0
     ],
 )
 def test_lio_config_value_names_its_field(
@@ -233,10 +234,9 @@ def test_vio_imu_stamps_shared(shared_data: Path, tmp_path: Path) -> None:
         (b"resolution: 1.0e-9\n", "resolution"),
         (b"max_range: .inf\n", "max_range"),
         (b"loop:\n  min_score: .nan\n", "loop.min_score"),
-        (
-            b"matcher:\n  linear_window: 1000.0\n",
-            "matcher.linear_window",
-        ),  # ran over 10 min, 30 scans
+        # a 1 km search window ran over 10 minutes on 30 scans; a min_range beyond max_range
+        (b"matcher:\n  linear_window: 1000.0\n", "matcher.linear_window"),
+        (b"min_range: 50.0\n", "min_range"),
     ],
 )
 def test_map2d_config(content: bytes, name: str, sim_room: Path, tmp_path: Path) -> None:

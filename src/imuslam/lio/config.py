@@ -54,6 +54,15 @@ class FrontEndConfig(BaseModel):
     edge_threshold: float = Field(0.005, gt=0)
     plane_threshold: float = Field(0.003, gt=0)
 
+    @model_validator(mode="after")
+    def _ranges(self) -> FrontEndConfig:
+        if not self.min_range < self.max_range:
+            raise ValueError(
+                f"frontend.min_range {self.min_range:g} m must be below frontend.max_range "
+                f"{self.max_range:g} m (no point would be kept)"
+            )
+        return self
+
 
 class MapConfig(BaseModel):
     """voxel: map voxel size, m; max_per_voxel: points per voxel; radius: local map radius, m;

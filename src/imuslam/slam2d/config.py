@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class MatcherConfig(BaseModel):
@@ -208,3 +208,12 @@ class Slam2dConfig(BaseModel):
     matcher: MatcherConfig = Field(default_factory=MatcherConfig)
     loop: LoopConfig = Field(default_factory=LoopConfig)
     map_resolution: float = Field(0.05, gt=0.005, le=1.0, description="output map cell, m")
+
+    @model_validator(mode="after")
+    def _ranges(self) -> Slam2dConfig:
+        if not self.min_range < self.max_range:
+            raise ValueError(
+                f"min_range {self.min_range:g} m must be below max_range {self.max_range:g} m "
+                "(no reading would be used)"
+            )
+        return self
