@@ -1,6 +1,6 @@
 """Gimbal pose plans that determine the 18 calibration parameters better with the same poses.
 
-The predicted covariance of a plan follows the two fits of ``imu/calibrate.py`` at nominal parameters:
+The predicted covariance of a plan follows the two fits of ``imu/calibrate/`` at nominal parameters:
 each pose adds ``m / sigma_a^2 J^T J`` to the accelerometer's information (J the gravity-norm Jacobian of
 its mean raw sample, m samples per pose); each move between consecutive poses adds ``J^T J / sigma_r^2`` to
 the gyroscope's (J the Jacobian of the predicted-minus-measured gravity direction after integrating the
@@ -126,7 +126,7 @@ class PlanModel:
 
     def gyro_cov(self, JtJ: FloatArray, JtD: FloatArray, cov_accel: FloatArray) -> FloatArray:
         """Gyro covariance (9, 9) from summed terms: noise part plus the accelerometer calibration's
-        uncertainty carried through the measured directions (as ``imu/calibrate.py`` reports it)."""
+        uncertainty carried through the measured directions (as ``imu/calibrate/`` reports it)."""
         Ainv = np.linalg.inv(JtJ)
         return np.asarray(Ainv + Ainv @ JtD @ cov_accel @ JtD.T @ Ainv, dtype=np.float64)
 
