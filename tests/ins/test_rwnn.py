@@ -6,7 +6,7 @@ from test_ins import BA, BG, G, _biased, _moving_case
 
 from imuslam.errors import InputError
 from imuslam.ins.align import Aiding, run_alignment
-from imuslam.ins.rwnn import RwnnConfig, observer_matrix, run_rwnn
+from imuslam.ins.rwnn import RwnnConfig, RwnnSettings, observer_matrix, run_rwnn
 from imuslam.interfaces.nav import NavState
 from imuslam.sim.imu import simulate_imu
 from imuslam.sim.trajectory import Static
@@ -189,3 +189,13 @@ def test_bad_aiding_kind_and_std_are_named() -> None:
         run_rwnn(t, z, z, t, z, "heading", np.zeros(3), np.zeros(3), np.eye(3))
     with pytest.raises(InputError, match="1-sigma"):
         run_rwnn(t, z, z, t, z, "zupt", np.zeros(3), np.zeros(3), np.eye(3), aid_std=0.0)
+
+
+def test_the_kernel_settings_carry_each_config_field_under_its_own_name() -> None:
+    """RwnnSettings is built positionally from the config: every field must land under its own name."""
+    c = RwnnConfig(**{f: 1.0 + 0.125 * i for i, f in enumerate(RwnnSettings._fields) if f != "network"},
+                   network=False)  # fmt: skip
+    s = RwnnSettings.from_config(c)
+    assert set(RwnnSettings._fields) == set(RwnnConfig.model_fields)
+    for f in RwnnSettings._fields:
+        assert getattr(s, f) == getattr(c, f), f
