@@ -126,7 +126,7 @@ def test_calibration_not_yaml(content: bytes) -> None:
     key=st.sampled_from(["g", "t_init_s", "window_s", "k_values", "samples_per_interval", "bias_sign",
                          "min_intervals", "gyro_margin_s", "estimate_gyro_bias", "unknown_key", "gg"]),
     value=st.one_of(st.text(max_size=5), st.floats(-1e3, 0), st.lists(st.floats(-5, 0), max_size=2),
-                    st.just({"a": 1}), st.just(-3)),
+                    st.just({"a": 1}), st.just(-3), st.sampled_from([np.inf, -np.inf, np.nan])),
 )  # fmt: skip
 def test_calibrate_config(key: str, value: object) -> None:
     """A --config with a wrong value or an unknown key names the key."""

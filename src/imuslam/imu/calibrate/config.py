@@ -7,7 +7,7 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from imuslam.imu.model import ImuCalibration, TriadModel
 
@@ -18,6 +18,7 @@ IntArray = NDArray[np.int64]
 class CalibrationConfig(BaseModel):
     """Settings of the multi-position calibration (YAML keys equal these names)."""
 
+    model_config = ConfigDict(allow_inf_nan=False)
     g: float = Field(9.80665, gt=0, description="local gravity magnitude, m/s^2")
     t_init_s: float = Field(50.0, gt=0, description="initial still period, s")
     window_s: float = Field(1.0, gt=0, description="static detector window, s")
