@@ -79,7 +79,7 @@ def truth(d: LidarDrive) -> Trajectory:
 
 
 def metrics(gt: Trajectory, est: Trajectory) -> dict[str, float]:
-    res, _, _ = evaluate(gt, est, "se3", 1.0, "frames", 0.02, KITTI_LENGTHS)
+    res = evaluate(gt, est, "se3", 1.0, "frames", 0.02, KITTI_LENGTHS)
     kd = [v[0] for v in res.kitti.values()]
     return {"drift_pct": float(np.mean(kd)) if kd else float("nan"), "ate_m": res.ape_trans.rmse,
             "rot_deg": res.ape_rot_deg.rmse}  # fmt: skip
@@ -233,7 +233,8 @@ def corridor_bench(args: Any) -> None:
     for name, use_imu in (("LiDAR-only", False), ("LIO full", True)):
         try:
             _, est = run_imuslam(d, "direct", "full", "none", "cal", use_imu=use_imu, indoor=True)
-            res, r, ea = evaluate(gt, est, "se3", 1.0, "frames", 0.02)
+            res = evaluate(gt, est, "se3", 1.0, "frames", 0.02)
+            r, ea = res.reference, res.estimate_aligned
             fin = float(np.linalg.norm(ea.p_w[-1] - r.p_w[-1]))
             print(f"| {name} | {res.ape_trans.rmse:.3f} | {fin:.3f} | {res.ape_rot_deg.rmse:.3f} |")
         except Exception as exc:
@@ -618,7 +619,7 @@ def robust_bench(args: Any) -> None:
         cfg = LioConfig(extrinsic=start, frontend=fe, map=mp)
         res = LioPipeline(MemoryDataset(d.scans, imu, "rig"), cfg, progress=False).run()
         gt = truth(d)
-        ev, _, _ = evaluate(gt, res.trajectory, "se3", 1.0, "frames", 0.02)
+        ev = evaluate(gt, res.trajectory, "se3", 1.0, "frames", 0.02)
         ate = ev.ape_trans.rmse
         print(f"| {off * 1e3:g} ms behind | {given} | {cal} | {ate:.4f} | {100 * ate / gt.path_length:.3f} | "
               f"{ev.ape_rot_deg.rmse:.3f} | {' | '.join(errs)} | {time.perf_counter() - t0:.0f} |", flush=True)  # fmt: skip

@@ -36,7 +36,7 @@ def test_yaw_alignment_recovers_known_4dof_offset() -> None:
     s, R, t = align(ref, est, "yaw")
     np.testing.assert_allclose(R, R0, atol=1e-12)
     np.testing.assert_allclose(t, t0, atol=1e-12)
-    res, _, _ = evaluate(ref, est, "yaw")
+    res = evaluate(ref, est, "yaw")
     assert res.ape_trans.max < 1e-10 and res.ape_rot_deg.max < 1e-6
 
 

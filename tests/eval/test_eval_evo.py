@@ -64,11 +64,9 @@ def _evo(d: Path, case: str, correct_scale: bool, delta: float, unit: "metrics.U
 def _ours(d: Path, case: str, align: str, delta: float, unit: str):  # type: ignore[no-untyped-def]
     gt, est, kind = CASES[case]
     if kind == "kitti":
-        return evaluate(read_kitti(d / gt), read_kitti(d / est), align, delta, unit, by_index=True)[
-            0
-        ]  # type: ignore[arg-type]
+        return evaluate(read_kitti(d / gt), read_kitti(d / est), align, delta, unit, by_index=True)  # type: ignore[arg-type]
     ref = read_euroc_gt(d / gt) if kind == "euroc" else read_tum(d / gt)
-    return evaluate(ref, read_tum(d / est), align, delta, unit, max_diff_s=0.01)[0]  # type: ignore[arg-type]
+    return evaluate(ref, read_tum(d / est), align, delta, unit, max_diff_s=0.01)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("case", list(CASES))

@@ -55,10 +55,3 @@ def test_sim3_copy_is_recovered_and_written(tmp_path: Path) -> None:
     stamps = [ln.split()[0] for ln in (out / "estimate_aligned.tum").read_text().splitlines()[1:]]
     assert [int(s.replace(".", "")) for s in stamps] == ref.t_ns.tolist()
     assert all(len(s.split(".")[1]) == 9 for s in stamps)
-
-
-def test_result_still_unpacks_as_the_former_tuple() -> None:
-    ref, est, _ = _pair(np.random.default_rng(4))
-    res = EvalPipeline(ref, est, EvalConfig(align="sim3")).run()
-    r, ref_assoc, ea = res
-    assert r is res and ref_assoc is res.reference and ea is res.estimate_aligned and res[0] is res

@@ -155,7 +155,7 @@ def test_lio_with_the_recovered_extrinsic_drifts_as_with_the_truth(
         res = LioPipeline(
             MemoryDataset(d.scans, imu, "rig"), LioConfig(extrinsic=ext), progress=False
         ).run()
-        ev, _, _ = evaluate(gt, res.trajectory, "se3", 1.0, "frames", 0.02)
+        ev = evaluate(gt, res.trajectory, "se3", 1.0, "frames", 0.02)
         ate[name] = ev.ape_trans.rmse
     assert ate["calibrated"] <= 1.1 * ate["truth"], ate
 

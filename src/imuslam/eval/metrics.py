@@ -10,7 +10,6 @@ relative pose error over the first frame that lies that far along the reference 
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from typing import Any
 
@@ -132,10 +131,7 @@ def kitti_drift(
 @dataclass
 class EvalResult:
     """Metrics of an estimate against a reference, with the trajectories they were computed on (as evo's
-    ``Result``: stats, the error series and the associated reference / aligned estimate).
-
-    Unpacking it as ``res, ref, est_aligned = evaluate(...)`` (the former tuple) still works.
-    """
+    ``Result``: stats, the error series and the associated reference / aligned estimate)."""
 
     align: str
     scale: float
@@ -152,13 +148,6 @@ class EvalResult:
     t_s: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
     reference: Trajectory | None = field(default=None, repr=False)
     estimate_aligned: Trajectory | None = field(default=None, repr=False)
-
-    def __iter__(self) -> Iterator[Any]:
-        """The former return value of :func:`evaluate`: (result, reference, aligned estimate)."""
-        return iter((self, self.reference, self.estimate_aligned))
-
-    def __getitem__(self, i: int) -> Any:
-        return tuple(self)[i]
 
     def to_dict(self) -> dict[str, Any]:
         """The metrics (no series, no trajectories), as metrics.json holds them."""

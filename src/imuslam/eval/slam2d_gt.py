@@ -103,9 +103,7 @@ def ate_rpe(
     ref = read_trajectory(gt, fmt)
     out: dict[str, Any] = {"reference": str(gt)}
     for name, est in estimates.items():
-        res, _, _ = evaluate(
-            ref, planar_trajectory(t_ns, est, name), "se3", 1.0, "m", max_diff_s=0.02
-        )
+        res = evaluate(ref, planar_trajectory(t_ns, est, name), "se3", 1.0, "m", max_diff_s=0.02)
         out[name] = {"ate_rmse_m": res.ape_trans.rmse, "ate_max_m": res.ape_trans.max,
                      "rpe_trans_rmse_m_per_m": res.rpe_trans.rmse, "rpe_rot_rmse_deg_per_m": res.rpe_rot_deg.rmse,
                      "poses": res.n_pairs}  # fmt: skip

@@ -42,7 +42,7 @@ def compare_tracks(
     r = interpolate(ref, t)
     out: dict[str, EvalResult] = {}
     for name, tr in tracks.items():
-        res, _, _ = evaluate(r, interpolate(tr, t), align, rpe_delta, rpe_unit, by_index=True)  # type: ignore[arg-type]
+        res = evaluate(r, interpolate(tr, t), align, rpe_delta, rpe_unit, by_index=True)  # type: ignore[arg-type]
         out[name] = res
     return out
 

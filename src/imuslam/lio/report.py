@@ -29,7 +29,7 @@ def write_results(
     if gt is not None:
         from imuslam.eval.metrics import KITTI_LENGTHS, evaluate
 
-        res, _r, _aligned = evaluate(gt, result.trajectory, "se3", 1.0, "m", 0.02, KITTI_LENGTHS)
+        res = evaluate(gt, result.trajectory, "se3", 1.0, "m", 0.02, KITTI_LENGTHS)
         metrics = res.to_dict()
     st = result.stats
     run = {

@@ -183,8 +183,10 @@ def _run(
     st = traj.state(est.traj.t_ns * 1e-9)
     ref = Trajectory(est.traj.t_ns, st.p_w, st.R_w_b, "truth")
     rate_est = (len(est.traj) - 1) / max((est.traj.t_ns[-1] - est.traj.t_ns[0]) * 1e-9, 1e-9)
-    ev, r, e = evaluate(ref, est.traj, cell.eval_align, rpe_delta=max(1.0, round(rate_est)),  # type: ignore[arg-type]
+    ev = evaluate(ref, est.traj, cell.eval_align, rpe_delta=max(1.0, round(rate_est)),  # type: ignore[arg-type]
                         rpe_unit="frames", by_index=True)  # fmt: skip
+    r, e = ev.reference, ev.estimate_aligned
+    assert r is not None and e is not None
     metrics = {
         "ape_rmse_m": ev.ape_trans.rmse,
         "ape_max_m": ev.ape_trans.max,
