@@ -319,3 +319,42 @@ def test_full_disk_names_out_and_leaves_nothing(command: str, tmp_path: Path) ->
     assert not (tmp_path / "new").exists()
     assert tree_hashes(user) == before
     assert not no_temporaries(tmp_path)
+
+
+# every command (a cheap input each: some runs succeed, some are refused as bad input, none may touch
+# a file of the user's); the simulator's commands have no input file to overlap
+EVERY = {
+    **COMMANDS,
+    "simulate": lambda d: ["simulate", "room", "--duration", "3"],
+    "vio": lambda d: ["vio", "sim", "--sim-duration", "1", "--sim-rate", "5"],
+    "correct": lambda d: [
+        "correct",
+        str(_imu(d)),
+        "--calib",
+        str(write_calibration(d / "c.yaml")),
+    ],  # fmt: skip
+}
+
+
+@pytest.mark.parametrize("kind", ["user folder", "symbolic link"])
+@pytest.mark.parametrize("command", sorted(EVERY))
+def test_no_command_touches_a_users_files(command: str, kind: str, tmp_path: Path) -> None:
+    """Whatever the run's outcome (results, or a one-line refusal), every file of the user's folder
+    (reached directly or through a link) is as it was, and nothing temporary is left."""
+    data = tmp_path / "data"
+    data.mkdir()
+    args = EVERY[command](data)
+    user = _user_folder(tmp_path / "user")
+    (user / "config.yaml").write_text("the user's own config\n")  # a name most commands write
+    (user / "metrics.json").write_text("{}\n")
+    out = user
+    if kind == "symbolic link":
+        out = tmp_path / "link"
+        out.symlink_to(user, target_is_directory=True)
+    before = tree_hashes(user)
+    r = run([*args, "--out", str(out)])
+    assert r.exit_code in (0, 2, 3), r.output
+    assert "Traceback" not in r.output
+    after = tree_hashes(user)
+    assert {k: after.get(k) for k in before} == before
+    assert not no_temporaries(tmp_path)

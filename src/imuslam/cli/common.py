@@ -107,6 +107,12 @@ def friendly_errors(fn: F) -> F:
             raise typer.Exit(2) from None
         except KeyboardInterrupt as exc:
             _exit_interrupted(_interrupt(exc))
+        except (
+            MemoryError
+        ):  # a setting that scales an allocation past the machine (a voxel cap, a blur)
+            _print_error("out of memory: the input or a setting asks for more than this machine has "
+                         "(imuslam --verbose shows where)")  # fmt: skip
+            raise typer.Exit(3) from None
         except Exception as exc:
             intr = _interrupt(exc)  # the signal arrived inside a compiled kernel
             if intr is not None:
