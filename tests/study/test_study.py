@@ -307,8 +307,10 @@ def test_vio_cells_against_truth(tmp_path: Path) -> None:
         "name": "v", "scenarios": [{"name": "room", "duration_s": 5.0}], "imu": ["online"],
         "estimators": [{"name": "vio", "label": "fused", "options": {"nhc": True}},
                        {"name": "vio", "label": "imu", "options": {"track": "imu"}}],
-        "compare": "estimator", "expect": ["fused", "imu"], "eval_align": "yaw"}]})  # fmt: skip
-    t = run_study(s, tmp_path, serial=True, progress=False).table.set_index("variant")
+        "compare": "estimator", "expect": ["fused", "imu"], "eval_align": "yaw",
+        "practical_bound": 0.01, "reason": "1 cm of ATE in an 8 m room", "max_seeds": 2}]})  # fmt: skip
+    table = run_study(s, tmp_path, serial=True, progress=False).table
+    t = table[table["seed"] == 0].set_index("variant")  # the first seed (a second may be added)
     assert (t["status"] == "ok").all(), t["error"]
     assert t.loc["fused", "ape_rmse_m"] < 0.05
     assert t.loc["imu", "ape_rmse_m"] > t.loc["fused", "ape_rmse_m"]
