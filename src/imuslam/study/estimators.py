@@ -8,8 +8,7 @@ sensors its estimator needs (LiDAR, stereo, wheels) from ``inp.sensor_rng(name)`
 claim sees the same sensor noise.
 
 Register an adapter with :func:`register` (its options as a strict pydantic model, checked when the
-study is loaded; the scenarios that carry its sensors). An estimator that this build does not have is
-declared with :func:`planned`, so a study naming it fails at once with "estimator X is not available".
+study is loaded; the scenarios that carry its sensors).
 """
 
 from __future__ import annotations
@@ -123,12 +122,6 @@ def register(
         return run
 
     return deco
-
-
-def planned(name: str, why: str) -> None:
-    """Declare an estimator this build does not have (a study naming it is rejected)."""
-    if name not in REGISTRY:
-        REGISTRY[name] = EstimatorEntry(name, "", NoOptions, (), None, why)
 
 
 def get_estimator(name: str) -> EstimatorEntry:
@@ -348,25 +341,13 @@ def run_map2d_cell(inp: CellInput) -> Estimate:
     return Estimate(Trajectory(res.t_ns, p, R, "map2d"), extra)
 
 
-def _available(*modules: str) -> bool:
-    import importlib.util
-
-    try:
-        return all(importlib.util.find_spec(m) is not None for m in modules)
-    except ModuleNotFoundError:
-        return False
-
-
-if _available("imuslam.slam2d.slam", "imuslam.sim.robot2d", "imuslam.eval.mapquality"):
-    register(
-        "map2d",
-        Map2dOptions,
-        ("room", "corridor", "square"),
-        "2D SLAM (scans, wheels, IMU)",
-        cpu_per_s=0.16,
-    )(run_map2d_cell)
-else:
-    planned("map2d", "2D SLAM (imuslam.slam2d) has no pipeline in this build")
+register(
+    "map2d",
+    Map2dOptions,
+    ("room", "corridor", "square"),
+    "2D SLAM (scans, wheels, IMU)",
+    cpu_per_s=0.16,
+)(run_map2d_cell)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -453,8 +434,5 @@ def run_lio_cell(inp: CellInput) -> Estimate:
     )
 
 
-if _available("imuslam.lio.pipeline", "imuslam.lio.estimator"):
-    register("lio", LioOptions, ("street", "corridor"), "LiDAR-inertial odometry", _lio_prepare,
-             own_alignment=True, cpu_per_s=0.6)(run_lio_cell)  # fmt: skip
-else:
-    planned("lio", "LiDAR-inertial odometry (imuslam.lio) has no pipeline in this build")
+register("lio", LioOptions, ("street", "corridor"), "LiDAR-inertial odometry", _lio_prepare,
+         own_alignment=True, cpu_per_s=0.6)(run_lio_cell)  # fmt: skip
