@@ -8,7 +8,7 @@ import pytest
 from imuslam.errors import InputError
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.coarse import coarse_align
-from imuslam.ins.core import ErrorLayout
+from imuslam.ins.core import ErrorLayout, InsState
 from imuslam.ins.kf import Eskf, FilterDivergence, KfNoise
 from imuslam.ins.strapdown import integrate
 from imuslam.interfaces.imu import ImuLog
@@ -124,7 +124,7 @@ def test_strong_tracking_follows_a_bias_step_faster() -> None:
 
 
 def test_divergence_is_detected() -> None:
-    kf = Eskf(np.zeros(3), np.zeros(3), np.eye(3), np.eye(15) * 1e-2)
+    kf = Eskf(InsState(np.zeros(3), np.zeros(3), np.eye(3)), np.eye(15) * 1e-2)
     a = np.tile([0.0, 0.0, G], (5, 1))
     a[3, 0] = np.nan
     with pytest.raises(FilterDivergence, match="sample"):
@@ -344,7 +344,7 @@ def test_batch_filter_equals_step_filter(kind: str, strong: bool) -> None:
     noise = KfNoise(3e-3, 2e-4, 1e-5, 1e-6)
     res = run_alignment(log, aid, init, "stkf" if strong else "kf", noise, g=G)
     p0 = ErrorLayout.full().diag(theta=0.05**2, p=0.1**2, v=0.1**2, ba=0.2**2, bg=0.02**2)
-    kf = _ReferenceEskf(init.p_n.copy(), init.v_n.copy(), init.R_n_b.copy(), np.diag(p0), noise=noise, g=G,
+    kf = _ReferenceEskf(InsState.from_nav(init, g=G), np.diag(p0), noise=noise,
                         strong_tracking=strong)  # fmt: skip
     t = log.t_s
     k = 0

@@ -41,7 +41,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.errors import FilterDivergence, InputError
+from imuslam.errors import FilterDivergence
 from imuslam.geometry.so3_nb import exp_nb
 from imuslam.ins.measurement import (
     BlockMeasurement,
@@ -318,45 +318,31 @@ class Eskf:
     that is not positive definite, or a state that is not finite, raises :class:`FilterDivergence`
     naming the sample.
 
-    The positional form ``Eskf(p, v, R, P)`` (15 x 15 or 18 x 18 P in the layout's order) is kept.
+    x: the initial nominal state; P: its covariance in the layout's order (15 x 15, or 18 x 18 with
+    gravity, when no ``layout`` is given).
     """
 
     def __init__(
         self,
-        p: FloatArray | InsState,
-        v: FloatArray | None = None,
-        R: FloatArray | None = None,
-        P: FloatArray | None = None,
-        ba: FloatArray | None = None,
-        bg: FloatArray | None = None,
+        x: InsState,
+        P: FloatArray,
         noise: KfNoise | None = None,
-        g: float = 9.80665,
         strong_tracking: bool = False,
         rho: float = 0.95,
         beta: float = 3.0,
         max_fading: float = 5.0,
         layout: ErrorLayout | None = None,
     ) -> None:
-        if isinstance(p, InsState):
-            self.x = p.copy()
-        else:
-            if v is None or R is None:
-                raise InputError("Eskf needs p, v, R (or an InsState)")
-            self.x = InsState(np.array(p, float), np.array(v, float), np.array(R, float),
-                              np.zeros(3) if ba is None else np.array(ba, float),
-                              np.zeros(3) if bg is None else np.array(bg, float),
-                              np.array([0.0, 0.0, -g]))  # fmt: skip
-        if P is None:
-            raise InputError("Eskf needs an initial covariance P")
+        self.x = x.copy()
         self.P = np.array(P, dtype=float)
         if layout is None:
-            if self.P.shape[0] not in (15, 18):
-                raise InputError(
+            if self.P.shape[0] not in (15, 18):  # a caller's mistake, not the user's input
+                raise ValueError(
                     f"covariance must be 15 x 15 (or 18 x 18 with gravity), got {self.P.shape}"
                 )
             layout = ErrorLayout.full(gravity=self.P.shape[0] == 18)
         if self.P.shape != (layout.dim, layout.dim):
-            raise InputError(
+            raise ValueError(
                 f"covariance {self.P.shape} does not fit the {layout.dim}-state layout"
             )
         self.layout = layout

@@ -527,7 +527,7 @@ class LioEstimator:
         sb = 0.05 if cfg.align == "none" else 0.01
         P0 = np.diag(lay.diag(theta=np.deg2rad(1.0) ** 2, p=0.05**2, v=0.2**2, ba=sb**2 * 100,
                               bg=sb**2, g=0.05**2))  # fmt: skip
-        self.eskf = Eskf(x, P=P0, noise=self.noise, layout=lay, g=cfg.filter.g)
+        self.eskf = Eskf(x, P=P0, noise=self.noise, layout=lay)
         if cfg.filter.map_covariance:
             # the world is the first IMU pose (the first scan's end, levelled once by R_w_i0): the map
             # has no error there by construction (FAST-LIO2's world); the points from before the filter
