@@ -9,19 +9,11 @@ from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
 from imuslam.interfaces.lidar import Scan2d, Scan3d
 from imuslam.interfaces.nav import ImuBias, NavState
 from imuslam.interfaces.odometry import WheelOdometry
-from imuslam.interfaces.sources import (
-    GroundTruthSource,
-    ImuSource,
-    LidarSource,
-    Scan2dSource,
-    StereoSource,
-    WheelSource,
-)
+from imuslam.interfaces.sources import ImuSource, LidarSource
 from imuslam.interfaces.trajectory import Trajectory
 
 __all__ = [
     "AccelUnit",
-    "GroundTruthSource",
     "GyroUnit",
     "ImuBias",
     "ImuLog",
@@ -29,11 +21,8 @@ __all__ = [
     "LidarSource",
     "NavState",
     "Scan2d",
-    "Scan2dSource",
     "Scan3d",
     "StereoFrame",
-    "StereoSource",
     "Trajectory",
     "WheelOdometry",
-    "WheelSource",
 ]

@@ -1,8 +1,8 @@
 """Dataset protocols: what an estimator pipeline asks of a dataset (a bag, EuRoC, KITTI, the simulator).
 
-A dataset implements whichever it can; a pipeline states the ones it needs in its signature, e.g.
-``def run(data: ImuSource & LidarSource)`` written as a Protocol that inherits both. No ``hasattr``
-checks: ``isinstance(data, LidarSource)`` works (``runtime_checkable``).
+A dataset implements whichever it can; a pipeline states the ones it needs in its signature, as a
+Protocol that inherits them (``lio.pipeline.LidarDataset`` is a ``LidarSource`` with an optional IMU).
+No ``hasattr`` checks: ``isinstance(data, LidarSource)`` works (``runtime_checkable``).
 """
 
 from __future__ import annotations
@@ -10,20 +10,10 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Protocol, runtime_checkable
 
-from imuslam.interfaces.camera import StereoFrame
 from imuslam.interfaces.imu import ImuLog
-from imuslam.interfaces.lidar import Scan2d, Scan3d
-from imuslam.interfaces.odometry import WheelOdometry
-from imuslam.interfaces.trajectory import Trajectory
+from imuslam.interfaces.lidar import Scan3d
 
-__all__ = [
-    "GroundTruthSource",
-    "ImuSource",
-    "LidarSource",
-    "Scan2dSource",
-    "StereoSource",
-    "WheelSource",
-]
+__all__ = ["ImuSource", "LidarSource"]
 
 
 @runtime_checkable
@@ -37,32 +27,4 @@ class ImuSource(Protocol):
 class LidarSource(Protocol):
     def lidar_scans(self) -> Iterator[Scan3d]:
         """3D scans in time order."""
-        ...
-
-
-@runtime_checkable
-class StereoSource(Protocol):
-    def stereo_frames(self) -> Iterator[StereoFrame]:
-        """Rectified stereo frames in time order."""
-        ...
-
-
-@runtime_checkable
-class Scan2dSource(Protocol):
-    def laser_scans(self) -> Iterator[Scan2d]:
-        """2D laser scans in time order."""
-        ...
-
-
-@runtime_checkable
-class WheelSource(Protocol):
-    def wheel_odometry(self) -> WheelOdometry:
-        """All wheel-odometry samples."""
-        ...
-
-
-@runtime_checkable
-class GroundTruthSource(Protocol):
-    def ground_truth(self) -> Trajectory:
-        """Reference poses (motion capture, RTK, the simulator's truth)."""
         ...

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from imuslam.errors import EstimatorError, InputError
 from imuslam.interfaces import Scan3d
 from imuslam.interfaces.imu import ImuLog
+from imuslam.interfaces.sources import LidarSource
 from imuslam.io.trajectory import Trajectory
 from imuslam.lio.config import LioConfig
 from imuslam.lio.features import voxel_downsample
@@ -31,10 +32,11 @@ log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 
-class LidarDataset(Protocol):
-    name: str
+class LidarDataset(LidarSource, Protocol):
+    """What the pipeline reads: scans in time order (``LidarSource``), the IMU when the dataset has one
+    (a folder of scans has none), a name and a scan count."""
 
-    def lidar_scans(self) -> Any: ...
+    name: str
 
     def imu(self) -> ImuLog | None: ...
 
