@@ -2,8 +2,8 @@
 imuslam records, through rosbags (no ROS install).
 
 :class:`Bag` lists topics and iterates the messages of chosen topics in time order, converted by
-:mod:`imuslam.io.rosmsg`; :class:`BagDataset` is a bag seen through the dataset protocols of
-:mod:`imuslam.interfaces.sources` (IMU, LiDAR, 2D scans, wheel odometry, ground truth). Every rosbags
+:mod:`imuslam.io.rosmsg` (IMU, LiDAR, 2D scans, odometry, poses); the estimators' readers
+(``lio.datasets.BagLidarDataset``, ``vio.dataset.BagStereo``) build on it. Every rosbags
 error is an :class:`~imuslam.errors.InputError` naming the bag; a missing topic lists the topics present.
 """
 
@@ -19,13 +19,12 @@ import numpy as np
 from imuslam.errors import InputError
 from imuslam.interfaces.imu import ImuLog
 from imuslam.interfaces.lidar import Scan2d, Scan3d
-from imuslam.interfaces.odometry import WheelOdometry
 from imuslam.interfaces.trajectory import Trajectory
 from imuslam.io import rosmsg
 
 BagKind = Literal["ros1", "ros2", "mcap"]
 
-__all__ = ["Bag", "BagDataset", "BagKind", "bag_kind", "list_topics"]
+__all__ = ["Bag", "BagKind", "bag_kind", "list_topics"]
 
 
 def bag_kind(path: str | Path) -> BagKind:
@@ -222,39 +221,3 @@ def list_topics(path: str | Path) -> dict[str, str]:
     """Topic -> message type of every connection in the bag."""
     with Bag(path) as b:
         return b.topics()
-
-
-class BagDataset:
-    """A bag seen as a dataset (:mod:`imuslam.interfaces.sources`): give the topics it has; each method
-    reads its topic on demand (the bag is opened per call, so the object can be passed around)."""
-
-    def __init__(self, path: str | Path, imu_topic: str | None = None, lidar_topic: str | None = None,
-                 scan_topic: str | None = None, odom_topic: str | None = None,
-                 gt_topic: str | None = None) -> None:  # fmt: skip
-        self.path = Path(path)
-        self.imu_topic, self.lidar_topic, self.scan_topic = imu_topic, lidar_topic, scan_topic
-        self.odom_topic, self.gt_topic = odom_topic, gt_topic
-
-    def imu(self) -> ImuLog:
-        with Bag(self.path) as b:
-            return b.imu(self.imu_topic)
-
-    def lidar_scans(self) -> Iterator[Scan3d]:
-        with Bag(self.path) as b:
-            yield from b.scans3d(self.lidar_topic)
-
-    def laser_scans(self) -> Iterator[Scan2d]:
-        with Bag(self.path) as b:
-            yield from b.scans2d(self.scan_topic)
-
-    def wheel_odometry(self) -> WheelOdometry:
-        """The planar pose of an Odometry topic as wheel odometry (no ticks: zeros)."""
-        with Bag(self.path) as b:
-            tr = b.trajectory(self.odom_topic)
-        yaw = np.arctan2(tr.R_w_b[:, 1, 0], tr.R_w_b[:, 0, 0])
-        return WheelOdometry(tr.t_ns, np.zeros((len(tr), 2), np.int64),
-                             np.column_stack([tr.p_w[:, :2], yaw]))  # fmt: skip
-
-    def ground_truth(self) -> Trajectory:
-        with Bag(self.path) as b:
-            return b.trajectory(self.gt_topic)
