@@ -311,10 +311,11 @@ class SquareLoopCcwCw(EulerTrajectory):
         return np.stack([z, z, yaw], axis=1), np.stack([z, z, dyaw], axis=1)
 
 
-class ExcitedHandheld(EulerTrajectory):
+class ExcitedHandheld(Handheld):
     """A LiDAR-IMU rig waved by hand to calibrate it (LI-Init's excitation, Zhu et al. 2022, Sec. V):
     roll, pitch and yaw swing by 15-30 degrees at 0.15-0.6 Hz and the rig moves by decimetres on all
-    three axes around ``centre``; peak rates about 1 rad/s, angular accelerations about 3 rad/s^2."""
+    three axes around ``centre``; peak rates about 1 rad/s, angular accelerations about 3 rad/s^2. The
+    same sums of sines as :class:`Handheld`, with larger, faster terms."""
 
     def __init__(self, centre: tuple[float, float, float] = (0.0, 0.0, 1.3)) -> None:
         self.centre = np.asarray(centre, float)
@@ -324,11 +325,3 @@ class ExcitedHandheld(EulerTrajectory):
         self.aa = np.array([[0.3, 0.08], [0.3, 0.08], [0.5, 0.08]])
         self.af = np.array([[2.2, 3.7], [1.9, 3.1], [0.9, 2.6]])
         self.ap = np.array([[0.0, 0.5], [1.2, 0.3], [0.4, 2.2]])
-
-    def position(self, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        p, v, a = _sines(t, self.pa, self.pf, self.pp)
-        return p + self.centre, v, a
-
-    def euler(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
-        ang, rate, _ = _sines(t, self.aa, self.af, self.ap)
-        return ang, rate
