@@ -33,6 +33,7 @@ from imuslam.interfaces.nav import NavState
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.imu_errors import BWT901CL_ACCEL_DENSITY, BWT901CL_GYRO_DENSITY, TriadErrors
 from imuslam.sim.trajectory import DiffDriveFigureEight, Static
+from imuslam.threads import configure_process
 
 G = 9.80665
 T_ALIGN, T_FREE = 60.0, 30.0
@@ -185,4 +186,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

@@ -13,6 +13,7 @@ from rich.console import Console
 from rich.table import Table
 
 from imuslam.imu.allan import cluster_sizes, overlapped_adev
+from imuslam.threads import configure_process
 
 
 def main() -> None:
@@ -43,4 +44,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

@@ -16,6 +16,7 @@ from rich.table import Table
 from imuslam.imu.calibrate import CalibrationConfig, calibrate
 from imuslam.io.load import load_imu
 from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
+from imuslam.threads import configure_process
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "imu_tk_xsens"
 
@@ -56,4 +57,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

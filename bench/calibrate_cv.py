@@ -20,6 +20,7 @@ from imuslam.imu.crossval import cross_validate
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.imu.score import detect_poses, pose_errors, rms
 from imuslam.io.load import load_imu
+from imuslam.threads import configure_process
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -95,4 +96,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

@@ -18,6 +18,7 @@ from calibrate_cv import DATA, IMUTK, LOGS
 from imuslam.imu.calibrate import CalibrationConfig, calibrate
 from imuslam.imu.score import detect_poses, pose_errors
 from imuslam.io.load import load_imu
+from imuslam.threads import configure_process
 
 
 def main() -> None:
@@ -49,4 +50,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

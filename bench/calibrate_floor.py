@@ -42,6 +42,7 @@ from imuslam.imu.crossval import cross_validate  # noqa: E402
 from imuslam.imu.model import ImuCalibration, misalignment_angles, misalignment_matrix  # noqa: E402
 from imuslam.imu.score import detect_poses, pose_errors, rms  # noqa: E402
 from imuslam.io.load import load_imu  # noqa: E402
+from imuslam.threads import configure_process  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 FloatArray = NDArray[np.float64]
@@ -296,4 +297,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

@@ -37,6 +37,7 @@ from imuslam.imu.calibrate import CalibrationConfig, calibrate
 from imuslam.imu.model import GYRO_PARAM_NAMES, ImuCalibration, TriadModel
 from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO
 from imuslam.sim.multipose import simulate_multipose, sphere_plan_deg
+from imuslam.threads import configure_process
 
 TRUTH = ImuCalibration(
     TriadModel(SEED000_ACCEL.T, SEED000_ACCEL.K, SEED000_ACCEL.b),
@@ -220,4 +221,5 @@ def hausman_table(
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

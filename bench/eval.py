@@ -15,6 +15,7 @@ from rich.table import Table
 from imuslam.eval.metrics import evaluate
 from imuslam.geometry import exp, quat_from_matrix
 from imuslam.interfaces.trajectory import Trajectory
+from imuslam.threads import configure_process
 
 
 def make_pair(n: int = 5000) -> tuple[Trajectory, Trajectory]:
@@ -78,4 +79,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

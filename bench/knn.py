@@ -20,6 +20,7 @@ from imuslam.lio.features import voxel_downsample
 from imuslam.lio.ivox import IncrementalVoxelMap
 from imuslam.lio.voxelmap import KnnIndex, VoxelMap
 from imuslam.sim.drive import simulate_lidar_drive
+from imuslam.threads import configure_process
 
 
 def main() -> None:
@@ -75,4 +76,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

@@ -15,6 +15,7 @@ from rich.table import Table
 
 from imuslam.imu.online import OnlineCalibrator, OnlineConfig
 from imuslam.sim.multipose import GimbalImuStream, sphere_plan_deg
+from imuslam.threads import configure_process
 
 
 def main() -> None:
@@ -74,4 +75,5 @@ def run(method: str) -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

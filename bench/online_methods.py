@@ -34,6 +34,7 @@ from imuslam.imu.online import OnlineConfig
 from imuslam.imu.online_sim import T0_NS, Drift, run_simulated_robot
 from imuslam.imu.poseplan import PlanModel, optimise_order
 from imuslam.sim.multipose import sphere_plan_deg
+from imuslam.threads import configure_process
 
 METHODS = {
     "tedaldi": {"method": "tedaldi"},
@@ -107,4 +108,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

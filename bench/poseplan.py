@@ -16,6 +16,7 @@ from rich.table import Table
 
 from imuslam.imu.poseplan import PlanModel, optimise_order, plan_for_target
 from imuslam.sim.multipose import sphere_plan_deg
+from imuslam.threads import configure_process
 
 
 def main() -> None:
@@ -46,4 +47,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

@@ -30,6 +30,7 @@ from imuslam.sim.robot2d import simulate_robot2d, with_imu
 from imuslam.sim.trajectory import SquareLoopCcwCw
 from imuslam.slam2d.config import Slam2dConfig
 from imuslam.slam2d.pipeline import render_map, run_slam2d
+from imuslam.threads import configure_process
 
 
 def main() -> None:
@@ -113,4 +114,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

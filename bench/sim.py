@@ -15,6 +15,7 @@ from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.lidar import Lidar3dConfig, simulate_lidar3d_scan
 from imuslam.sim.trajectory import CarLoop
 from imuslam.sim.world import urban_block
+from imuslam.threads import configure_process
 
 
 def main() -> None:
@@ -49,4 +50,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

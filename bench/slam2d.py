@@ -38,6 +38,7 @@ from imuslam.slam2d import pose2
 from imuslam.slam2d.config import Slam2dConfig
 from imuslam.slam2d.pipeline import render_map, run_slam2d, scan_points
 from imuslam.slam2d.records import Slam2dResult
+from imuslam.threads import configure_process
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data"
@@ -348,4 +349,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

@@ -19,6 +19,7 @@ from imuslam.ins.strapdown import integrate
 from imuslam.interfaces.nav import NavState
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.trajectory import Handheld
+from imuslam.threads import configure_process
 
 
 def main() -> None:
@@ -48,4 +49,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

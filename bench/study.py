@@ -2,7 +2,7 @@
 
 Each run starts from an empty results folder (no cell cache) and includes the cluster's start-up. The
 workers are single-threaded processes with numba / OpenMP / BLAS pinned to one thread
-(``study.runner.WORKER_ENV``), so one worker uses one core. Before timing, a one-seed study compiles
+(``threads.WORKER_ENV``), so one worker uses one core. Before timing, a one-seed study compiles
 the numba kernels into their on-disk cache, so no timed run pays a compilation.
 
 Printed per run: wall time, CPU seconds of each worker process (``getrusage`` in the worker, start-up
@@ -29,6 +29,7 @@ from rich.table import Table
 from imuslam.study.config import parse_study
 from imuslam.study.presets import QUICK
 from imuslam.study.runner import run_study
+from imuslam.threads import configure_process
 
 
 @dataclass
@@ -105,4 +106,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

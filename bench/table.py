@@ -50,7 +50,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-import imuslam  # noqa: F401  (its thread defaults apply before numpy and numba load)
+from imuslam.threads import configure_process
+
+configure_process()  # the command line's thread defaults, before numpy and numba load
 
 BENCH = Path(__file__).resolve().parent
 ROOT = BENCH.parent

@@ -29,7 +29,7 @@ from pathlib import Path
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "imu_tk_xsens"
 
 # name -> (environment, initialise the threading layer before importing imuslam)
-# "omp default" loads libgomp before imuslam's import-time defaults can set OMP_WAIT_POLICY, so it
+# "omp default" loads libgomp before imuslam's thread defaults (threads.configure_process) set OMP_WAIT_POLICY, so it
 # measures numba + libgomp as they come (spin for a while, then sleep).
 SETUPS: dict[str, tuple[dict[str, str], bool]] = {
     "omp default": ({"NUMBA_THREADING_LAYER": "omp"}, True),
@@ -47,7 +47,9 @@ _ENV_KEYS = ("NUMBA_THREADING_LAYER", "OMP_WAIT_POLICY", "NUMBA_NUM_THREADS", "G
 def _worker(repeat: int, allan_samples: int, init_first: bool) -> None:
     """Time both calls in this process; print one JSON line."""
     if not init_first:
-        import imuslam  # noqa: F401  (its thread defaults apply before numpy and numba load)
+        from imuslam.threads import configure_process
+
+        configure_process()  # the command line's thread defaults, before numpy and numba load
     import numba
     import numpy as np
 

@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.table import Table
 
 from imuslam.hw.witmotion import ImuAssembler, WitMotionParser, encode_imu
+from imuslam.threads import configure_process
 
 
 def main() -> None:
@@ -47,4 +48,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    configure_process()  # the command line's thread defaults, before numba's first parallel kernel
     main()

@@ -8,10 +8,12 @@ from pathlib import Path
 import pytest
 from hypothesis import settings
 
-# Before any test module imports numpy: imuslam's thread defaults (one OpenBLAS thread, passive OpenMP
-# waits) then apply to the tests as to the command line. With two xdist workers on two cores, a second
-# spinning BLAS thread per worker only costs CPU time.
-import imuslam  # noqa: F401, E402
+# Before any test module imports numpy: the command line's thread defaults (one OpenBLAS thread, passive
+# OpenMP waits) then apply to the tests too. With two xdist workers on two cores, a second spinning BLAS
+# thread per worker only costs CPU time.
+from imuslam.threads import configure_process  # noqa: E402
+
+configure_process()
 
 # Property tests are reproducible: hypothesis derives its examples from each test's name, not from a random
 # seed ("derandomize"). HYPOTHESIS_PROFILE=explore draws fresh examples when hunting for new failures.

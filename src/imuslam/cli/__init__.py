@@ -131,6 +131,9 @@ def _root(
 
 def main() -> None:
     """Console-script entry point."""
+    from imuslam.threads import configure_process
+
+    configure_process()  # before any command imports numpy or numba
     from imuslam.cli.common import install_signal_handlers
 
     install_signal_handlers()

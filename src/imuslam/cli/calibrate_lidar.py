@@ -51,7 +51,7 @@ def register(app: typer.Typer) -> None:
         from imuslam.io.results import write_results
         from imuslam.lio.config import LioConfig
         from imuslam.lio.extrinsic import calibrate_lidar_imu
-        from imuslam.lio.threads import blas_threads
+        from imuslam.threads import blas_threads
 
         cfg = load_config(config, LioConfig) if config is not None else LioConfig()
         data, scans, imu = _recording(bag, points_topic, imu_topic, calib, duration, search, cfg)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -56,6 +57,26 @@ class ScanStats:
     n_corr: int
     time_s: float
     cpu_s: float = 0.0
+
+
+@dataclass
+class LioStep:
+    """What an observer of :meth:`LioPipeline.run` receives per registered scan, in the result's
+    world frame: the scan's statistics, the pose ``T_w_b`` (4, 4) the trajectory holds at ``stats.t_ns``
+    (IMU frame; LiDAR frame without an IMU), the registered points deskewed to the scan end in the frame
+    of that pose (M, 3), m, the position covariance (3, 3), m^2, when the estimator has one, and the
+    local map's points (K, 3), world frame, on demand (None while the start's frame is provisional)."""
+
+    index: int
+    stats: ScanStats
+    T_w_b: FloatArray
+    points_b: FloatArray
+    cov_p: FloatArray | None = None
+    local_map_w: Callable[[], FloatArray] | None = None
+
+
+#: Called after each registered scan; the steps of the start come once its world frame is settled.
+LioObserver = Callable[[LioStep], None]
 
 
 @dataclass
@@ -142,13 +163,36 @@ class LioPipeline:
             )
         return LidarOdometry(self.config)
 
-    def run(self) -> LioResult:
-        from imuslam.lio.threads import blas_threads
+    def run(self, observer: LioObserver | None = None) -> LioResult:
+        """The odometry over the dataset; ``observer`` sees each registered scan (:class:`LioStep`)."""
+        from imuslam.threads import blas_threads
 
         with blas_threads(1):
-            return self._run()
+            return self._run(observer)
 
-    def _run(self) -> LioResult:
+    @staticmethod
+    def _observe(observer: LioObserver, est: Any, step: LioStep, pending: list[LioStep]) -> None:
+        """Hand ``step`` to ``observer``; a step taken before the filter's world exists waits in
+        ``pending`` and goes out moved into that world, as the result's trajectory moves it."""
+        if getattr(est, "eskf", True) is None:
+            pending.append(step)
+            return
+        if pending:
+            start = getattr(est, "start_poses", None)
+            refined = start is not None and len(start) == len(pending)
+            for i, s in enumerate(pending):
+                s.T_w_b = est.T_w_i0 @ (start[i] if refined else s.T_w_b)
+                observer(s)
+            pending.clear()
+        cov = getattr(est, "covariance", None)
+        if cov is not None:
+            sl = est.layout.P
+            step.cov_p = cov[sl, sl]
+        m = est.map
+        step.local_map_w = lambda: np.vstack([m.surf.points, m.edge.points])
+        observer(step)
+
+    def _run(self, observer: LioObserver | None = None) -> LioResult:
         from tqdm import tqdm
 
         est = self._estimator()
@@ -165,6 +209,7 @@ class LioPipeline:
         lidar_span: list[int] = []
         t_ref: int | None = None if lidar_only else int(self.imu.t_ns[0])  # type: ignore[union-attr]
         last_end: int | None = None
+        pending: list[LioStep] = []
         total = (
             len(self.dataset) if self.max_scans is None else min(len(self.dataset), self.max_scans)
         )
@@ -210,6 +255,11 @@ class LioPipeline:
             poses.append(T_w)
             stats.append(ScanStats(end_ns, len(pts) + dropped, dropped, est.last_n_used, est.last_iterations,
                                    est.last_n_corr, dt, dc))  # fmt: skip
+            if observer is not None:
+                pb = np.vstack(est.last_points)
+                if lidar_only:  # LiDAR frame -> the IMU frame of T_w
+                    pb = pb @ T_l_i[:3, :3] - T_l_i[:3, :3].T @ T_l_i[:3, 3]
+                self._observe(observer, est, LioStep(k, stats[-1], T_w, pb), pending)
             if k % 5 == 0:
                 used = pts[voxel_downsample(pts, self.map_voxel)]
                 gmap.add(used @ T[:3, :3].T + T[:3, 3])
@@ -218,6 +268,8 @@ class LioPipeline:
                     scans_per_s=f"{len(stats) / max(sum(s.time_s for s in stats), 1e-9):.1f}"
                 )
         bar.close()
+        for s in pending:  # the filter never started: the steps in the first IMU frame
+            observer(s)  # type: ignore[misc]  # pending stays empty without an observer
         if n_dropped:
             warnings.append(f"{n_dropped} NaN / infinite / zero points dropped")
         if n_empty:

@@ -45,6 +45,7 @@ from imuslam.study.pipeline import (
     shared_need,
     shared_task,
 )
+from imuslam.threads import WORKER_ENV
 
 log = logging.getLogger(__name__)
 
@@ -131,16 +132,6 @@ def plan(study: StudyConfig, source: str = "<study>") -> list[Cell]:
     if not cells:
         raise InputError(f"{source}: the study has no cells")
     return cells
-
-
-# one worker = one core: the numba, OpenMP and BLAS thread pools of a worker process hold one thread
-# (numba reads NUMBA_NUM_THREADS when it is imported, so these are set before the worker process starts)
-WORKER_ENV = {
-    "NUMBA_NUM_THREADS": "1",
-    "OMP_NUM_THREADS": "1",
-    "OPENBLAS_NUM_THREADS": "1",
-    "MKL_NUM_THREADS": "1",
-}
 
 
 @contextmanager
