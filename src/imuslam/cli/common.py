@@ -30,24 +30,29 @@ F = TypeVar("F", bound=Callable[..., Any])
 _PATH_STR_OPTIONS = ("dataset", "gt", "noise")
 
 
+#: The outputs a command may take: the results folder, and the viewer's recording.
+_OUT_OPTIONS = ("out", "rrd")
+
+
 def check_out_against_inputs(kwargs: dict[str, Any]) -> None:
-    """Refuse an ``out`` that is, holds or lies inside one of the command's inputs (every ``Path``
-    parameter, and the ``str`` ones of :data:`_PATH_STR_OPTIONS`), before any work."""
-    out = kwargs.get("out")
-    if not isinstance(out, Path):
+    """Refuse an ``out`` (or ``rrd``) that is, holds or lies inside one of the command's inputs (every
+    ``Path`` parameter, and the ``str`` ones of :data:`_PATH_STR_OPTIONS`), before any work."""
+    outs = [(n, kwargs[n]) for n in _OUT_OPTIONS if isinstance(kwargs.get(n), Path)]
+    if not outs:
         return
     from imuslam.io.results import check_not_input
 
     inputs: list[tuple[str, Path | str | None]] = []
     for name, v in kwargs.items():
         what = f"the input ({name.replace('_', '-')})"
-        if name == "out":
+        if name in _OUT_OPTIONS:
             continue
         if isinstance(v, Path) or (name in _PATH_STR_OPTIONS and isinstance(v, str)):
             inputs.append((what, v))
         elif isinstance(v, list | tuple):
             inputs += [(what, x) for x in v if isinstance(x, Path)]
-    check_not_input(out, inputs)
+    for name, out in outs:
+        check_not_input(out, inputs, option=f"--{name}")
 
 
 class Interrupted(KeyboardInterrupt):
@@ -255,12 +260,30 @@ def write_json(path: Path, data: Any) -> None:
 
 
 def table(title: str, columns: list[str], rows: list[list[str]]) -> Table:
-    t = Table(title=title)
+    """A result table. Headers and cells are plain text, never markup (a unit "[m]" would vanish as a
+    style tag); a long cell wraps (``overflow="fold"``) rather than being cut with an ellipsis."""
+    from rich.text import Text
+
+    t = Table(title=Text(title))
     for c in columns:
-        t.add_column(c, justify="right" if c not in ("parameter", "quantity", "term") else "left")
+        left = c.split(" [")[0] in ("parameter", "quantity", "term", "file", "run", "estimate")
+        t.add_column(Text(c), justify="left" if left else "right", overflow="fold")
     for r in rows:
-        t.add_row(*r)
+        t.add_row(*(Text(x) for x in r))
     return t
+
+
+def show_progress(progress: bool) -> bool:
+    """Whether to draw a progress bar: asked for (``--progress``, the default) and stderr a terminal,
+    so a log written to a file or a pipe is not flooded with redrawn bars."""
+    return progress and sys.stderr.isatty()
+
+
+def progress_option() -> Any:
+    """The ``--progress/--no-progress`` option of every command that shows progress."""
+    return typer.Option(
+        True, "--progress/--no-progress", help="progress bar on stderr (drawn only on a terminal)"
+    )
 
 
 FORMAT_HELP = "input format: auto, imutk, euroc, csv or bag"

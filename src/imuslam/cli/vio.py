@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from imuslam.cli import validate
-from imuslam.cli.common import console, friendly_errors, table
+from imuslam.cli.common import console, friendly_errors, progress_option, show_progress, table
 
 if TYPE_CHECKING:
     from imuslam.vio.config import VioConfig
@@ -73,6 +73,7 @@ def register(app: typer.Typer) -> None:
             help="corrupt this share of the VO measurements (study)",
             callback=validate.number(0.0, 1.0, hi_open=True, what="a share"),
         ),
+        progress: bool = progress_option(),
     ) -> None:
         """Stereo VO + IMU EKF: trajectory.tum (fused), vo.tum, imu.tum, metrics.json, plots."""
         from tqdm import tqdm
@@ -105,7 +106,9 @@ def register(app: typer.Typer) -> None:
             fmt = gt_format if gt_format != "auto" else ("euroc" if gt.suffix == ".csv" else "tum")
             truth = read_trajectory(gt, fmt)
         pipeline = VioPipeline(data, cfg)  # type: ignore[arg-type]
-        with tqdm(total=len(data), unit="frame", desc="vio") as bar:
+        with tqdm(
+            total=len(data), unit="frame", desc="vio", disable=not show_progress(progress)
+        ) as bar:
 
             def tick(n: int) -> None:
                 bar.update(n)
@@ -169,6 +172,10 @@ def _print_summary(summary: dict[str, Any]) -> None:
         rows.append([kind, str(st["accepted"]), str(st["rejected"]),
                      f"{st.get('nis_mean_accepted', float('nan')):.3g}", str(st["dof"])])  # fmt: skip
     console.print(table("gating", ["quantity", "accepted", "rejected", "mean NIS", "dof"], rows))
+    from imuslam.eval.vio_compare import nis_consistency
+
+    for kind, st in summary["gating"].items():
+        console.print(nis_consistency(kind, st), markup=False, highlight=False)
     fr = summary["frames"]
     console.print(
         f"frames: {fr['used']} used, {fr['missing']} missing, {fr['unreadable']} unreadable; VO: "

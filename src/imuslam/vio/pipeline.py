@@ -380,5 +380,5 @@ class VioPipeline:
         return write_results(
             out, config=self.cfg, metrics=metrics,
             trajectories={"trajectory": result.fused, "vo": result.vo, "imu": result.imu},
-            extra=lambda d: plot_vio(truth, tracks, nis, bias, str(d)),
+            extra=lambda d: plot_vio(truth, tracks, nis, bias, str(d), self.cfg.gate_prob),
         )  # fmt: skip
