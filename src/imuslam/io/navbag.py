@@ -1,30 +1,21 @@
-"""Odometry (``nav_msgs/Odometry``) and GNSS fixes (``sensor_msgs/NavSatFix``) from ROS 1 / ROS 2 bags,
+"""Wheel odometry (``nav_msgs/Odometry``, as :class:`WheelOdometry` with its twist) and GNSS fixes (``sensor_msgs/NavSatFix``) from ROS 1 / ROS 2 bags,
 and GNSS latitude / longitude / altitude to a local East-North-Up frame (WGS84 through ECEF)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import InputError
-from imuslam.io.rosbag import list_topics
+from imuslam.interfaces.odometry import WheelOdometry
+from imuslam.io.bag import Bag
 
 FloatArray = NDArray[np.float64]
-
-
-@dataclass
-class OdometryLog:
-    """t_ns (N,); twist in the child (body) frame: linear (N, 3) m/s, angular (N, 3) rad/s; planar pose
-    in the odometry frame (N, 3) [x m, y m, yaw rad]."""
-
-    t_ns: NDArray[np.int64]
-    linear_b: FloatArray
-    angular_b: FloatArray
-    pose_xy_yaw: FloatArray
-    source: str
 
 
 @dataclass
@@ -39,29 +30,22 @@ class FixLog:
     source: str
 
 
-def _messages(path: str | Path, topic: str, msgtype: str):  # type: ignore[no-untyped-def]
-    from rosbags.highlevel import AnyReader
-
-    p = Path(path)
-    topics = list_topics(p)
-    if topic not in topics:
-        raise InputError(
-            f"{p}: no topic '{topic}'; it has: {', '.join(f'{k} ({v})' for k, v in topics.items())}"
-        )
-    if topics[topic] != msgtype:
-        raise InputError(f"{p}: topic '{topic}' is {topics[topic]}; expected {msgtype}")
-    with AnyReader([p]) as reader:
-        conns = [c for c in reader.connections if c.topic == topic]
-        for c, _, raw in reader.messages(connections=conns):
-            yield reader.deserialize(raw, c.msgtype)
+def _messages(path: str | Path, topic: str, msgtype: str) -> Iterator[Any]:
+    """The deserialised messages of ``topic``, which must hold ``msgtype`` (InputError listing the bag's
+    topics otherwise)."""
+    with Bag(path) as bag:
+        bag.connections_of([topic], [msgtype])
+        for _, _, msg in bag.messages([topic]):
+            yield msg
 
 
 def _stamp(msg) -> int:  # type: ignore[no-untyped-def]
     return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
 
-def read_odometry_bag(path: str | Path, topic: str) -> OdometryLog:
-    """Every ``nav_msgs/Odometry`` message of ``topic``, sorted by header stamp."""
+def read_odometry_bag(path: str | Path, topic: str) -> WheelOdometry:
+    """Every ``nav_msgs/Odometry`` message of ``topic``, sorted by header stamp: the planar pose and the
+    body twist (no encoder ticks: zeros)."""
     t, lin, ang, pose = [], [], [], []
     for m in _messages(path, topic, "nav_msgs/msg/Odometry"):
         t.append(_stamp(m))
@@ -76,8 +60,8 @@ def read_odometry_bag(path: str | Path, topic: str) -> OdometryLog:
             f"{path}: topic '{topic}' holds {len(t)} odometry messages; at least 2 needed"
         )
     o = np.argsort(np.asarray(t), kind="stable")
-    return OdometryLog(np.asarray(t, np.int64)[o], np.asarray(lin)[o], np.asarray(ang)[o], np.asarray(pose)[o],
-                       f"{path}:{topic}")  # fmt: skip
+    return WheelOdometry(np.asarray(t, np.int64)[o], np.zeros((len(t), 2), np.int64), np.asarray(pose)[o],
+                         np.asarray(lin)[o], np.asarray(ang)[o], f"{path}:{topic}")  # fmt: skip
 
 
 def read_fix_bag(path: str | Path, topic: str) -> FixLog:

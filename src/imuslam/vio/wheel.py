@@ -19,7 +19,7 @@ from imuslam.errors import InputError
 from imuslam.ins.coarse import level_rotation
 from imuslam.ins.core import ErrorLayout, InsState
 from imuslam.interfaces.imu import ImuLog
-from imuslam.io.navbag import OdometryLog
+from imuslam.interfaces.odometry import WheelOdometry
 from imuslam.io.trajectory import Trajectory
 from imuslam.vio.config import NoiseConfig, VioConfig
 from imuslam.vio.filter import GateStats, VioFilter
@@ -42,7 +42,7 @@ class WheelResult:
 
 def run_wheel_ekf(
     imu_b: ImuLog,
-    odom: OdometryLog,
+    odom: WheelOdometry,
     cfg: VioConfig,
     speed_std: float = 0.05,
     yaw_rate_std: float = 0.02,
@@ -53,6 +53,10 @@ def run_wheel_ekf(
     ``cfg.nhc``. Initial roll / pitch from the mean specific force over ``init_s``, yaw zero, velocity
     from the first odometry speed, gyro bias from the gyro minus the odometry yaw rate over ``init_s``.
     The start's yaw sigma is ``cfg.init_std_yaw`` (the frame's gauge, as in the VIO filter)."""
+    if odom.linear_b is None or odom.angular_b is None:
+        raise InputError(
+            f"{odom.source}: the odometry has no twist (speed and yaw rate); a bag's Odometry has"
+        )
     t_ref = int(max(imu_b.t_ns[0], odom.t_ns[0]))
     t_end = int(min(imu_b.t_ns[-1], odom.t_ns[-1]))
     if t_end <= t_ref:
