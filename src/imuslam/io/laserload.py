@@ -6,14 +6,16 @@ from __future__ import annotations
 
 import zipfile
 import zlib
+from collections.abc import Callable
 from pathlib import Path
-from typing import Literal
+from typing import Literal, TypeVar
 
 import numpy as np
 
 from imuslam.errors import InputError
 from imuslam.interfaces.imu import ImuLog
 from imuslam.io.carmen import read_breezyslam, read_carmen
+from imuslam.io.kinds import SourceKind, source_kind
 from imuslam.io.laserlog import LaserLog, check_time_order, clean_ranges, odometry_jumps
 
 LaserFormat = Literal["auto", "carmen", "breezyslam", "sim", "bag"]
@@ -21,11 +23,12 @@ LASER_FORMATS = ("auto", "carmen", "breezyslam", "sim", "bag")
 
 
 def detect_format(path: Path) -> str:
+    kind = source_kind(path)
+    if kind is SourceKind.BAG:
+        return "bag"
+    if kind is SourceKind.SIM_FOLDER:
+        return "sim"
     if path.is_dir():
-        if (path / "sim.npz").is_file():
-            return "sim"
-        if (path / "metadata.yaml").is_file():
-            return "bag"
         raise InputError(
             f"{path}: a folder without sim.npz (expected the output of imuslam simulate)"
         )
@@ -34,8 +37,6 @@ def detect_format(path: Path) -> str:
         return "breezyslam"
     if name.endswith(".npz"):
         return "sim"
-    if name.endswith((".bag", ".mcap", ".db3")):
-        return "bag"
     for ext in (".clf", ".log", ".clf.gz", ".clf.bz2", ".log.gz", ".log.bz2", ".gz", ".bz2"):
         if name.endswith(ext):
             return "carmen"
@@ -82,28 +83,45 @@ def read_sim_room(path: str | Path, with_imu: bool = True) -> LaserLog:
     )  # fmt: skip
 
 
+T = TypeVar("T")
+
+
+def _named(read: Callable[[], T], option: str) -> T:
+    """``read()``; a topic it cannot find or choose is reported with the option that names it."""
+    try:
+        return read()
+    except InputError as exc:
+        if "topic" not in str(exc):
+            raise
+        raise InputError(f"{exc}; choose it with {option}") from None
+
+
 def read_bag_laser(
     path: str | Path, scan_topic: str | None = None, imu_topic: str | None = None,
-    odom_topic: str | None = None,
+    odom_topic: str | None = None, with_imu: bool = True,
 ) -> LaserLog:  # fmt: skip
     """The scans of a LaserScan / MultiEchoLaserScan topic (first echo), the Imu topic if the bag has one
-    (or ``imu_topic``), and the Odometry topic's planar pose interpolated at the scan stamps."""
+    (or ``imu_topic``; none without ``with_imu``), and the Odometry topic's planar pose interpolated at
+    the scan stamps. A topic missing or to be chosen is one line naming the option that chooses it."""
     from imuslam.io import rosmsg
     from imuslam.io.bag import Bag
 
     with Bag(path) as b:
         topics = b.topics()
-        scans = list(b.scans2d(scan_topic))
+        scans = _named(lambda: list(b.scans2d(scan_topic)), "--scan-topic")
         src = f"{path}:{scan_topic or 'scan'}"
         if not scans:
             raise InputError(f"{src}: the topic has no scans")
         imu = None
-        if imu_topic is not None or any(m == rosmsg.IMU for m in topics.values()):
-            imu = b.imu(imu_topic)
+        if with_imu and (imu_topic is not None or any(m == rosmsg.IMU for m in topics.values())):
+            imu = _named(lambda: b.imu(imu_topic), "--imu-topic")
         odo_traj = None
         if odom_topic is not None or any(m == rosmsg.ODOMETRY for m in topics.values()):
-            odo_traj = b.trajectory(
-                odom_topic or next(t for t, m in topics.items() if m == rosmsg.ODOMETRY)
+            odo_traj = _named(
+                lambda: b.trajectory(
+                    odom_topic or next(t for t, m in topics.items() if m == rosmsg.ODOMETRY)
+                ),
+                "--odom-topic",
             )
     nb = len(scans[0].ranges)
     for k, sc in enumerate(scans):
@@ -134,9 +152,10 @@ def read_bag_laser(
 
 def load_laser_log(
     path: str | Path, fmt: str = "auto", scan_topic: str | None = None, imu_topic: str | None = None,
-    odom_topic: str | None = None,
+    odom_topic: str | None = None, with_imu: bool = True,
 ) -> LaserLog:  # fmt: skip
-    """Read a 2D laser log of any supported kind (topics: bags only)."""
+    """Read a 2D laser log of any supported kind (topics: bags only); without ``with_imu`` the IMU is
+    not read at all (a log's IMU the run leaves out cannot stop it or warn)."""
     p = Path(path)
     if not p.exists():
         raise InputError(f"{p}: no such file or folder")
@@ -148,5 +167,5 @@ def load_laser_log(
     if kind == "breezyslam":
         return read_breezyslam(p)
     if kind == "bag":
-        return read_bag_laser(p, scan_topic, imu_topic, odom_topic)
-    return read_sim_room(p)
+        return read_bag_laser(p, scan_topic, imu_topic, odom_topic, with_imu)
+    return read_sim_room(p, with_imu)

@@ -10,6 +10,7 @@ import numpy as np
 from imuslam.errors import InputError
 from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
 from imuslam.io.atomic import write_atomic
+from imuslam.io.kinds import SourceKind, source_kind
 from imuslam.io.readers import TimeUnit, read_csv, read_euroc, read_imutk
 
 ImuFormat = Literal["auto", "imutk", "euroc", "csv", "bag"]
@@ -20,11 +21,12 @@ def detect_format(path: str | Path) -> ImuFormat:
     """Format from the path: ``.bag``/``.mcap``/a ROS 2 bag folder -> bag; a EuRoC folder or a csv with
     EuRoC's header -> euroc; anything else -> imu_tk text."""
     p = Path(path)
-    if p.suffix in (".bag", ".mcap", ".db3") or (p.is_dir() and (p / "metadata.yaml").exists()):
+    kind = source_kind(p)
+    if kind is SourceKind.BAG:
         return "bag"
+    if kind is SourceKind.EUROC:
+        return "euroc"
     if p.is_dir():
-        if (p / "mav0").is_dir() or (p / "imu0").is_dir():
-            return "euroc"
         raise InputError(f"{p}: a folder that is neither a ROS 2 bag nor a EuRoC dataset")
     if p.suffix == ".csv":
         try:

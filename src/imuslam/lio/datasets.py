@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from imuslam.errors import InputError
 from imuslam.interfaces import Scan3d
 from imuslam.interfaces.imu import ImuLog
+from imuslam.io.kinds import SourceKind, source_kind
 from imuslam.io.pointcloud import read_kitti_bin, read_pcd
 
 log = logging.getLogger(__name__)
@@ -237,10 +238,11 @@ def open_lidar_dataset(
 ) -> PcdFolder | KittiFolder | BagLidarDataset:
     """The reader for ``source``, picked in one place (KISS-ICP's dataset factory): a folder of .pcd
     scans, a KITTI folder (.bin scans, or a velodyne/ folder), else a ROS 1 / ROS 2 / MCAP bag."""
-    if not source.exists():
+    kind = source_kind(source)
+    if kind is SourceKind.MISSING:
         raise InputError(f"{source}: no such bag or folder")
-    if source.is_dir() and any(source.glob("*.pcd")):
+    if kind is SourceKind.PCD_FOLDER:
         return PcdFolder(source)
-    if source.is_dir() and (any(source.glob("*.bin")) or (source / "velodyne").is_dir()):
+    if kind is SourceKind.KITTI_FOLDER:
         return KittiFolder(source)
     return BagLidarDataset(source, points_topic, imu_topic, use_imu=use_imu)

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from imuslam.errors import InputError
 from imuslam.interfaces.imu import ImuLog
+from imuslam.io.kinds import is_bag
 from imuslam.vio.calib import Rectification, StereoCalibration, read_calibration
 
 if TYPE_CHECKING:
@@ -276,7 +277,7 @@ def open_stereo(
 
     cal = read_kalibr_camchain(camchain) if camchain is not None else None
     p = Path(dataset)
-    if p.suffix in (".bag", ".mcap", ".db3") or (p / "metadata.yaml").is_file():
+    if is_bag(p):
         if cal is None or left_topic is None or right_topic is None:
             raise InputError(
                 f"{p}: a bag needs --camchain, --left-topic and --right-topic (image topics)"

@@ -1,0 +1,46 @@
+"""What a path holds, decided in one place: every reader factory (the IMU loader, the 2D laser loader,
+the LiDAR and the stereo datasets) asks :func:`source_kind` and maps the answer to its reader, as
+KISS-ICP's dataset factory does with a file's kind."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from pathlib import Path
+
+BAG_SUFFIXES = (".bag", ".mcap", ".db3")
+
+
+class SourceKind(StrEnum):
+    BAG = "bag"  # a ROS 1 .bag, an .mcap, a .db3, or a ROS 2 bag folder (metadata.yaml)
+    EUROC = "euroc"  # an EuRoC / ASL folder (mav0/, or imu0/ beside cam0/)
+    PCD_FOLDER = "pcd folder"  # a folder of .pcd scans
+    KITTI_FOLDER = "kitti folder"  # a folder of KITTI .bin scans, or one holding velodyne/
+    SIM_FOLDER = "sim folder"  # the output of ``imuslam simulate`` (sim.npz)
+    FOLDER = "folder"  # any other folder
+    FILE = "file"  # any other file (text logs: the readers tell them apart by content)
+    MISSING = "missing"
+
+
+def is_bag(path: str | Path) -> bool:
+    p = Path(path)
+    return p.suffix in BAG_SUFFIXES or (p.is_dir() and (p / "metadata.yaml").is_file())
+
+
+def source_kind(path: str | Path) -> SourceKind:
+    """The kind of ``path`` from its name and, for a folder, the files it holds (nothing is parsed)."""
+    p = Path(path)
+    if is_bag(p):
+        return SourceKind.BAG
+    if not p.exists():
+        return SourceKind.MISSING
+    if not p.is_dir():
+        return SourceKind.FILE
+    if (p / "mav0").is_dir() or (p / "imu0").is_dir():
+        return SourceKind.EUROC
+    if (p / "sim.npz").is_file():
+        return SourceKind.SIM_FOLDER
+    if any(p.glob("*.pcd")):
+        return SourceKind.PCD_FOLDER
+    if any(p.glob("*.bin")) or (p / "velodyne").is_dir():
+        return SourceKind.KITTI_FOLDER
+    return SourceKind.FOLDER
