@@ -54,6 +54,8 @@ def register(app: typer.Typer) -> None:
         max_scans: int | None = typer.Option(
             None, min=2, help="stop after this many scans (at least 2: a scan and its motion)"
         ),
+        rrd: Path | None = typer.Option(None, "--rrd", help=RRD_HELP),
+        viewer: bool = typer.Option(False, "--viewer", help=VIEWER_HELP),
     ) -> None:
         """LiDAR-inertial odometry (iterated ESKF) with a voxel map; LiDAR-only without an IMU."""
         os.environ.setdefault("OMP_NUM_THREADS", "1")  # before pykdtree loads its OpenMP pool
@@ -67,11 +69,16 @@ def register(app: typer.Typer) -> None:
 
         bag = isinstance(data, BagLidarDataset)
         truth = _reference(gt, source, bag) if gt is not None else None
-        imu = data.imu()
-        if imu is not None:
-            imu = _checked_imu(imu, calib)
-        res = LioPipeline(data, cfg, imu=imu, max_scans=max_scans).run()  # type: ignore[arg-type]
-        metrics = write_results(res, out, truth)
+        raw = data.imu()
+        imu = _checked_imu(raw, calib) if raw is not None else None
+        from imuslam.viz.recording import open_recording
+
+        with open_recording(f"imuslam lio {source.name}", rrd, viewer) as rec:
+            obs = _observer(rec, raw, imu if calib is not None else None)
+            res = LioPipeline(data, cfg, imu=imu, max_scans=max_scans).run(obs)  # type: ignore[arg-type]
+            if obs is not None:
+                obs.finish(res, truth)
+            metrics = write_results(res, out, truth)
         console.print(
             table(f"imuslam lio {source}", ["quantity", "value", "unit"], _rows(res, metrics))
         )
@@ -79,6 +86,25 @@ def register(app: typer.Typer) -> None:
             console.print(f"warning: {w}", markup=False, highlight=False, soft_wrap=True)
         console.print(f"wrote {out}/trajectory.tum, map.ply, map.pcd, config.yaml, scans.csv, "
                       "trajectory.png, metrics.json")  # fmt: skip
+
+
+RRD_HELP = (
+    "also save a rerun recording of the run to this new .rrd file (pip install 'imuslam[viz]')"
+)
+VIEWER_HELP = "stream the run live to a rerun viewer spawned here"
+
+
+def _observer(rec: Any, raw: ImuLog | None, corrected: ImuLog | None) -> Any:
+    """The recording's per-scan logger with the IMU raw (and corrected) logged; None without one."""
+    if rec is None:
+        return None
+    from imuslam.viz.lio import LioLogger, log_imu
+
+    if raw is not None:
+        log_imu(rec, raw, "imu/raw")
+    if corrected is not None:
+        log_imu(rec, corrected, "imu/corrected")
+    return LioLogger(rec)
 
 
 class StateChoice(StrEnum):

@@ -340,6 +340,8 @@ class LioEstimator:
         self.last_iterations = 0
         self.last_n_corr = 0
         self.last_n_used = 0
+        #: the last scan's registered points (surface, edge), deskewed, IMU frame at the scan end
+        self.last_points: tuple[FloatArray, ...] = (np.zeros((0, 3)), np.zeros((0, 3)))
         self.peak_map_points = 0
         self.n_no_update = 0
         self.alignment: object | None = None
@@ -588,6 +590,8 @@ class LioEstimator:
                 self.lidar_only.last_n_corr,
             )
             self.last_n_used = self.lidar_only.last_n_used
+            R_i_l, p_i_l = self.T_i_l[:3, :3], self.T_i_l[:3, 3]
+            self.last_points = tuple(q @ R_i_l.T + p_i_l for q in self.lidar_only.last_points)
             self.n_scans += 1
             span = t_end - self._init_scans[0][0]
             if span >= self.config.align_seconds and len(self._init_scans) >= 3:
@@ -684,6 +688,7 @@ class LioEstimator:
         self.n_scans += 1
         self.last_n_corr = meas.n_corr
         self.last_n_used = len(surf_i) + len(edge_i)
+        self.last_points = (surf_i, edge_i)
         return self._pose(x)
 
     @staticmethod

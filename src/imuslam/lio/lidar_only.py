@@ -113,6 +113,8 @@ class LidarOdometry:
         self.last_n_used = 0
         self.peak_map_points = 0
         self.last_cov = np.full((6, 6), np.nan)  # ``filter.lidar_model: plane``: [dp, dtheta]
+        #: the last scan's registered points (surface, edge), deskewed, LiDAR frame at the scan end
+        self.last_points: tuple[FloatArray, FloatArray] = (np.zeros((0, 3)), np.zeros((0, 3)))
 
     def register_scan(
         self,
@@ -175,5 +177,6 @@ class LidarOdometry:
         self.n_scans += 1
         self.last_iterations, self.last_n_corr = reg.iterations, reg.n_corr
         self.last_n_used = len(surf) + len(edge)
+        self.last_points = (surf, edge)
         self.peak_map_points = max(self.peak_map_points, len(self.map))
         return T
