@@ -95,6 +95,19 @@ def _wide_search_scans(log_: LaserLog, cfg: Slam2dConfig, odometry: bool) -> NDA
 
 
 @dataclass
+class Slam2dStep:
+    """What an observer of :meth:`Slam2dPipeline.run` receives after each scan: its index and stamp
+    (ns), its local-SLAM pose (3,) x, y (m), yaw (rad), its hit points (P, 2) in the body frame, m,
+    and the estimator (its submaps, nodes and loop constraints so far, read-only)."""
+
+    index: int
+    t_ns: int
+    pose_xy_yaw: FloatArray
+    points_b: FloatArray
+    slam: Slam2d
+
+
+@dataclass
 class Slam2dRun:
     """A run's result with what its results folder shows: the output map and the wall time, s."""
 
@@ -111,17 +124,27 @@ class Slam2dPipeline:
         self.log = log_
         self.cfg = cfg or Slam2dConfig()
 
-    def run(self, progress: Callable[[int], None] | None = None) -> Slam2dResult:
-        """The SLAM over every scan; ``progress(k)`` is called after scan k."""
+    def run(
+        self,
+        progress: Callable[[int], None] | None = None,
+        observer: Callable[[Slam2dStep], None] | None = None,
+    ) -> Slam2dResult:
+        """The SLAM over every scan; ``progress(k)`` is called after scan k, ``observer`` sees each
+        scan's :class:`Slam2dStep`."""
         slam = Slam2d(self.cfg)
         try:
-            return self._run(slam, progress)
+            return self._run(slam, progress, observer)
         except EstimatorError as exc:
             raise EstimatorError(f"{self.log.source}: {exc}") from None
         finally:
             slam.close()
 
-    def _run(self, slam: Slam2d, progress: Callable[[int], None] | None) -> Slam2dResult:
+    def _run(
+        self,
+        slam: Slam2d,
+        progress: Callable[[int], None] | None,
+        observer: Callable[[Slam2dStep], None] | None = None,
+    ) -> Slam2dResult:
         log_, cfg = self.log, self.cfg
         pts_all = scan_points(log_, cfg, with_time=True)
         deskew = log_.time_increment > 0
@@ -139,7 +162,9 @@ class Slam2dPipeline:
                 if deskew:
                     dt = max(float(log_.t_ns[k] - log_.t_ns[k - 1]) * 1e-9, 1e-3)
             tilted = imu is not None and imu[1][k] > cfg.max_tilt_deg
-            slam.add_scan(pts_all[k], t_s[k], step, dyaw, dt, bool(tilted), bool(wide_ok[k]))
+            est = slam.add_scan(pts_all[k], t_s[k], step, dyaw, dt, bool(tilted), bool(wide_ok[k]))
+            if observer is not None:
+                observer(Slam2dStep(k, int(log_.t_ns[k]), est, pts_all[k][:, :2], slam))
             if progress is not None:
                 progress(k)
         slam.finish()
@@ -160,19 +185,28 @@ class Slam2dPipeline:
             extra={f"loop_{k}": float(v) for k, v in slam.loop_stats.items()},
         )  # fmt: skip
 
-    def run_and_render(self, progress: Callable[[int], None] | None = None) -> Slam2dRun:
+    def run_and_render(
+        self,
+        progress: Callable[[int], None] | None = None,
+        observer: Callable[[Slam2dStep], None] | None = None,
+    ) -> Slam2dRun:
         """``run``, then the output map at the estimated poses; the wall time covers both."""
         t0 = time.perf_counter()
-        res = self.run(progress)
+        res = self.run(progress, observer)
         grid = render_map(self.log, res.pose_xy_yaw, self.cfg)
         return Slam2dRun(res, grid, time.perf_counter() - t0)
 
     def save(
-        self, run: Slam2dRun, out: str | Path, metrics: dict[str, Any] | None = None
+        self,
+        run: Slam2dRun,
+        out: str | Path,
+        metrics: dict[str, Any] | None = None,
+        reference_xy: FloatArray | None = None,
     ) -> dict[str, Any]:
         """The results folder through the one writer (:func:`imuslam.io.results.write_results`):
         trajectory.tum, config.yaml, metrics.json (the run's summary, with ``metrics`` against a
-        reference), map.pgm / map.yaml and map.png. Returns the summary."""
+        reference), map.pgm / map.yaml and map.png (with ``reference_xy`` (N, 2), the reference's
+        positions in the map's frame, drawn). Returns the summary."""
         from imuslam.io.results import write_results
         from imuslam.slam2d.output import planar_trajectory, summary, write_maps
 
@@ -182,7 +216,7 @@ class Slam2dPipeline:
         write_results(
             out, config=run.result.config, metrics=s,
             trajectories={"trajectory": planar_trajectory(run.result)},
-            extra=lambda d: write_maps(d, run.grid, run.result),
+            extra=lambda d: write_maps(d, run.grid, run.result, reference_xy),
         )  # fmt: skip
         return s
 
