@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from imuslam.cli import validate
-from imuslam.cli.common import console, friendly_errors, table
+from imuslam.cli.common import console, friendly_errors, progress_option, show_progress, table
+from imuslam.cli.lio import RRD_HELP, VIEWER_HELP
 
 if TYPE_CHECKING:
     from imuslam.io.laserlog import LaserLog
@@ -77,7 +78,9 @@ def register(app: typer.Typer) -> None:
         ),
         no_imu: bool = typer.Option(False, "--no-imu", help="do not use the IMU"),
         no_loop: bool = typer.Option(False, "--no-loop", help="local SLAM only (no loop closure)"),
-        progress: bool = typer.Option(True, "--progress/--no-progress"),
+        progress: bool = progress_option(),
+        rrd: Path | None = typer.Option(None, "--rrd", help=RRD_HELP),
+        viewer: bool = typer.Option(False, "--viewer", help=VIEWER_HELP),
     ) -> None:
         """Map a 2D laser log: trajectory.tum, map.pgm/map.yaml (map_server), map.png, config.yaml."""
         from tqdm import tqdm
@@ -89,25 +92,48 @@ def register(app: typer.Typer) -> None:
         if gt is not None:
             _check_reference(gt, log_)
         pipeline = Slam2dPipeline(log_, cfg)
-        with tqdm(total=len(log_), unit="scan", desc="map2d", disable=not progress) as bar:
+        from imuslam.viz.recording import open_recording
+
+        with (
+            open_recording(f"imuslam map2d {log_path.name}", rrd, viewer) as rec,
+            tqdm(
+                total=len(log_), unit="scan", desc="map2d", disable=not show_progress(progress)
+            ) as bar,
+        ):
 
             def tick(k: int) -> None:
                 if k % 50 == 49:
                     bar.update(50)
 
-            run = pipeline.run_and_render(tick)
+            obs = _observer(rec, log_, calib is not None)
+            run = pipeline.run_and_render(tick, obs)
             bar.update(len(log_) - bar.n)
-        metrics = None
+            if obs is not None:
+                obs.finish(run)
+        metrics = ref_xy = None
         if gt is not None:
-            from imuslam.eval.slam2d_gt import score_run
+            from imuslam.eval.slam2d_gt import reference_in_map, score_run
 
             metrics = score_run(gt, log_, run.result.t_ns, run.result.pose_xy_yaw)
-        s = pipeline.save(run, out, metrics)
+            ref_xy = reference_in_map(gt, log_, run.result.t_ns, run.result.pose_xy_yaw)
+        s = pipeline.save(run, out, metrics, ref_xy)
         rows = _summary_rows(s, run.result.warnings, run.wall_s, metrics)
         console.print(table(f"imuslam map2d: {log_path.name}", ["quantity", "value", "unit"], rows))
         console.print(
             f"wrote {out}/: trajectory.tum, map.pgm, map.yaml, map.png, config.yaml, metrics.json"
         )
+
+
+def _observer(rec: Any, log_: LaserLog, calibrated: bool) -> Any:
+    """The recording's per-scan logger, the log's IMU logged first; None without a recording."""
+    if rec is None:
+        return None
+    from imuslam.viz.lio import log_imu
+    from imuslam.viz.slam2d import Slam2dLogger
+
+    if log_.imu is not None:
+        log_imu(rec, log_.imu, "imu/corrected" if calibrated else "imu/raw")
+    return Slam2dLogger(rec)
 
 
 def _config(config: Path | None, no_odometry: bool, no_imu: bool, no_loop: bool) -> Slam2dConfig:
@@ -140,7 +166,11 @@ def _load(
     from imuslam.io.laserload import load_laser_log
     from imuslam.io.plausible import check_stamps, check_units
 
-    log_ = load_laser_log(log_path, fmt, scan_topic, imu_topic, odom_topic)
+    if calib is not None and not cfg.use_imu:
+        raise InputError(
+            "--calib: it corrects the IMU, which --no-imu leaves out; give one of them"
+        )
+    log_ = load_laser_log(log_path, fmt, scan_topic, imu_topic, odom_topic, cfg.use_imu)
     check_stamps(log_.t_ns, "scans", str(log_path))
     if calib is not None:
         if log_.imu is None:

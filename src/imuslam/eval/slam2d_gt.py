@@ -124,3 +124,29 @@ def score_run(
             **relations_against_corrected(p, log_, est, relation_sets=True),
         }
     return {"kind": "ate_rpe", **ate_rpe(p, t_ns, est)}
+
+
+def reference_in_map(
+    gt: str | Path, log_: LaserLog, t_ns: NDArray[np.int64], slam_xy_yaw: FloatArray
+) -> FloatArray:
+    """The reference's positions (M, 2) in the SLAM map's frame, for drawing: the poses associated with
+    the run's scans (by readings for a corrected CARMEN log, by stamps within 0.02 s for a trajectory)
+    moved by the SE(2) alignment that fits them onto the SLAM poses best (Umeyama 1991, no scale)."""
+    from imuslam.eval.associate import match_stamps
+
+    p = Path(gt)
+    if is_carmen(p):
+        from imuslam.io.carmen import read_carmen
+
+        carmen = read_carmen(p)
+        ri, ei = associate_by_ranges(carmen.laser.ranges, log_.ranges)
+        refp = carmen.laser_pose_xy_yaw[ri]
+    else:
+        ref = read_trajectory(p, "tum")
+        ei, ri = match_stamps(t_ns * 1e-9, ref.t_ns * 1e-9, 0.02)
+        yaw = np.arctan2(ref.R_w_b[ri, 1, 0], ref.R_w_b[ri, 0, 0])
+        refp = np.column_stack([ref.p_w[ri, :2], yaw])
+    if len(ri) < 2:
+        return np.zeros((0, 2))
+    T = align_se2(refp[:, :2], slam_xy_yaw[ei, :2])
+    return transform(T, refp)[:, :2]

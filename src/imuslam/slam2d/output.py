@@ -5,7 +5,7 @@ and map.png (the map with the trajectory)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,6 +15,9 @@ from imuslam.io.laserlog import LaserLog
 from imuslam.io.mapfiles import write_map_server
 from imuslam.slam2d.grid import ProbabilityGrid
 from imuslam.slam2d.records import Slam2dResult
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 FloatArray = NDArray[np.float64]
 
@@ -51,35 +54,79 @@ def summary(result: Slam2dResult, log_: LaserLog, wall_s: float) -> dict[str, An
     }
 
 
-def map_figure(grid: ProbabilityGrid, result: Slam2dResult, title: str):  # type: ignore[no-untyped-def]
+def view_limits(
+    grid: ProbabilityGrid, xy: FloatArray, share: float = 0.99, margin: float = 1.0
+) -> tuple[float, float, float, float]:
+    """``(x0, x1, y0, y1)`` of map.png's view, m: the positions ``xy`` (N, 2) (trajectory, reference) and
+    the central ``share`` of the occupied cells in x and in y, plus ``margin``. The free space a
+    long ray crosses (a 20 m beam through a door) does not widen it, so the walls keep their size."""
+    occ = grid.known() & (grid.prob > 0.5)
+    r = grid.params.resolution
+    pts = [np.asarray(xy, dtype=float).reshape(-1, 2)]
+    if occ.any():
+        iy, ix = np.nonzero(occ)
+        cells = np.column_stack([grid.x0 + (ix + 0.5) * r, grid.y0 + (iy + 0.5) * r])
+        q = 50.0 * (1.0 - share)
+        pts.append(np.percentile(cells, [q, 100.0 - q], axis=0))
+    allp = np.concatenate(pts)
+    lo, hi = allp.min(axis=0) - margin, allp.max(axis=0) + margin
+    return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])
+
+
+def map_figure(
+    grid: ProbabilityGrid,
+    result: Slam2dResult,
+    title: str,
+    reference_xy: FloatArray | None = None,
+) -> Figure:
+    """The occupancy map (grey: unknown) with the SLAM trajectory, its start, the nodes where loop
+    closures were found and, if given, the reference positions in the map's frame (N, 2), viewed over
+    the occupied extent (:func:`view_limits`)."""
     from matplotlib.figure import Figure
 
     pr, known, x0, y0 = grid.cropped_known()
     prob = np.where(known, pr, 0.5)
     r = grid.params.resolution
     H, W = prob.shape
-    fig = Figure(figsize=(8, 8 * H / max(W, 1) + 0.5))
+    P = result.pose_xy_yaw
+    has_ref = reference_xy is not None and len(reference_xy) > 0
+    vx0, vx1, vy0, vy1 = view_limits(
+        grid, np.vstack([P[:, :2], reference_xy]) if has_ref else P[:, :2]
+    )  # type: ignore[list-item]
+    fig = Figure(figsize=(8, 8 * (vy1 - vy0) / max(vx1 - vx0, 1e-9) + 0.5))
     ax = fig.add_subplot(111)
     ax.imshow(1.0 - prob, cmap="gray", origin="lower", vmin=0, vmax=1,
               extent=(x0, x0 + W * r, y0, y0 + H * r))  # fmt: skip
-    P = result.pose_xy_yaw
+    if has_ref:
+        ref = np.asarray(reference_xy)
+        ax.plot(
+            ref[:, 0], ref[:, 1], "-", color="tab:orange", lw=0.7, label="reference (SE(2) aligned)"
+        )
     ax.plot(P[:, 0], P[:, 1], "-", color="tab:blue", lw=0.7, label="SLAM")
-    for c in result.loops[:: max(1, len(result.loops) // 300)]:
-        n = result.node_scans[c.node]
-        ax.plot(P[n, 0], P[n, 1], ".", color="tab:red", ms=2)
+    if result.loops:
+        nodes = [
+            result.node_scans[c.node] for c in result.loops[:: max(1, len(result.loops) // 300)]
+        ]
+        ax.plot(P[nodes, 0], P[nodes, 1], ".", color="tab:red", ms=3, ls="none",
+                label=f"loop closure ({len(result.loops)})")  # fmt: skip
     ax.plot(P[0, 0], P[0, 1], "o", color="tab:green", ms=5, label="start")
-    ax.set_xlabel("x, m")
-    ax.set_ylabel("y, m")
+    ax.set_xlim(vx0, vx1)
+    ax.set_ylim(vy0, vy1)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
     ax.set_title(title)
-    ax.set_aspect("equal")
+    ax.set_aspect("equal", adjustable="box")
     ax.legend(loc="upper right", fontsize=8)
     return fig
 
 
-def write_maps(out: Path, grid: ProbabilityGrid, result: Slam2dResult) -> None:
-    """map.pgm / map.yaml (ROS map_server) and map.png (the map with the trajectory) into ``out``."""
+def write_maps(
+    out: Path, grid: ProbabilityGrid, result: Slam2dResult, reference_xy: FloatArray | None = None
+) -> None:
+    """map.pgm / map.yaml (ROS map_server) and map.png (the map with the trajectory and the reference
+    positions ``reference_xy`` in the map's frame, if given) into ``out``."""
     from imuslam.io.figures import save_figure
 
     pr, known, x0, y0 = grid.cropped_known()
     write_map_server(out, pr, known, x0, y0, grid.params.resolution)
-    save_figure(map_figure(grid, result, Path(result.source).name), out / "map.png")
+    save_figure(map_figure(grid, result, Path(result.source).name, reference_xy), out / "map.png")
