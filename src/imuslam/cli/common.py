@@ -30,6 +30,11 @@ F = TypeVar("F", bound=Callable[..., Any])
 _PATH_STR_OPTIONS = ("dataset", "gt", "noise")
 
 
+RRD_HELP = (
+    "also save a rerun recording of the run to this new .rrd file (pip install 'imuslam\\[viz]')"
+)
+VIEWER_HELP = "stream the run live to a rerun viewer spawned here (pip install 'imuslam\\[viz]')"
+
 #: The outputs a command may take: the results folder, and the viewer's recording.
 _OUT_OPTIONS = ("out", "rrd")
 

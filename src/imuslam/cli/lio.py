@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from imuslam.cli.common import console, friendly_errors, table
+from imuslam.cli.common import RRD_HELP, VIEWER_HELP, console, friendly_errors, table
 
 if TYPE_CHECKING:
     from imuslam.interfaces import ImuLog, Trajectory
@@ -86,12 +86,6 @@ def register(app: typer.Typer) -> None:
             console.print(f"warning: {w}", markup=False, highlight=False, soft_wrap=True)
         console.print(f"wrote {out}/trajectory.tum, map.ply, map.pcd, config.yaml, scans.csv, "
                       "trajectory.png, metrics.json")  # fmt: skip
-
-
-RRD_HELP = (
-    "also save a rerun recording of the run to this new .rrd file (pip install 'imuslam[viz]')"
-)
-VIEWER_HELP = "stream the run live to a rerun viewer spawned here"
 
 
 def _observer(rec: Any, raw: ImuLog | None, corrected: ImuLog | None) -> Any:
