@@ -33,12 +33,15 @@ def register(app: typer.Typer) -> None:
         ),
         quick: bool = typer.Option(False, "--quick", help="the built-in quick study (a few cells)"),
     ) -> None:
-        """Run a study: cells on Dask, results.parquet/.csv, report.html per claim."""
+        """Run a study: cells on Dask, results.parquet/.csv, report.html per claim; or a study of
+        recorded logs (a YAML with 'logs'): the estimator once per calibration, maps and
+        trajectories compared."""
         import logging
 
         logging.getLogger("numexpr").setLevel(logging.WARNING)
         from imuslam.errors import EstimatorError, InputError
-        from imuslam.study.config import load_study, parse_study
+        from imuslam.study.config import parse_study, read_study_data
+        from imuslam.study.logconfig import is_log_study
         from imuslam.study.presets import QUICK
         from imuslam.study.report import PAIR_COLUMNS, analyse, pair_table_rows
         from imuslam.study.runner import run_study
@@ -49,8 +52,13 @@ def register(app: typer.Typer) -> None:
             raise InputError(
                 "--scheduler runs on that cluster's workers; drop --serial / --workers"
             )
-        study = parse_study(QUICK, "--quick") if quick else load_study(study_file)  # type: ignore[arg-type]
         src = "--quick" if quick else str(study_file)
+        data = QUICK if quick else read_study_data(study_file)  # type: ignore[arg-type]
+        if is_log_study(data):
+            if scheduler:
+                raise InputError("--scheduler: a study of recorded logs runs in this process")
+            return _log_study(data, study_file, out)  # type: ignore[arg-type]
+        study = parse_study(data, src)
         res = run_study(study, out, scheduler, workers, serial, source=src)
         n_err = int((res.table["status"] != "ok").sum())
         console.print(
@@ -74,3 +82,18 @@ def register(app: typer.Typer) -> None:
             raise EstimatorError(
                 f"every one of the {n_err} cells failed (see {out}/results.csv); the first: {first}"
             )
+
+
+def _log_study(data: object, study_file: Path, out: Path) -> None:
+    """A study of recorded logs (``study.logstudy``): run, print each log's table, write the report."""
+    from imuslam.cli.common import console, table
+    from imuslam.study.logconfig import parse_log_study
+    from imuslam.study.logreport import table_rows
+    from imuslam.study.logstudy import run_log_study
+
+    study = parse_log_study(data, str(study_file), study_file.parent)
+    res = run_log_study(study, out, str(study_file))
+    for spec in study.logs:
+        head, rows = table_rows(spec, [r for r in res.runs if r.log == spec.name], imu=False)
+        console.print(table(f"{spec.name}: {spec.estimator} on {Path(spec.path).name}", head, rows))
+    console.print(f"wrote {out}/report.html, report.md, results.csv, study.yaml, <log>/<run>.tum")

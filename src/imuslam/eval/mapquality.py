@@ -88,3 +88,65 @@ def map_quality(
         far = float("nan")
     return MapQuality(float(np.sqrt(np.mean(e**2))), float(e.max()), loop_m, loop_deg, len(occ), far,
                       wall_thickness(occ))  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------
+# without ground truth: how crisp the map of a recorded log is
+
+
+@dataclass
+class PointMapQuality:
+    """Sharpness of a point map (2D or 3D) without ground truth (Razlaw et al., "Evaluation of
+    registration methods for sparse 3D laser scans", ECMR 2015): around each query point, the covariance
+    S of the map's points within ``radius_m``.
+
+    map_entropy: mean map entropy, the mean over the queries of ``0.5 ln det(2 pi e S)`` (nats; lower is
+        crisper; comparable only between maps of the same log, radius and dimension).
+    plane_variance_m2: mean plane variance, the mean of the smallest eigenvalue of S (m^2): in 3D the
+        spread of the points about their local plane, in 2D about their local line (a wall's cut).
+    wall_spread_cm: its square root in cm, the RMS distance of the points from their local wall.
+    queries: neighbourhoods used (those with at least ``min_points`` points).
+    """
+
+    map_entropy: float
+    plane_variance_m2: float
+    wall_spread_cm: float
+    queries: int
+    points: int
+
+
+def point_map_quality(
+    points: FloatArray, radius_m: float = 0.2, min_points: int = 10, max_queries: int = 5000,
+    seed: int = 0, queries: FloatArray | None = None,
+) -> PointMapQuality:  # fmt: skip
+    """:class:`PointMapQuality` of ``points`` (N, 2) or (N, 3), world frame, m. The queries are
+    ``max_queries`` of the points drawn with ``seed`` (all of them when there are fewer), so two maps of
+    the same log are scored on the same number of neighbourhoods; or the given ``queries`` (Q, dim)."""
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=float)
+    p = p[np.all(np.isfinite(p), axis=1)]
+    dim = p.shape[1]
+    if len(p) < min_points:
+        return PointMapQuality(float("nan"), float("nan"), float("nan"), 0, len(p))
+    rng = np.random.default_rng(seed)
+    if queries is not None:
+        q = np.asarray(queries, dtype=float)
+    else:
+        q = p if len(p) <= max_queries else p[rng.choice(len(p), max_queries, replace=False)]
+    tree = cKDTree(p)
+    ent, lam = [], []
+    for nb in tree.query_ball_point(q, radius_m, workers=1):
+        if len(nb) < min_points:
+            continue
+        x = p[nb]
+        S = np.cov(x, rowvar=False)
+        ev = np.linalg.eigvalsh(S)
+        if ev[0] <= 0:
+            continue
+        ent.append(0.5 * (dim * np.log(2 * np.pi * np.e) + np.sum(np.log(ev))))
+        lam.append(ev[0])
+    if not lam:
+        return PointMapQuality(float("nan"), float("nan"), float("nan"), 0, len(p))
+    mpv = float(np.mean(lam))
+    return PointMapQuality(float(np.mean(ent)), mpv, 100 * float(np.sqrt(mpv)), len(lam), len(p))

@@ -257,7 +257,9 @@ def _where(loc: tuple[Any, ...], data: Any) -> str:
                 if isinstance(node, list) and isinstance(node[p], dict)
                 else None
             )
-            parts[-1] += f"[{p}]" + (f" ({name})" if name and parts[-1] == "claims" else "")
+            parts[-1] += f"[{p}]" + (
+                f" ({name})" if name and parts[-1] in ("claims", "logs", "runs") else ""
+            )
         else:
             parts.append(str(p))
         try:
@@ -289,12 +291,19 @@ def parse_study(data: Any, source: str = "<study>") -> StudyConfig:
         raise InputError(f"{source}: {where}{msg}") from None
 
 
-def load_study(path: str | Path) -> StudyConfig:
-    """Read and validate a study YAML."""
+def read_study_data(path: str | Path) -> Any:
+    """The mapping of a study YAML, not yet validated (a study over the simulator has 'claims', a
+    study of recorded logs 'logs': ``study.logconfig``)."""
     from imuslam.io.yamlfile import read_yaml
 
-    data = read_yaml(path, "a study: a mapping with 'claims' (and seeds, drift, align)")
-    return parse_study(data, str(path))
+    return read_yaml(
+        path, "a study: a mapping with 'claims' (and seeds, drift, align), or with 'logs'"
+    )
+
+
+def load_study(path: str | Path) -> StudyConfig:
+    """Read and validate a study YAML."""
+    return parse_study(read_study_data(path), str(path))
 
 
 def dump_study(study: StudyConfig) -> str:

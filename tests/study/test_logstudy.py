@@ -1,0 +1,178 @@
+"""A study of a recorded log (``imuslam study`` with 'logs'): the map sharpness without ground truth
+against point maps of known spread, the study on the real Cartographer backpack bag against the 2D
+SLAM run directly, and bad input (one line, exit 2, nothing written)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from imuslam.cli import app
+from imuslam.eval.mapquality import point_map_quality
+from imuslam.imu.model import ImuCalibration, TriadModel
+
+runner = CliRunner()
+BAG = "cartographer_backpack_2d/b0-2014-07-21-12-42-53-short.bag"
+
+
+def walls_2d(rng: np.random.Generator, sigma: float, offset: float = 0.0) -> np.ndarray:
+    """Two parallel 8 m walls 2 m apart (no corners), hits every 2 mm with a perpendicular spread
+    ``sigma``; with ``offset`` each wall a second time ``offset`` further out (a doubled wall)."""
+    x = rng.uniform(0.0, 8.0, 8000)
+    parts = []
+    for y0 in (0.0, 2.0):
+        for dy in (0.0, offset) if offset else (0.0,):
+            parts.append(np.column_stack([x, y0 + dy + sigma * rng.normal(size=len(x))]))
+    return np.concatenate(parts)
+
+
+def test_point_map_quality_2d_against_known_spread() -> None:
+    rng = np.random.default_rng(1)
+    sigma, r = 0.01, 0.2
+    p = walls_2d(rng, sigma)
+    inner = p[(p[:, 0] > r) & (p[:, 0] < 8 - r)][:3000]  # away from the walls' ends
+    q = point_map_quality(p, r, queries=inner)
+    # the RMS distance from the local line is sigma; the neighbourhoods (about 400 hits each) estimate
+    # it to 1/sqrt(2 * 400) = 3.5 % each, their mean over 3000 queries to well under 3 %
+    assert q.wall_spread_cm == pytest.approx(100 * sigma, rel=0.03)
+    # entropy of a segment of length 2r (variance r^2 / 3 along it) with sigma across
+    expect = 0.5 * np.log((2 * np.pi * np.e) ** 2 * (r**2 / 3) * sigma**2)
+    assert q.map_entropy == pytest.approx(expect, abs=0.05)  # 0.05 nats: 5 % of a variance
+    # a wall seen twice 4 cm apart (a map from two misaligned passes): spread sqrt(sigma^2 + d^2 / 4)
+    d = 0.04
+    q2 = point_map_quality(walls_2d(rng, sigma, d), r, queries=inner)
+    assert q2.wall_spread_cm == pytest.approx(100 * np.hypot(sigma, d / 2), rel=0.03)
+    assert q2.map_entropy > q.map_entropy + 0.5 * np.log(1 + (d / 2 / sigma) ** 2) - 0.05
+
+
+def test_point_map_quality_3d_plane() -> None:
+    rng = np.random.default_rng(2)
+    sigma, r = 0.02, 0.3
+    n = 60000
+    p = np.column_stack([rng.uniform(0, 6, n), rng.uniform(0, 6, n), sigma * rng.normal(size=n)])
+    q = point_map_quality(p, r, max_queries=2000)
+    # queries away from the edges, where a neighbourhood is a whole disc
+    inner = point_map_quality(p, r, queries=p[(np.abs(p[:, :2] - 3) < 2.5).all(axis=1)][:2000])
+    assert inner.plane_variance_m2 == pytest.approx(sigma**2, rel=0.06)  # twice sigma's 3 %
+    # a disc of radius r has variance r^2 / 4 along each axis of the plane
+    expect = 0.5 * np.log((2 * np.pi * np.e) ** 3 * (r**2 / 4) ** 2 * sigma**2)
+    assert inner.map_entropy == pytest.approx(expect, abs=0.05)
+    assert q.queries == 2000 and q.points == n
+
+
+def _calibration(path: Path, unit: str = "m/s^2", gyro_b: float = 0.0) -> Path:
+    """A calibration file as ``imuslam calibrate`` writes it: identity (or a gyro bias), in ``unit``."""
+    gunit = "rad/s" if unit == "m/s^2" else unit
+    cal = ImuCalibration(TriadModel(np.eye(3), np.ones(3), np.zeros(3), "plus"),
+                         TriadModel(np.eye(3), np.ones(3), np.full(3, gyro_b), "plus"),
+                         accel_unit=unit, gyro_unit=gunit)  # fmt: skip
+    cal.save_yaml(path)
+    return path
+
+
+def _study(tmp_path: Path, data: Path, runs: list[dict[str, Any]], **log: Any) -> Path:
+    spec = {"name": "t", "logs": [{"name": "backpack", "path": str(data / BAG), "estimator": "map2d",
+                                   "scan_topic": "horizontal_laser_2d", "runs": runs, **log}]}  # fmt: skip
+    f = tmp_path / "study.yaml"
+    f.write_text(yaml.safe_dump(spec))
+    return f
+
+
+@pytest.mark.slow  # three 2D SLAM runs over the 10 s bag: about 20 s
+def test_log_study_on_the_backpack_bag(tmp_path: Path, shared_data: Path) -> None:
+    """Two calibrations of the real bag's IMU through the CLI: an identity one changes nothing, and the
+    raw run's map sharpness is that of the 2D SLAM run directly over the bag (the anchor)."""
+    from imuslam.io.laserload import load_laser_log
+    from imuslam.slam2d.pipeline import Slam2dPipeline
+    from imuslam.study.logstudy import map2d_points
+
+    ident = _calibration(tmp_path / "identity.yaml")
+    f = _study(
+        tmp_path,
+        shared_data,
+        [{"name": "raw"}, {"name": "identity", "calibration": "identity.yaml"}],
+    )
+    assert ident.parent == f.parent  # a relative calibration path is read from the study's folder
+    out = tmp_path / "out"
+    r = runner.invoke(app, ["study", str(f), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    for name in ("report.md", "report.html", "results.csv", "study.yaml", "backpack/raw.tum",
+                 "backpack/identity.tum"):  # fmt: skip
+        assert (out / name).is_file(), name
+    df = pd.read_csv(out / "results.csv").set_index("run")
+    raw, same = df.loc["raw"], df.loc["identity"]
+    for k in ("wall_spread_cm", "map_entropy", "occupied_cells"):
+        assert same[k] == raw[k], k  # x_O = I diag(1) (x_S + 0): the same IMU, the same map
+    assert same["ref_ate_m"] < 1e-9 and raw["ref_ate_m"] < 1e-9
+    # the anchor: the SLAM over the bag as `imuslam map2d` runs it, scored by the same function
+    log_ = load_laser_log(shared_data / BAG, "bag", "horizontal_laser_2d")
+    run = Slam2dPipeline(log_).run_and_render()
+    q = point_map_quality(map2d_points(log_, run.result.pose_xy_yaw, run.result.config), 0.2)
+    assert raw["wall_spread_cm"] == pytest.approx(q.wall_spread_cm, rel=1e-9)
+    assert raw["map_entropy"] == pytest.approx(q.map_entropy, rel=1e-9)
+    # the hits of a real indoor map lie within a few cm of their walls (the scanner's range noise is
+    # about 1-3 cm); a map blurred by a wrong pose would show far more
+    assert 0.5 < raw["wall_spread_cm"] < 5.0
+    assert "backpack: map2d on" in (out / "report.md").read_text()
+
+
+def _cli_error(tmp_path: Path, f: Path) -> str:
+    out = tmp_path / "out"
+    r = runner.invoke(app, ["study", str(f), "--out", str(out)])
+    assert r.exit_code == 2, r.output
+    assert not out.exists()
+    text = " ".join(r.output.split())
+    assert text.startswith("error: ") and text.count("error:") == 1, r.output
+    return text
+
+
+def test_log_without_the_estimators_topics(tmp_path: Path, shared_data: Path) -> None:
+    f = _study(tmp_path, shared_data, [{"name": "raw"}], scan_topic="no_such_scan")
+    line = _cli_error(tmp_path, f)
+    assert (
+        "logs[0] (backpack) (map2d needs a 2D laser scan topic)" in line and "no_such_scan" in line
+    )
+    f = _study(tmp_path, shared_data, [{"name": "raw"}], estimator="vio", scan_topic=None)
+    line = _cli_error(tmp_path, f)
+    assert "logs[0] (backpack) (vio needs stereo images and an IMU)" in line
+
+
+def test_calibration_for_another_sensors_units(tmp_path: Path, shared_data: Path) -> None:
+    """A calibration of a sensor logged in raw counts (imu_tk's) applied to the bag's SI IMU."""
+    _calibration(tmp_path / "counts.yaml", "counts")
+    f = _study(
+        tmp_path, shared_data, [{"name": "raw"}, {"name": "c", "calibration": "counts.yaml"}]
+    )
+    line = _cli_error(tmp_path, f)
+    assert "logs[0] (backpack).runs[1] (c).calibration:" in line
+    assert (
+        "the calibration applies to accel in counts and gyro in counts; the log has m/s^2" in line
+    )
+
+
+@pytest.mark.parametrize(
+    ("runs", "log", "expect"),
+    [
+        ([], {}, "logs[0] (backpack).runs is empty"),
+        ([{"name": "a"}, {"name": "a"}], {}, "run names repeat: a"),
+        ([{"name": "a"}], {"reference": "b"}, "reference 'b' is not a run (a)"),
+        ([{"name": "a", "colour": 1}], {}, "logs[0] (backpack).runs[0] (a).colour: unknown key"),
+        ([{"name": "a", "calibration": "nope.yaml"}], {}, "runs[0] (a).calibration: "),
+        ([{"name": "a", "inject": "seed999"}], {}, "runs[0] (a).inject: Input should be 'seed000'"),
+        (
+            [{"name": "a"}],
+            {"estimator": "slam9000"},
+            "logs[0] (backpack).estimator: Input should be",
+        ),
+    ],
+)
+def test_bad_log_study(
+    tmp_path: Path, shared_data: Path, runs: list[dict[str, Any]], log: dict[str, Any], expect: str
+) -> None:
+    assert expect in _cli_error(tmp_path, _study(tmp_path, shared_data, runs, **log))
