@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import InputError
+from imuslam.geometry.se3 import exp as se3_exp
 from imuslam.ins.coarse import level_rotation
 from imuslam.ins.core import (
     ErrorLayout,
@@ -180,6 +181,23 @@ def compute_vo(
     return VoRun(frames, vo.stats, seen, unreadable)
 
 
+def _corrupt(
+    m: VoMeasurement, cfg: VioConfig, rng: np.random.Generator
+) -> tuple[VoMeasurement, bool]:
+    """With probability ``cfg.outlier_fraction``, ``m`` with a gross error: a rate error of a random
+    direction and a norm drawn from ``cfg.outlier_rate`` (rad/s), a velocity error likewise from
+    ``cfg.outlier_vel`` (m/s), and the relative pose moved by the same errors over the pair's interval
+    (``T_b0_b1 exp([dw dt, dv dt])``), so that every reader of the measurement sees one failure."""
+    if not rng.uniform() < cfg.outlier_fraction:
+        return m, False
+    dv = rng.normal(size=3)
+    dw = rng.normal(size=3)
+    dw = dw / np.linalg.norm(dw) * rng.uniform(*cfg.outlier_rate)
+    dv = dv / np.linalg.norm(dv) * rng.uniform(*cfg.outlier_vel)
+    T = m.T_b0_b1 @ se3_exp(np.concatenate([dw, dv]) * m.dt)
+    return replace(m, omega_b=m.omega_b + dw, vel_b=m.vel_b + dv, T_b0_b1=T), True
+
+
 def run_vio(
     data: StereoImuDataset,
     cfg: VioConfig | None = None,
@@ -212,6 +230,11 @@ def run_vio(
     T_prev_rel = np.eye(4)
 
     for t_ns, m in vo_run.frames:
+        # corrupt a share of the measurements after the first (simulation studies of the gate): VO alone
+        # chains the same corrupted motion the filter reads
+        bad = False
+        if m is not None and filt is not None and cfg.outlier_fraction > 0:
+            m, bad = _corrupt(m, cfg, rng)
         # VO alone: chain the relative poses (a skipped pair keeps the last motion)
         if m is not None:
             T_prev_rel = m.T_b0_b1
@@ -266,16 +289,6 @@ def run_vio(
             )
             imu_track = Trajectory(t_ref + np.round(ts * 1e9).astype(np.int64), Pi, Ri, "IMU only")
             continue
-        # corrupt a share of the measurements (simulation studies of the gate)
-        bad = bool(cfg.outlier_fraction > 0 and rng.uniform() < cfg.outlier_fraction)
-        if bad:
-            dv = rng.normal(size=3)
-            dw = rng.normal(size=3)
-            m = VoMeasurement(
-                m.t0_ns, m.t1_ns, m.omega_b + dw / np.linalg.norm(dw) * rng.uniform(*cfg.outlier_rate),
-                m.vel_b + dv / np.linalg.norm(dv) * rng.uniform(*cfg.outlier_vel), m.cov, m.T_b0_b1,
-                m.n_inliers, m.cov_fit, m.var_factor,
-            )  # fmt: skip
         cov = vo_cov(m, cfg, M_cov)
         vel_b = m.vel_b
         if cfg.vo_model == "rate" and cfg.vo_velocity_model == "twist":
