@@ -16,6 +16,7 @@ from imuslam.cli.common import (
     console,
     friendly_errors,
     load_log,
+    print_warnings,
     table,
     value,
 )
@@ -87,8 +88,7 @@ def register(app: typer.Typer) -> None:
         kalibr_ok = _kalibr_or_why_not(res, topic)
         written = ["allan.png", "allan.csv", "noise_terms.json", "config.yaml", "metrics.json"]
         written += ["imu.yaml (Kalibr)"] if kalibr_ok is not None else []
-        for w in res.warnings:
-            console.print(f"[yellow]warning:[/] {w}")
+        print_warnings(res.warnings)
         summary = {
             "source": res.source,
             "rate_hz": res.rate_hz,

@@ -19,6 +19,7 @@ from imuslam.cli.common import (
     friendly_errors,
     load_log,
     prefetch_log,
+    print_warnings,
     table,
     value,
 )
@@ -79,8 +80,7 @@ def print_result(
             ],
         )
     )
-    for w in res.warnings:
-        console.print(f"[yellow]warning:[/] {w}")
+    print_warnings(res.warnings)
 
 
 def print_cv(res: CalibrationResult, cv: CrossValidation) -> None:

@@ -105,6 +105,7 @@ def friendly_errors(fn: F) -> F:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        show_warnings_once()
         try:
             check_out_against_inputs(kwargs)
             return fn(*args, **kwargs)
@@ -276,6 +277,41 @@ def table(title: str, columns: list[str], rows: list[list[str]]) -> Table:
     for r in rows:
         t.add_row(*(Text(x) for x in r))
     return t
+
+
+# the warnings this command has shown, each with the log record that showed it (None: printed); each
+# is shown once, however it arrives
+_SHOWN: dict[str, logging.LogRecord | None] = {}
+
+
+class _OnceFilter(logging.Filter):
+    """Drops a log message already shown by this command (a reader logs what it also returns); the
+    first record of a message passes every handler."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < logging.WARNING:
+            return True
+        msg = record.getMessage()
+        first = _SHOWN.setdefault(msg, record)
+        return first is record
+
+
+def show_warnings_once() -> None:
+    """From now on this command shows each warning once: the log handlers drop a repeated message and
+    :func:`print_warnings` skips one already logged (called at each command's start)."""
+    _SHOWN.clear()
+    for h in logging.getLogger().handlers:
+        if not any(isinstance(f, _OnceFilter) for f in h.filters):
+            h.addFilter(_OnceFilter())
+
+
+def print_warnings(warnings: list[str]) -> None:
+    """Each of ``warnings`` on the terminal, unless it was already shown (logged by the reader)."""
+    for w in warnings:
+        if w in _SHOWN:
+            continue
+        _SHOWN[w] = None
+        console.print(f"warning: {w}", markup=False, highlight=False, soft_wrap=True)
 
 
 def show_progress(progress: bool) -> bool:

@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 from imuslam.cli import validate
-from imuslam.cli.common import console, friendly_errors
+from imuslam.cli.common import console, friendly_errors, progress_option, show_progress
 
 
 class Scenario(StrEnum):
@@ -43,12 +43,15 @@ def register(app: typer.Typer) -> None:
         rotating_platform: bool = typer.Option(
             False, help="street: IMU on a 10 Hz rotating platform"
         ),
+        progress: bool = progress_option(),
     ) -> None:
         """Simulate a robot (room, street, corridor, handheld, gimbal) with every sensor and the truth."""
         from imuslam.io.results import results_folder
         from imuslam.sim.scenario import run_scenario
 
         with results_folder(out) as tmp:
-            res = run_scenario(scenario.value, duration, tmp, seed, rotating_platform)
+            res = run_scenario(
+                scenario.value, duration, tmp, seed, rotating_platform, show_progress(progress)
+            )
         names = ", ".join(str(out / Path(f).relative_to(tmp)) for f in res.files)
         console.print(f"wrote {res.counts.get('messages', 0)} messages: {names}")

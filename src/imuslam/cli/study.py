@@ -9,7 +9,13 @@ import typer
 
 
 def register(app: typer.Typer) -> None:
-    from imuslam.cli.common import console, friendly_errors, table
+    from imuslam.cli.common import (
+        console,
+        friendly_errors,
+        progress_option,
+        show_progress,
+        table,
+    )
 
     @app.command("study")
     @friendly_errors
@@ -32,6 +38,7 @@ def register(app: typer.Typer) -> None:
             False, "--serial", help="run the cells one after another in this process"
         ),
         quick: bool = typer.Option(False, "--quick", help="the built-in quick study (a few cells)"),
+        progress: bool = progress_option(),
     ) -> None:
         """Run a study: cells on Dask, results.parquet/.csv, report.html per claim; or a study of
         recorded logs (a YAML with 'logs'): the estimator once per calibration, maps and
@@ -59,7 +66,7 @@ def register(app: typer.Typer) -> None:
                 raise InputError("--scheduler: a study of recorded logs runs in this process")
             return _log_study(data, study_file, out)  # type: ignore[arg-type]
         study = parse_study(data, src)
-        res = run_study(study, out, scheduler, workers, serial, source=src)
+        res = run_study(study, out, scheduler, workers, serial, show_progress(progress), source=src)
         n_err = int((res.table["status"] != "ok").sum())
         console.print(
             f"{len(res.table)} cells on {res.backend}: {res.n_run} run, {res.n_cached} from the cache, {n_err} failed"
