@@ -15,13 +15,9 @@ from scipy.spatial import cKDTree
 from typer.testing import CliRunner
 
 from imuslam.cli import app
-from imuslam.interfaces import Trajectory
-from imuslam.io.trajectory import read_trajectory, write_tum
-from imuslam.sim import export
-from imuslam.sim.drive import simulate_lidar_drive
+from imuslam.io.trajectory import read_trajectory
 
 pytest.importorskip("rerun")  # the test extra installs it; a plain install has no viewer
-from imuslam.viz.readback import load  # noqa: E402
 
 RUNNER = CliRunner()
 
@@ -38,18 +34,9 @@ TOPICS = ["--imu-topic", "/imu/data", "--points-topic", "/points"]
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
-    d = simulate_lidar_drive("street", 3.0, seed=5)
-    root = tmp_path_factory.mktemp("viz_lio")
-    pc = [(s.t_ns, "/points", export.pointcloud_message(s)[1]) for s in d.scans]
-    export.write_bag(root / "bag", [export.imu_messages(d.imu), iter(pc)])
-    write_tum(Trajectory(d.gt_t_ns, d.gt_p_w, d.gt_R_w_b, "truth"), root / "gt.tum")
-    (root / "cfg.yaml").write_text("extrinsic:\n  p_i_l: [0.0, 0.0, 0.2]\n")
-    out, rrd = root / "out", root / "run.rrd"
-    r = RUNNER.invoke(app, ["lio", str(root / "bag"), *TOPICS, "--config", str(root / "cfg.yaml"),
-                            "--gt", str(root / "gt.tum"), "--out", str(out), "--rrd", str(rrd)])  # fmt: skip
-    assert r.exit_code == 0, r.output
-    return {"root": root, "out": out, "rrd": rrd, "imu": d.imu, "rec": load(rrd)}
+def run(lio_run: dict[str, object]) -> dict[str, object]:
+    """The 3 s simulated street through ``lio --rrd`` (conftest)."""
+    return lio_run
 
 
 def test_the_pose_per_scan_is_trajectory_tum(run: dict) -> None:  # type: ignore[type-arg]

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from imuslam.cli import app
 from imuslam.io.mapfiles import read_map_server
 
 pytest.importorskip("rerun")
@@ -21,14 +20,9 @@ RUNNER = CliRunner()
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    root = tmp_path_factory.mktemp("viz_map2d")
-    r = RUNNER.invoke(app, ["simulate", "room", "--duration", "40", "--out", str(root / "sim")])
-    assert r.exit_code == 0, r.output
-    r = RUNNER.invoke(app, ["map2d", str(root / "sim"), "--out", str(root / "out"), "--no-progress",
-                            "--rrd", str(root / "run.rrd")])  # fmt: skip
-    assert r.exit_code == 0, r.output
-    return {"sim": root / "sim", "out": root / "out", "rrd": root / "run.rrd"}
+def run(map2d_run: dict[str, Path]) -> dict[str, Path]:
+    """The 40 s simulated room through ``map2d --rrd`` (conftest)."""
+    return map2d_run
 
 
 def tum_stamps_ns(path: Path) -> np.ndarray:

@@ -71,6 +71,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "calibrate_lidar",
         "Calibrate the LiDAR pose on the IMU and the clock offset without a target (LI-Init's method).",
     ),
+    "view": (
+        "view",
+        "Show results folders in the rerun viewer: trajectory, map, occupancy grid and metrics.",
+    ),
 }
 
 

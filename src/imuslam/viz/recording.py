@@ -40,6 +40,31 @@ def time_column(rr: Any, t_ns: NDArray[np.int64]) -> Any:
     return rr.TimeColumn(TIMELINE, timestamp=np.asarray(t_ns, np.int64).astype("datetime64[ns]"))
 
 
+def spawn_viewer(rr: Any, rec: Any) -> None:
+    """Start the rerun viewer (the one installed beside this Python first, so an unactivated
+    virtual environment finds it); an InputError in one line when it cannot start."""
+    import os
+    import shutil
+    import sys
+
+    if sys.platform.startswith("linux") and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    ):
+        raise InputError(
+            "the rerun viewer needs a display (DISPLAY and WAYLAND_DISPLAY are unset); write a "
+            "recording with --rrd and open it where there is one (rerun FILE.rrd)"
+        )
+    beside = Path(sys.executable).parent / "rerun"
+    exe = str(beside) if beside.is_file() else shutil.which("rerun")
+    if exe is None:
+        raise InputError(f"the rerun viewer is not installed ({HINT}), or write a file with --rrd")
+    try:
+        rr.spawn(connect=False, recording=rec, executable_path=exe)
+    except Exception as exc:  # the viewer failed to start
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"the rerun viewer did not start: {first}") from None
+
+
 @contextmanager
 def open_recording(name: str, rrd: Path | None, viewer: bool) -> Iterator[Any]:
     """A ``rerun.RecordingStream`` named ``name`` writing to ``rrd`` (a new file, appearing only when
@@ -58,10 +83,7 @@ def open_recording(name: str, rrd: Path | None, viewer: bool) -> Iterator[Any]:
             sinks.append(rr.FileSink(str(tmp)))
         rec = rr.RecordingStream("imuslam", recording_id=None)
         if viewer:
-            try:
-                rr.spawn(connect=False, recording=rec)
-            except Exception as exc:  # no viewer binary, no display
-                raise InputError(f"--viewer: the rerun viewer did not start ({exc})") from None
+            spawn_viewer(rr, rec)
             sinks.append(rr.GrpcSink())
         rec.set_sinks(*sinks)
         rr.set_log_time_enabled(False, recording=rec)
@@ -69,5 +91,17 @@ def open_recording(name: str, rrd: Path | None, viewer: bool) -> Iterator[Any]:
         try:
             yield rec
         finally:
-            rec.flush()
-            rec.disconnect()
+            import sys
+
+            in_flight = sys.exc_info()[1]  # the block's own error goes on as it is
+            try:
+                rec.flush()
+            except RuntimeError as exc:  # the viewer went away
+                rec.disconnect()
+                if in_flight is None and viewer:
+                    first = str(exc).strip().splitlines()[0]
+                    raise InputError(f"the rerun viewer could not be reached: {first}") from None
+                if in_flight is None:
+                    raise
+            else:
+                rec.disconnect()
