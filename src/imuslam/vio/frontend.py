@@ -198,6 +198,9 @@ class StereoVO:
                 nfeatures=2 * c.max_features, fastThreshold=10
             )
         self.stats = VoStats()
+        #: the last pair's tracks: the previous frame's features (N, 2) px, where they were found in
+        #: this one (N, 2) px (NaN: lost), and the indices of the motion fit's inliers; None: no tracking
+        self.last_tracks: tuple[FloatArray, FloatArray, NDArray[np.int64]] | None = None
         self._refit_chi2 = -2.0 * np.log(1.0 - c.refit_prob)  # chi-square (2 dof) quantile
         self.T_b_r = _se3(rect.R_b_r, rect.p_b_r)
         self.T_r_b = _inv(self.T_b_r)
@@ -435,6 +438,7 @@ class StereoVO:
         c = self.cfg
         st = self.stats
         st.frames += 1
+        self.last_tracks = None
         sec = st.seconds
         tic = time.perf_counter()
         left: Any = left_u8.astype(np.float32)
@@ -464,6 +468,7 @@ class StereoVO:
                 c.patch_half_coarse, c.search_coarse_px, c.search_fine_px, c.min_zncc, affine,
             )  # fmt: skip
             tic = _lap(sec, "track", tic)
+            self.last_tracks = (prev["uv"], uv_new, np.zeros(0, np.int64))
             ok = np.isfinite(uv_new[:, 0])
             st.tracked.append(int(ok.sum()))
             dt = (t_ns - prev["t_ns"]) * 1e-9
@@ -508,6 +513,7 @@ class StereoVO:
                     st.measurements += 1
                     st.inliers.append(n_in)
                     keep = np.flatnonzero(ok)[ii]
+                    self.last_tracks = (prev["uv"], uv_new, keep)
                     uv_keep = uv_new[keep]
                     z_pred = X[keep] @ R[2] + t[2]
                     d_keep = self.rect.f * self.rect.baseline / np.maximum(z_pred, 1e-3)

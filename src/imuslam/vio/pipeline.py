@@ -73,6 +73,8 @@ class VioResult:
     vel_accepted: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool), repr=False)
     vo_scale: FloatArray = field(default_factory=lambda: np.ones(2), repr=False)
     """the online VO covariance scales [rate, velocity] at the end (``VioConfig.vo_cov_adapt_n``)"""
+    t_ref_ns: int = 0
+    """the filter's time origin: ``bias_t_s`` counts seconds from it"""
 
     def summary(self) -> dict[str, Any]:
         out = {
@@ -151,6 +153,18 @@ def _check_imu_span(imu: ImuLog, t_first: int, t_last: int, source: str) -> None
 
 
 @dataclass
+class VioFrame:
+    """What an observer of the front end receives per readable stereo pair: its stamp (ns), the
+    rectified left image, the tracks (``StereoVO.last_tracks``: previous features, where they were
+    found, the inliers; None on a first frame) and the measurement (None: first or skipped frame)."""
+
+    t_ns: int
+    left: NDArray[np.uint8]
+    tracks: tuple[FloatArray, FloatArray, NDArray[np.int64]] | None
+    measurement: VoMeasurement | None
+
+
+@dataclass
 class VoRun:
     """The front end's output over a run, reusable by several filter configurations: per used frame its
     time and the measurement since the previous one (None: first frame or skipped), and the counts."""
@@ -162,9 +176,12 @@ class VoRun:
 
 
 def compute_vo(
-    data: StereoImuDataset, cfg: VoConfig, progress: Callable[[int], None] | None = None
+    data: StereoImuDataset,
+    cfg: VoConfig,
+    progress: Callable[[int], None] | None = None,
+    observer: Callable[[VioFrame], None] | None = None,
 ) -> VoRun:
-    """The whole front end at once (see :class:`VoRun`)."""
+    """The whole front end at once (see :class:`VoRun`); ``observer`` sees each pair's :class:`VioFrame`."""
     rect = data.rectification()
     vo = StereoVO(rect, cfg)
     frames: list[tuple[int, VoMeasurement | None]] = []
@@ -178,6 +195,8 @@ def compute_vo(
             continue
         lr, rr = rect.rectify(left, right)
         frames.append((t_ns, vo.process(t_ns, lr, rr)))
+        if observer is not None:
+            observer(VioFrame(t_ns, lr, vo.last_tracks, frames[-1][1]))
     return VoRun(frames, vo.stats, seen, unreadable)
 
 
@@ -203,13 +222,14 @@ def run_vio(
     cfg: VioConfig | None = None,
     progress: Callable[[int], None] | None = None,
     vo_run: VoRun | None = None,
+    observer: Callable[[VioFrame], None] | None = None,
 ) -> VioResult:
     """VO on every stereo pair (or the given ``vo_run``) and the EKF over the IMU; ``progress(n)`` is
-    called per frame."""
+    called per frame, ``observer`` sees each pair the front end reads (:class:`VioFrame`)."""
     cfg = cfg or VioConfig()
     imu = data.imu.to_si()
     if vo_run is None:
-        vo_run = compute_vo(data, cfg.vo, progress)
+        vo_run = compute_vo(data, cfg.vo, progress, observer)
     rng = np.random.default_rng(cfg.outlier_seed)
     M_cov = _correction(cfg)
 
@@ -334,7 +354,7 @@ def run_vio(
          "unreadable": unreadable, "used": frames_seen - unreadable},
         {"corrupted": int(cor.sum()), "corrupted_rejected": int((cor & ~va).sum()),
          "good": int((~cor).sum()), "good_rejected": int((~cor & ~va).sum())},
-        bt, b, bs, cfg, meas_all, cor, va, filt.vo_scale.copy(),
+        bt, b, bs, cfg, meas_all, cor, va, filt.vo_scale.copy(), t_ref,
     )  # fmt: skip
 
 
@@ -348,9 +368,14 @@ class VioPipeline:
         self.data = data
         self.cfg = cfg or VioConfig()
 
-    def run(self, progress: Callable[[int], None] | None = None) -> VioResult:
-        """VO on every stereo pair and the filter over the IMU; ``progress(n)`` per frame."""
-        return run_vio(self.data, self.cfg, progress)
+    def run(
+        self,
+        progress: Callable[[int], None] | None = None,
+        observer: Callable[[VioFrame], None] | None = None,
+    ) -> VioResult:
+        """VO on every stereo pair and the filter over the IMU; ``progress(n)`` per frame,
+        ``observer`` per pair the front end reads (:class:`VioFrame`)."""
+        return run_vio(self.data, self.cfg, progress, observer=observer)
 
     @staticmethod
     def tracks(result: VioResult) -> dict[str, Trajectory]:
