@@ -19,7 +19,8 @@ from typer.core import TyperCommand, TyperGroup
 COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate": (
         "calibrate",
-        "Calibrate accelerometer and gyroscope from a log of static poses (Tedaldi 2014, imu_tk's method).",
+        "Calibrate accelerometer and gyroscope from a log of static poses: a joint fit of both "
+        "(default) or imu_tk's two steps (--method tedaldi, Tedaldi 2014).",
     ),
     "correct": (
         "correct",

@@ -71,26 +71,45 @@ def print_result(
             "Fit",
             ["quantity", "value", "unit"],
             [
-                ["threshold multiple k", f"{res.k:g}", ""],
-                ["static intervals", str(len(res.intervals)), ""],
-                ["RMS |a| - g per sample", f"{res.accel_rms:.5f}", "m/s^2"],
-                ["gravity direction RMS per pair", f"{res.gyro_rms_deg:.3f}", "deg"],
+                ["threshold multiple k (lowest residual of the sweep)", f"{res.k:g}", ""],
+                ["static intervals the fit used (detected at k)", str(len(res.intervals)), "count"],
+                ["|a| - g, RMS over every static sample", f"{res.accel_rms:.5f}", "m/s^2"],
+                [
+                    "gravity direction error, RMS per pair of intervals",
+                    f"{res.gyro_rms_deg:.3f}",
+                    "deg",
+                ],
                 ["gyro bias", np.array2string(c.gyro.b, precision=6), gu],
                 ["time", f"{1e3 * res.timings_s['total']:.0f}", "ms"],
             ],
         )
     )
-    print_warnings(res.warnings)
+    console.print(observability_line(res), markup=False, highlight=False)
+    print_warnings(w for w in res.warnings if not w.startswith("poorly determined"))
+
+
+def observability_line(res: CalibrationResult) -> str:
+    """The verdict on every parameter: determined within its limit by these poses, or which are not
+    (limits: angles 1 mrad accelerometer / 2 mrad gyro, scales 0.1 % / 0.5 %, accelerometer bias
+    0.02 m/s^2, as 1-sigma)."""
+    limits = "1-sigma within 1 / 2 mrad, 0.1 / 0.5 % scale, 0.02 m/s^2 bias"
+    if not res.poorly_determined:
+        return f"observability: every parameter determined by these poses ({limits})"
+    return (
+        f"observability: poorly determined: {', '.join(res.poorly_determined)} ({limits} not met); "
+        "add poses that turn about the axes these parameters involve"
+    )
 
 
 def print_cv(res: CalibrationResult, cv: CrossValidation) -> None:
     """The cross-validated score beside the fit residual."""
     console.print(
         table(
-            f"{cv.k_folds}-fold cross-validation over {len(cv.poses)} static poses ({cv.method})",
+            f"{cv.k_folds}-fold cross-validation ({cv.method}) over {len(cv.poses)} static poses "
+            "(found by the score's fixed detector, not the fit's k)",
             ["quantity", "fit on all poses", "held out RMS", "held out worst", "unit"],
             [
-                ["gravity norm error per pose", f"{cv.fit_norm_rms:.5f}", f"{cv.norm_rms:.5f}",
+                ["|a| - g of each pose's mean", f"{cv.fit_norm_rms:.5f}", f"{cv.norm_rms:.5f}",
                  f"{cv.norm_worst:.5f}", "m/s^2"],
                 ["gravity direction error per pair", f"{cv.fit_direction_rms_deg:.3f}",
                  f"{cv.direction_rms_deg:.3f}", f"{cv.direction_worst_deg:.3f}", "deg"],
@@ -177,7 +196,8 @@ def register(app: typer.Typer) -> None:
             True, "--plots/--no-plots", help="write the PNG plots and report.html (about 1 s)"
         ),
     ) -> None:
-        """Calibrate accelerometer and gyroscope from a log of static poses (Tedaldi 2014, imu_tk's method)."""
+        """Calibrate accelerometer and gyroscope from a log of static poses: a joint fit of both (default)
+        or imu_tk's two steps (--method tedaldi, Tedaldi 2014)."""
         prefetch_log(acc, gyro, fmt.value)  # parsed beside the imports below
         from imuslam.config import load_config
         from imuslam.imu.calibrate import CalibrationConfig

@@ -5,7 +5,7 @@ from __future__ import annotations
 import functools
 import logging
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from enum import Enum, StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar, cast
@@ -305,7 +305,7 @@ def show_warnings_once() -> None:
             h.addFilter(_OnceFilter())
 
 
-def print_warnings(warnings: list[str]) -> None:
+def print_warnings(warnings: Iterable[str]) -> None:
     """Each of ``warnings`` on the terminal, unless it was already shown (logged by the reader)."""
     for w in warnings:
         if w in _SHOWN:

@@ -44,28 +44,66 @@ def plot_static_detection(res: CalibrationResult, log: ImuLog) -> Figure:
     return fig
 
 
-def plot_residuals(res: CalibrationResult) -> Figure:
-    """Gravity-norm error per interval and gravity-direction error per pair, before and after."""
+def raw_norm_error(res: CalibrationResult, log: ImuLog) -> np.ndarray | None:
+    """|a| - g per static interval of the log as recorded (no model at all), m/s^2; None when the log
+    is not in m/s^2 (counts or g have no gravity to compare with)."""
+    if log.accel_unit != "m/s^2":
+        return None
+    acc, g = log.accel, res.calibration.g
+    return np.array([np.mean(np.linalg.norm(acc[s : e + 1], axis=1)) - g for s, e in res.intervals])
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
+
+
+def plot_residuals(res: CalibrationResult, log: ImuLog | None = None) -> Figure:
+    """Per static interval, the gravity-norm error |a| - g of the log as recorded (m/s^2 logs), of the
+    fit's starting point (a scale and offset per axis, no misalignment, fitted to the intervals' means:
+    already close on a good sensor) and calibrated; per pair of consecutive intervals, the gravity
+    direction error of the gyro integration with the bias removed and unit scale, and calibrated.
+    Magnitudes on a log scale (one sensor's raw error is 100 times its calibrated one), RMS in the
+    legend."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(11, 6))
+    fig = Figure(figsize=(11, 7))
     a1, a2 = fig.subplots(2, 1)
-    k = np.arange(len(res.accel_residual_after))
-    a1.bar(k - 0.2, res.accel_residual_before, 0.4, label="initial guess")
-    a1.bar(k + 0.2, res.accel_residual_after, 0.4, label="calibrated")
-    a1.set_ylabel("|a| - g per interval [m/s^2]")
-    a1.legend()
+    raw = raw_norm_error(res, log) if log is not None else None
+    series = ([("as recorded", raw)] if raw is not None else []) + [
+        ("per-axis scale + offset (the fit's start)", res.accel_residual_before),
+        ("calibrated", res.accel_residual_after),
+    ]
+    w = 0.8 / len(series)
+    for n, (lab, y) in enumerate(series):
+        k = np.arange(len(y))
+        a1.bar(k + (n - (len(series) - 1) / 2) * w, np.abs(y), w, color=f"C{n}",
+               label=f"{lab}: RMS {_rms(y):.3g} m/s^2")  # fmt: skip
+    a1.set_yscale("log")
+    a1.set_ylabel("| |a| - g | per interval [m/s^2]")
+    a1.set_title(
+        f"Accelerometer: gravity-norm error of each of the {len(res.intervals)} static intervals"
+    )
+    a1.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     p = np.arange(len(res.gyro_residual_after_deg))
-    a2.bar(p - 0.2, res.gyro_residual_before_deg, 0.4, label="bias removed, unit scale")
-    a2.bar(p + 0.2, res.gyro_residual_after_deg, 0.4, label="calibrated")
+    for n, (lab, y) in enumerate(
+        (
+            ("bias removed, unit scale", res.gyro_residual_before_deg),
+            ("calibrated", res.gyro_residual_after_deg),
+        )
+    ):
+        a2.bar(p + (n - 0.5) * 0.4, np.abs(y), 0.4, color=("C4", f"C{len(series) - 1}")[n],
+               label=f"{lab}: RMS {_rms(y):.3g} deg")  # fmt: skip
+    a2.set_yscale("log")
     a2.set_ylabel("gravity direction error [deg]")
-    a2.set_xlabel("interval / pair of intervals")
-    a2.legend()
+    a2.set_xlabel("static interval (top) / pair of consecutive intervals (bottom)")
+    a2.set_title("Gyroscope: gravity direction carried from one interval to the next")
+    a2.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.suptitle(f"Residuals before and after calibration ({res.config.method}, k = {res.k:g})")
     return fig
 
 
 def plot_sweep(res: CalibrationResult) -> Figure:
-    """Residual per sample and interval count against the threshold multiple k."""
+    """Residual per sample and interval count against the threshold multiple k, the chosen k marked."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(7, 4))
@@ -75,12 +113,16 @@ def plot_sweep(res: CalibrationResult) -> Figure:
         r.residual_per_sample if np.isfinite(r.residual_per_sample) else np.nan for r in res.sweep
     ]
     ax.plot(ks, rr, "o-", label="residual per sample")
-    ax.axvline(res.k, color="k", ls="--", lw=0.8)
+    ax.axvline(res.k, color="k", ls="--", lw=0.8, label=f"chosen k = {res.k:g} (lowest residual)")
     ax.set_xlabel("threshold multiple k")
     ax.set_ylabel("mean (g - |a|)^2 [(m/s^2)^2]")
     ax2 = ax.twinx()
-    ax2.plot(ks, [r.n_intervals for r in res.sweep], "s:", color="C1")
+    ax2.plot(ks, [r.n_intervals for r in res.sweep], "s:", color="C1", label="static intervals")
     ax2.set_ylabel("static intervals", color="C1")
+    h1, l1 = ax.get_legend_handles_labels()
+    h2, l2 = ax2.get_legend_handles_labels()
+    ax.legend(h1 + h2, l1 + l2, fontsize=8)
+    ax.set_title("Static detector threshold sweep")
     return fig
 
 
@@ -112,7 +154,7 @@ def write_report(
     out = Path(out_dir)
     files = {
         "static_detection.png": plot_static_detection(res, log),
-        "residuals.png": plot_residuals(res),
+        "residuals.png": plot_residuals(res, log),
         "sweep.png": plot_sweep(res),
     }
     for name, fig in files.items():
