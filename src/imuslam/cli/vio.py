@@ -74,6 +74,8 @@ def register(app: typer.Typer) -> None:
             callback=validate.number(0.0, 1.0, hi_open=True, what="a share"),
         ),
         progress: bool = progress_option(),
+        rrd: Path | None = typer.Option(None, "--rrd", help=RRD_HELP),
+        viewer: bool = typer.Option(False, "--viewer", help=VIEWER_HELP),
     ) -> None:
         """Stereo VO + IMU EKF: trajectory.tum (fused), vo.tum, imu.tum, metrics.json, plots."""
         from tqdm import tqdm
@@ -106,14 +108,18 @@ def register(app: typer.Typer) -> None:
             fmt = gt_format if gt_format != "auto" else ("euroc" if gt.suffix == ".csv" else "tum")
             truth = read_trajectory(gt, fmt)
         pipeline = VioPipeline(data, cfg)  # type: ignore[arg-type]
-        with tqdm(
-            total=len(data), unit="frame", desc="vio", disable=not show_progress(progress)
-        ) as bar:
+        from imuslam.viz.recording import open_recording
 
-            def tick(n: int) -> None:
-                bar.update(n)
-
-            res = pipeline.run(tick)
+        with (
+            open_recording(f"imuslam vio {dataset}", rrd, viewer) as rec,
+            tqdm(
+                total=len(data), unit="frame", desc="vio", disable=not show_progress(progress)
+            ) as bar,
+        ):
+            obs = _observer(rec, data.imu, calib is not None)
+            res = pipeline.run(bar.update, obs)
+            if obs is not None:
+                obs.finish(res, truth)
         ev = None
         if truth is not None:
             ev = pipeline.evaluate(res, truth, src.times_ns, align)
@@ -123,6 +129,17 @@ def register(app: typer.Typer) -> None:
         console.print(
             f"wrote {out}/trajectory.tum, vo.tum, imu.tum, metrics.json, config.yaml, plots"
         )
+
+
+def _observer(rec: Any, imu: Any, calibrated: bool) -> Any:
+    """The recording's per-pair logger, the IMU logged first; None without a recording."""
+    if rec is None:
+        return None
+    from imuslam.viz.lio import log_imu
+    from imuslam.viz.vio import VioLogger
+
+    log_imu(rec, imu, "imu/corrected" if calibrated else "imu/raw")
+    return VioLogger(rec)
 
 
 def _config(
@@ -171,7 +188,13 @@ def _print_summary(summary: dict[str, Any]) -> None:
     for kind, st in summary["gating"].items():
         rows.append([kind, str(st["accepted"]), str(st["rejected"]),
                      f"{st.get('nis_mean_accepted', float('nan')):.3g}", str(st["dof"])])  # fmt: skip
-    console.print(table("gating", ["quantity", "accepted", "rejected", "mean NIS", "dof"], rows))
+    console.print(
+        table(
+            "gating",
+            ["quantity", "accepted [updates]", "rejected [updates]", "mean NIS", "dof"],
+            rows,
+        )
+    )
     from imuslam.eval.vio_compare import nis_consistency
 
     for kind, st in summary["gating"].items():
