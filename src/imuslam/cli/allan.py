@@ -104,30 +104,31 @@ def register(app: typer.Typer) -> None:
 
 
 def _print_terms(res: Any) -> list[dict[str, Any]]:
-    """The noise terms per axis as a table; returns them as records for metrics.json."""
-    rows = []
+    """The noise terms per axis, one table per sensor with the unit of each term in its header;
+    returns them as records for metrics.json."""
     data = []
     for sensor, terms, u in (
         ("accel", res.accel_terms, res.accel_unit),
         ("gyro", res.gyro_terms, res.gyro_unit),
     ):
+        rows = []
         for j, t in enumerate(terms):
             rw = (
                 "-"
                 if t.random_walk is None
-                else f"{t.random_walk:.3g} ± {100 * (t.random_walk_rel_std or 0):.0f}%"
+                else f"{t.random_walk:.3g} ± {100 * (t.random_walk_rel_std or 0):.0f} %"
             )
-            rows.append([f"{sensor} {'xyz'[j]}", f"{t.white:.3g} ± {100 * t.white_rel_std:.1f}%",
-                         f"{t.bias_instability:.3g} @ {t.bias_instability_tau_s:.3g} s", rw,
-                         f"{u}/sqrt(Hz) | {u} | {u}*sqrt(Hz)"])  # fmt: skip
+            rows.append([f"{sensor} {'xyz'[j]}", f"{t.white:.3g} ± {100 * t.white_rel_std:.1f} %",
+                         f"{t.bias_instability:.3g}", f"{t.bias_instability_tau_s:.3g}", rw])  # fmt: skip
             data.append({"sensor": sensor, "axis": "xyz"[j], **t.__dict__})
-    console.print(
-        table(
-            "Allan noise terms",
-            ["term", "white (N)", "bias instability (B)", "random walk (K)", "unit"],
-            rows,
-        )
-    )
+        console.print(
+            table(
+                f"Allan noise terms, {sensor}",
+                ["term", f"white N [{u}/sqrt(Hz)]", f"bias instability B [{u}]", "at tau [s]",
+                 f"random walk K [{u}*sqrt(Hz)]"],
+                rows,
+            )
+        )  # fmt: skip
     return data
 
 

@@ -85,12 +85,12 @@ def register(app: typer.Typer) -> None:
             (f"RPE translation ({res.rpe_delta:g} {res.rpe_unit})", res.rpe_trans, "m"),
             (f"RPE rotation ({res.rpe_delta:g} {res.rpe_unit})", res.rpe_rot_deg, "deg"),
         ):
-            rows.append([name, f"{st.rmse:.6g}", f"{st.mean:.6g}", f"{st.median:.6g}", f"{st.std:.6g}",
-                         f"{st.max:.6g}", unit])  # fmt: skip
+            rows.append([f"{name} [{unit}]", f"{st.rmse:.6g}", f"{st.mean:.6g}", f"{st.median:.6g}",
+                         f"{st.std:.6g}", f"{st.max:.6g}"])  # fmt: skip
         for L, (tp, _rd, n) in res.kitti.items():
-            rows.append([f"KITTI drift {L:g} m ({n} segments)", f"{tp:.4g}", "", "", "", "", "%"])
+            rows.append([f"KITTI drift {L:g} m ({n} segments) [%]", f"{tp:.4g}", "", "", "", ""])
         console.print(table(f"{est} vs {gt}: {res.n_pairs} pairs, {res.align} (scale {res.scale:.6g})",
-                            ["quantity", "rmse", "mean", "median", "std", "max", "unit"], rows))  # fmt: skip
+                            ["quantity [unit]", "rmse", "mean", "median", "std", "max"], rows))  # fmt: skip
         pipeline.save(res, out, plots, gt=str(gt), est=str(est), format=fmt.value, est_format=ef)
         pngs = "trajectories.png, ape.png, " if plots else ""
         console.print(f"wrote {out}/metrics.json, config.yaml, {pngs}estimate_aligned.tum")

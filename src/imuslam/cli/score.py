@@ -63,6 +63,7 @@ def register(app: typer.Typer) -> None:
             check_out_against_inputs(
                 {"out": out, "log_path": log_path, "calibs": calibs, "gyro": gyro}
             )
+            _check_calib_files(calibs)  # before the log, which can take seconds to load
             log = load_log(log_path, gyro, fmt, topic, accel_unit, gyro_unit, None)
             # imu_tk .calib files carry neither units nor g: they are taken as the log's.
             cals, g_yaml = load_calibrations(calibs, log.accel_unit, log.gyro_unit)
@@ -86,3 +87,14 @@ def register(app: typer.Typer) -> None:
                 console.print(f"wrote {out}/scores.csv, poses.csv, pairs.csv, score.png")
 
         run()
+
+
+def _check_calib_files(calibs: list[Path]) -> None:
+    """Every CALIB argument an existing file, else one line naming it."""
+    from imuslam.errors import InputError
+
+    for c in calibs:
+        if not c.exists():
+            raise InputError(f"{c}: no such file (CALIB: a calibration.yaml or an imu_tk .calib)")
+        if not c.is_file():
+            raise InputError(f"{c}: a folder; CALIB is a calibration.yaml or an imu_tk .calib file")
