@@ -9,7 +9,15 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from imuslam.cli import validate
-from imuslam.cli.common import console, friendly_errors, progress_option, show_progress, table
+from imuslam.cli.common import (
+    RRD_HELP,
+    VIEWER_HELP,
+    console,
+    friendly_errors,
+    progress_option,
+    show_progress,
+    table,
+)
 
 if TYPE_CHECKING:
     from imuslam.vio.config import VioConfig
