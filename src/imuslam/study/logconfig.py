@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from imuslam.errors import InputError
 
-LOG_ESTIMATORS = ("map2d", "vio")
+LOG_ESTIMATORS = ("map2d", "vio", "lio")
 
 
 class _Strict(BaseModel):
@@ -62,12 +62,13 @@ class LogSpec(_Strict):
 
     name: str = Field(pattern=r"^[A-Za-z0-9_.+-]+$")
     path: str
-    estimator: Literal["map2d", "vio"]
+    estimator: Literal["map2d", "vio", "lio"]
     format: Literal["auto", "carmen", "breezyslam", "bag", "sim"] = Field(
         "auto", description="map2d: the laser log's format"
     )
     scan_topic: str | None = None
     imu_topic: str | None = None
+    points_topic: str | None = Field(None, description="lio bags: the PointCloud2 topic")
     odom_topic: str | None = None
     left_topic: str | None = Field(None, description="vio bags: the left image topic")
     right_topic: str | None = None
@@ -81,8 +82,12 @@ class LogSpec(_Strict):
     reference: str | None = Field(
         None, description="the run the others' trajectories are compared with; default: the first"
     )
-    radius_m: float = Field(
-        0.2, gt=0, le=5, description="neighbourhood radius of the map sharpness"
+    radius_m: float | None = Field(
+        None,
+        gt=0,
+        le=5,
+        description="neighbourhood radius of the map sharpness; default 0.2 m "
+        "in 2D, 0.3 m in 3D (Razlaw et al. 2015)",
     )
     runs: list[RunSpec] = Field(min_length=1)
 

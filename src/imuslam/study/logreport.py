@@ -31,19 +31,33 @@ COLUMNS = (
     ("ref_ate_rot_deg", "rot. vs reference [deg]"),
     ("ref_rpe_m", "RPE/frame vs reference [m]"),
     ("gt_ate_m", "ATE vs truth [m]"),
+    ("gt_ate_rot_deg", "rot. vs truth [deg]"),
     ("gt_rpe_m", "RPE/frame vs truth [m]"),
+    ("gt_imu_ate_m", "IMU alone: ATE vs truth [m]"),
+    ("gt_imu_ate_rot_deg", "IMU alone: rot. vs truth [deg]"),
     ("path_length_m", "path [m]"),
 )
+
+
+def _num(x: float) -> str:
+    """A figure; a difference below 1e-12 (a run against itself, round-off) as 0."""
+    return "0" if np.isfinite(x) and abs(x) < 1e-12 else _fmt(x)
+
+
+#: The terminal's shorter table leaves these out (they are in report.md and results.csv).
+LONG_ONLY = ("ref_rpe_m", "gt_rpe_m", "gt_imu_ate_rot_deg", "path_length_m")
 
 
 def table_rows(
     spec: LogSpec, runs: list[RunResult], imu: bool = True
 ) -> tuple[list[str], list[list[str]]]:
-    """Header and rows of one log's table (the columns some run has; ``imu``: with the column that
-    says what IMU each run got)."""
+    """Header and rows of one log's table (the columns some run has). ``imu``: the whole table, with
+    the column that says what IMU each run got; else the terminal's (without :data:`LONG_ONLY`)."""
     cols = [(k, h) for k, h in COLUMNS if any(k in r.metrics for r in runs)]
+    if not imu:
+        cols = [(k, h) for k, h in cols if k not in LONG_ONLY]
     head = ["run", *(["IMU"] if imu else []), *[h for _, h in cols]]
-    rows = [[r.run, *([r.imu] if imu else []), *[_fmt(r.metrics.get(k, float("nan"))) for k, _ in cols]]
+    rows = [[r.run, *([r.imu] if imu else []), *[_num(r.metrics.get(k, float("nan"))) for k, _ in cols]]
             for r in runs]  # fmt: skip
     return head, rows
 
@@ -56,9 +70,16 @@ def markdown(spec: LogSpec, runs: list[RunResult]) -> str:
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]  # fmt: skip
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     if spec.estimator == "map2d":
-        lines += ["", f"Map sharpness without ground truth: the hits' RMS distance from their local wall and "
-                  f"the mean map entropy within {spec.radius_m:g} m, the output map's occupied cells; lower is "
-                  "crisper."]  # fmt: skip
+        lines += ["", "Map sharpness without ground truth: the hits' RMS distance from their local wall and "
+                  f"the mean map entropy within {spec.radius_m or 0.2:g} m, the output map's occupied cells; "
+                  "lower is crisper."]  # fmt: skip
+    elif spec.estimator == "lio":
+        lines += ["", "Map sharpness without ground truth: the map points' RMS distance from their local "
+                  f"plane (the square root of the mean plane variance) and the mean map entropy within "
+                  f"{spec.radius_m or 0.3:g} m; lower is crisper."]  # fmt: skip
+    else:
+        lines += ["", "VIO keeps no map: its runs are compared by trajectory; 'IMU alone' integrates the "
+                  "run's IMU from the filter's first state."]  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
