@@ -13,6 +13,8 @@ import typer
 from imuslam.cli import validate
 from imuslam.cli.common import (
     FORMAT_HELP,
+    RRD_HELP,
+    VIEWER_HELP,
     ImuFormatChoice,
     console,
     friendly_errors,
@@ -51,6 +53,17 @@ class AccelUnit(StrEnum):
 class GyroUnit(StrEnum):
     rad_s = "rad/s"
     deg_s = "deg/s"
+
+
+def _record(res: Any, name: str, rrd: Path | None, viewer: bool) -> None:
+    """With --rrd / --viewer: the alignment's estimates in a recording (:mod:`imuslam.viz.align`)."""
+    if rrd is None and not viewer:
+        return
+    from imuslam.viz.align import log_alignment
+    from imuslam.viz.recording import open_recording
+
+    with open_recording(name, rrd, viewer) as rec:
+        log_alignment(rec, res)
 
 
 def _trajectory_format(path: Path, fmt: str) -> str:
@@ -124,6 +137,8 @@ def register(app: typer.Typer) -> None:
         plots: bool = typer.Option(
             True, "--plots/--no-plots", help="write biases.png (and the error)"
         ),
+        rrd: Path | None = typer.Option(None, "--rrd", help=RRD_HELP),
+        viewer: bool = typer.Option(False, "--viewer", help=VIEWER_HELP),
     ) -> None:
         """Estimate attitude and the IMU's remaining biases; write them, plots and the corrected IMU."""
         from imuslam.ins.kf import KfNoise
@@ -149,6 +164,7 @@ def register(app: typer.Typer) -> None:
         truth_state = None if truth is None else read_euroc_state(truth)
         pipeline = AlignPipeline(AlignDataset(full, tr, truth_state, kalibr), cfg)
         res = pipeline.run()
+        _record(res, f"imuslam align {log_path.name}", rrd, viewer)
         inputs = {
             "log": str(log_path),
             "aiding": aiding,
@@ -189,12 +205,16 @@ def _print_coarse(ca: Any) -> None:
 
 
 def _print_alignment(res: Any, method: str) -> None:
-    """The noise used, then the biases at the end with their 1-sigma (and the truth, when given)."""
+    """The noise used, then the biases at the end with their 1-sigma (and the truth, when given), and
+    the final attitude error against the truth (heading and tilt)."""
+    import numpy as np
+
     a, kn = res.alignment, res.noise
     assert a is not None and kn is not None
     console.print(
         f"IMU white noise {kn.accel:.3g} m/s^2/sqrt(Hz), {kn.gyro:.3g} rad/s/sqrt(Hz) "
-        f"({res.noise_source}); bias random walks {kn.accel_bias_rw:.3g}, {kn.gyro_bias_rw:.3g}"
+        f"({res.noise_source}); bias random walks {kn.accel_bias_rw:.3g} m/s^3/sqrt(Hz), "
+        f"{kn.gyro_bias_rw:.3g} rad/s^2/sqrt(Hz)"
     )
     tb, tbg = res.truth_accel_bias, res.truth_gyro_bias
     cols = (
@@ -213,6 +233,13 @@ def _print_alignment(res: Any, method: str) -> None:
                 row += [f.format(tru[-1, j]), f"{abs(est[-1, j] - tru[-1, j]) / sd[-1, j]:.1f}"]
             rows.append(row + [unit])
     console.print(table(f"Alignment ({method}, {res.aiding_kind} aiding)", cols, rows))
+    att = getattr(res, "attitude_error_deg", None)
+    if att is not None and len(att):
+        x, y, z = (float(v) for v in att[-1])
+        console.print(
+            f"final attitude error against the truth: heading {z:+.3f} deg, tilt "
+            f"{float(np.hypot(x, y)):.3f} deg (roll {x:+.3f}, pitch {y:+.3f})"
+        )
 
 
 def _corrected_writer(
