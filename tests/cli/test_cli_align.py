@@ -25,15 +25,23 @@ def test_align_euroc_against_ground_truth(shared_data: Path, tmp_path: Path, met
     r = runner.invoke(app, ["align", str(d / "imu0" / "data.csv"), "--method", method, "--aiding", gt,
                             "--aiding-std", "0.002", "--truth", gt, "--g", "9.81", "--out", str(tmp_path)])  # fmt: skip
     assert r.exit_code == 0, r.output
-    res = json.loads((tmp_path / "alignment.json").read_text())
-    assert np.all(np.abs(res["accel_bias_z"]) < 3) and np.all(np.abs(res["gyro_bias_z"]) < 3)
+    res = json.loads((tmp_path / "metrics.json").read_text())
+    assert np.all(np.abs(res["accel_bias_error_sigmas"]) < 3) and np.all(
+        np.abs(res["gyro_bias_error_sigmas"]) < 3
+    )
     assert res["noise"]["source"] == "from the log"
     for f in ("biases.png", "attitude_error.png", "estimates.csv", "corrected_imu.csv"):
         assert (tmp_path / f).stat().st_size > 0
     est = np.loadtxt(tmp_path / "estimates.csv", delimiter=",", skiprows=1)
     assert est.shape[1] == 16 and np.allclose(est[-1, 1:4], res["accel_bias"], rtol=1e-6)
-    # the one writer's files: metrics.json = alignment.json, config.yaml, the filter's poses as TUM
-    assert json.loads((tmp_path / "metrics.json").read_text()) == res
+    # the one writer's files: metrics.json (no copy of it under another name), config.yaml, the
+    # filter's poses as TUM
+    assert sorted(p.name for p in tmp_path.glob("[!.]*.json")) == ["metrics.json"]
+    # the terminal: the final heading error against the truth, the random walks with their units
+    text = " ".join(r.output.split())
+    heading = res["attitude_error_deg"][2]
+    assert f"heading {heading:+.3f} deg" in text
+    assert "m/s^3/sqrt(Hz)" in text and "rad/s^2/sqrt(Hz)" in text
     assert f"method: {method}" in (tmp_path / "config.yaml").read_text()
     tum = [ln for ln in (tmp_path / "trajectory.tum").read_text().splitlines() if ln[0] != "#"]
     assert len(tum) == len(est) and len(tum[0].split()[0].split(".")[1]) == 9
@@ -47,8 +55,8 @@ def test_align_euroc_datasheet_noise_is_overconfident(shared_data: Path, tmp_pat
     r = runner.invoke(app, ["align", str(d / "imu0" / "data.csv"), "--aiding", gt, "--aiding-std", "0.002",
                             "--truth", gt, "--g", "9.81", "--noise", "datasheet", "--out", str(tmp_path)])  # fmt: skip
     assert r.exit_code == 0, r.output
-    res = json.loads((tmp_path / "alignment.json").read_text())
-    assert np.any(np.abs(res["accel_bias_z"]) > 3)
+    res = json.loads((tmp_path / "metrics.json").read_text())
+    assert np.any(np.abs(res["accel_bias_error_sigmas"]) > 3)
 
 
 def test_align_bad_truth_and_noise_files_are_named(shared_data: Path, tmp_path: Path) -> None:
@@ -60,7 +68,7 @@ def test_align_bad_truth_and_noise_files_are_named(shared_data: Path, tmp_path: 
         app, ["align", imu, "--aiding", gt, "--truth", str(short), "--out", str(tmp_path / "o")]
     )
     assert r.exit_code == 2 and "short.csv" in r.output and "17 columns" in r.output
-    assert not (tmp_path / "o" / "alignment.json").exists()
+    assert not (tmp_path / "o" / "metrics.json").exists()
     yml = tmp_path / "imu.yaml"
     yml.write_text(
         "accelerometer_noise_density: 0.002\ngyroscope_noise_density: 0.0002\naccelerometer_random_walk: 0.0001\n"
@@ -85,7 +93,7 @@ def test_align_bag_with_pose_topic_writes_a_corrected_bag(tmp_path: Path) -> Non
     r = runner.invoke(app, ["align", str(bag), "--topic", "/imu/data", "--aiding", str(bag), "--aiding-topic",
                             "/ground_truth", "--aiding-std", "0.005", "--out", str(tmp_path / "a")])  # fmt: skip
     assert r.exit_code == 0, r.output
-    res = json.loads((tmp_path / "a" / "alignment.json").read_text())
+    res = json.loads((tmp_path / "a" / "metrics.json").read_text())
 
     def counts(p: Path) -> dict[str, int]:
         with AnyReader([p]) as rd:

@@ -1,5 +1,6 @@
 """The command line end to end: outputs written, numbers consistent, errors clean and atomic."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +90,11 @@ def test_allan_command(tmp_path: Path) -> None:
     assert abs(k["accelerometer_noise_density"] / 2e-3 - 1) < 0.05
     assert abs(k["gyroscope_noise_density"] / 1e-4 - 1) < 0.05
     assert (tmp_path / "a" / "allan.png").exists()
+    # the noise terms once, in metrics.json (no byte copy under another name)
+    assert sorted(p.name for p in (tmp_path / "a").glob("[!.]*.json")) == ["metrics.json"]
+    terms = json.loads((tmp_path / "a" / "metrics.json").read_text())["terms"]
+    white = {t["sensor"]: t["white"] for t in terms}
+    assert abs(white["accel"] / 2e-3 - 1) < 0.05 and abs(white["gyro"] / 1e-4 - 1) < 0.05
 
 
 def test_errors_are_one_line_and_leave_no_output(tmp_path: Path) -> None:
@@ -230,7 +236,7 @@ def test_align_command(tmp_path: Path) -> None:
     assert r.exit_code == 0, r.output
     import json
 
-    res = json.loads((tmp_path / "a" / "alignment.json").read_text())
+    res = json.loads((tmp_path / "a" / "metrics.json").read_text())
     assert abs(res["accel_bias"][2] - ba[2]) < 4 * res["accel_bias_std"][2]
     for j in (0, 1):
         assert abs(res["gyro_bias"][j] - bg[j]) < 4 * res["gyro_bias_std"][j]
@@ -252,7 +258,7 @@ def test_align_command(tmp_path: Path) -> None:
     r = runner.invoke(app, ["align", str(tmp_path / "still.csv"), "--method", "coarse", "--heading-deg", "30",
                             "--out", str(tmp_path / "h")])  # fmt: skip
     assert r.exit_code == 0, r.output
-    coarse = json.loads((tmp_path / "h" / "alignment.json").read_text())
+    coarse = json.loads((tmp_path / "h" / "metrics.json").read_text())
     assert coarse["heading_observable"] and abs(np.rad2deg(coarse["yaw"]) - 30.0) < 1e-9
 
 

@@ -404,7 +404,7 @@ def test_align_csv_with_columns_and_units(tmp_path: Path) -> None:
              "t=time,ax=acc_x,ay=acc_y,az=acc_z,gx=gyr_x,gy=gyr_y,gz=gyr_z",
              "--accel-unit", "g", "--gyro-unit", "deg/s", "--method", "coarse", "--out", tmp_path / "out"])  # fmt: skip
     assert r.exit_code == 0, r.output
-    a = json.loads((tmp_path / "out" / "alignment.json").read_text())
+    a = json.loads((tmp_path / "out" / "metrics.json").read_text())
     # level within the noise: 0.02 m/s^2 over 500 samples of 9.81 -> ~5e-5 rad
     assert abs(a["roll"]) < 1e-3 and abs(a["pitch"]) < 1e-3
 

@@ -86,7 +86,7 @@ def register(app: typer.Typer) -> None:
         check_gyro_noise(white, log.source, log.gyro_unit, hint="give --gyro-unit deg/s")
         data = _print_terms(res)
         kalibr_ok = _kalibr_or_why_not(res, topic)
-        written = ["allan.png", "allan.csv", "noise_terms.json", "config.yaml", "metrics.json"]
+        written = ["allan.png", "allan.csv", "config.yaml", "metrics.json (the noise terms)"]
         written += ["imu.yaml (Kalibr)"] if kalibr_ok is not None else []
         print_warnings(res.warnings)
         summary = {
@@ -98,7 +98,7 @@ def register(app: typer.Typer) -> None:
         inputs = {"log": str(log_path), "gyro": None if gyro is None else str(gyro), "format": fmt.value,
                   "topic": topic, "accel_unit": res.accel_unit, "gyro_unit": res.gyro_unit, "columns": columns}  # fmt: skip
         write_results(
-            out, config=inputs, metrics=summary, extra=lambda d: _write(res, summary, kalibr_ok, d)
+            out, config=inputs, metrics=summary, extra=lambda d: _write(res, kalibr_ok, d)
         )
         console.print(f"wrote {out}/{', '.join(written)}")
 
@@ -159,17 +159,15 @@ def _kalibr_or_why_not(res: Any, topic: str | None) -> dict[str, Any] | None:
     return dict(kalibr)
 
 
-def _write(
-    res: AllanResult, terms: dict[str, Any], kalibr: dict[str, Any] | None, out: Path
-) -> None:
+def _write(res: AllanResult, kalibr: dict[str, Any] | None, out: Path) -> None:
+    """allan.png, allan.csv and, when the log allows it, imu.yaml (Kalibr); the noise terms are
+    metrics.json, written by the one writer."""
     import yaml
 
     from imuslam.io.atomic import write_atomic
     from imuslam.io.figures import save_figure
-    from imuslam.io.results import write_json
 
     save_figure(plot_allan(res), out / "allan.png")
-    write_json(out / "noise_terms.json", terms)
     csv = "tau_s," + ",".join(f"accel_{a},gyro_{a}" for a in "xyz") + "\n"
     csv += "\n".join(
         f"{t:.6g},"

@@ -210,8 +210,8 @@ class AlignPipeline:
             out.truth_accel_bias, out.truth_gyro_bias, out.truth_R_n_b = tb, tbg, Rt
             out.attitude_error_deg = att
             m.update(truth_accel_bias=tb[-1].tolist(), truth_gyro_bias=tbg[-1].tolist(),
-                     accel_bias_z=((res.accel_bias[-1] - tb[-1]) / res.accel_bias_std[-1]).tolist(),
-                     gyro_bias_z=((res.gyro_bias[-1] - tbg[-1]) / res.gyro_bias_std[-1]).tolist(),
+                     accel_bias_error_sigmas=((res.accel_bias[-1] - tb[-1]) / res.accel_bias_std[-1]).tolist(),
+                     gyro_bias_error_sigmas=((res.gyro_bias[-1] - tbg[-1]) / res.gyro_bias_std[-1]).tolist(),
                      attitude_error_deg=att[-1].tolist())  # fmt: skip
         out.metrics = m
         return out
@@ -225,16 +225,15 @@ class AlignPipeline:
         **inputs: Any,
     ) -> list[str]:
         """The results folder, all or nothing: ``config.yaml`` (``inputs`` and the config),
-        ``metrics.json`` (also as ``alignment.json``, its name before), ``trajectory.tum`` (the filter's
+        ``metrics.json`` (``*_error_sigmas``: the final bias error in its 1-sigma), ``trajectory.tum`` (the filter's
         poses), ``estimates.csv`` (bias, 1-sigma and attitude over time), the plots, then ``extra(folder)``
         (the corrected IMU, written by the caller, which knows the input's format). Returns the files."""
-        from imuslam.io.results import write_json, write_results
+        from imuslam.io.results import write_results
 
-        files = ["config.yaml", "metrics.json", "alignment.json"]
+        files = ["config.yaml", "metrics.json"]
         traj = result.trajectory()
 
         def more(folder: Path) -> None:
-            write_json(folder / "alignment.json", result.metrics)
             if result.alignment is None:
                 return
             write_estimates(folder / "estimates.csv", result.alignment)
