@@ -71,7 +71,7 @@ def test_the_scans_land_on_the_local_map(run: dict) -> None:  # type: ignore[typ
     frame mistake (LiDAR for IMU, 0.2 m apart here) or a pose of the wrong scan leaves none there."""
     rec = run["rec"]
     body, scans, lmap = rec["/world/body"], rec["/world/body/scan"], rec["/world/local_map"]
-    assert lmap.rows >= 2
+    assert lmap.rows >= 1
     for j, t_map in enumerate(lmap.times_ns()):
         k = int(np.flatnonzero(body.times_ns() == t_map)[0])
         T = body.array("Transform3D:translation")[k]

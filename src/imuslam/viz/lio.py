@@ -1,9 +1,10 @@
 """The LiDAR(-inertial) odometry in a recording: per scan (timelines ``sensor_time``, ``scan``) the
 body pose ``world/body``, its registered points deskewed to the scan end ``world/body/scan``, the
-1-sigma position ellipsoid ``world/covariance``, the local map ``world/local_map`` (every
-``map_every`` scans) and the scan's figures ``scan/...``; at the end (static) the trajectory
-``world/trajectory`` (the positions of trajectory.tum), the exported map ``world/map`` and the ground
-truth ``world/ground_truth`` moved onto the estimate (SE(3) alignment, as the metrics)."""
+1-sigma position ellipsoid ``world/covariance``, the local map ``world/local_map`` (at the first scan
+that has one, then every ``map_every`` scans) and the scan's figures ``scan/...``; at the end (static)
+the trajectory ``world/trajectory`` (the positions of trajectory.tum), the exported map ``world/map``
+and the ground truth ``world/ground_truth`` moved onto the estimate (SE(3) alignment, as the
+metrics)."""
 
 from __future__ import annotations
 
@@ -47,11 +48,12 @@ def log_covariance(rr: Any, rec: Any, path: str, centre: FloatArray, C: FloatArr
 class LioLogger:
     """The observer of :meth:`imuslam.lio.pipeline.LioPipeline.run` writing to ``rec``."""
 
-    def __init__(self, rec: Any, map_every: int = 10) -> None:
+    def __init__(self, rec: Any, map_every: int = 50) -> None:
         import rerun as rr
 
         self.rr, self.rec, self.map_every = rr, rec, map_every
         self.n = 0
+        self.map_at = -map_every  # the step the local map was last logged at
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
     def __call__(self, step: LioStep) -> None:
@@ -61,7 +63,8 @@ class LioLogger:
         rec.log("world/body/scan", rr.Points3D(step.points_b, radii=0.03))
         if step.cov_p is not None:
             log_covariance(rr, rec, "world/covariance", step.T_w_b[:3, 3], step.cov_p)
-        if step.local_map_w is not None and self.n % self.map_every == 0:
+        if step.local_map_w is not None and self.n - self.map_at >= self.map_every:
+            self.map_at = self.n
             rec.log(
                 "world/local_map",
                 rr.Points3D(step.local_map_w(), radii=0.02, colors=[150, 150, 150]),
