@@ -135,7 +135,14 @@ class FilterConfig(BaseModel):
     the front end's default (``MAP_DRIFT``, filled in by ``LioConfig.resolved``: zero, the matched
     map's recorded covariance alone; a user whose scenes drift sets the rates from the RPE of their
     own runs); max_speed / max_rate bound a physically possible state
-    (divergence check)."""
+    (divergence check). imu_guard (default on): gyro samples at the range (``gyro_range_dps``, the
+    datasheet's, or detected from the log when unset; within ``gyro_clip_margin`` of it) are bridged
+    and their error and the IMU gaps' enter the covariance (``lio.guards``); degeneracy_guard
+    (default on): a direction of the pose whose 1-sigma from a scan alone exceeds ``degenerate_std``
+    (m; rotation as metres at 10 m) is kept at the IMU's prediction (Zhang 2016's solution remapping);
+    the degenerate scans are reported either way; min_match_fraction / lost_scans: fewer of a scan's
+    points matched to the map than this fraction for that many scans in a row is a divergence the
+    filter reports (exit 3) instead of going on with a map it lost (0 turns the check off)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     state: Literal["reduced", "full"] = "full"
@@ -156,6 +163,13 @@ class FilterConfig(BaseModel):
     map_drift_deg_per_sqrt_m: float | None = Field(None, ge=0)
     map_drift_m_per_sqrt_m: float | None = Field(None, ge=0)
     max_speed: float = Field(60.0, gt=0)
+    imu_guard: bool = True
+    gyro_range_dps: float | None = Field(None, gt=0, le=1e4)
+    gyro_clip_margin: float = Field(0.03, ge=0, lt=0.5)
+    degeneracy_guard: bool = True
+    degenerate_std: float = Field(0.1, gt=0)
+    min_match_fraction: float = Field(0.15, ge=0, lt=1)
+    lost_scans: int = Field(3, ge=1)
     g: float = Field(9.80665, ge=9.7, le=9.9, description="gravity on earth, m/s^2")
 
     @model_validator(mode="after")

@@ -23,6 +23,7 @@ from imuslam.interfaces.sources import LidarSource
 from imuslam.io.trajectory import Trajectory
 from imuslam.lio.config import LioConfig
 from imuslam.lio.features import voxel_downsample
+from imuslam.lio.guards import AXES
 from imuslam.lio.lidar_only import LidarOdometry
 from imuslam.lio.voxelmap import VoxelMap
 
@@ -131,6 +132,21 @@ def imu_gaps(t_s: FloatArray, limit_s: float = 0.1) -> str:
         return ""
     i = int(big[np.argmax(dt[big])])
     return (f"{len(big)} IMU gaps longer than {limit_s:g} s (longest {dt[i]:.2f} s at t = {t_s[i]:.2f} s)")  # fmt: skip
+
+
+def guard_notes(est: Any) -> list[str]:
+    """The estimator's repairs of the IMU and its degenerate scans (``lio.guards``), one line each."""
+    notes = list(est.repair.notes) if getattr(est, "repair", None) is not None else []
+    deg = getattr(est, "degenerate_scans", [])
+    if deg:
+        dirs = sorted({d for _, _, ds, _ in deg for d in ds}, key=AXES.index)
+        kept = (
+            "kept at the IMU's prediction" if est.config.filter.degeneracy_guard else "not guarded"
+        )
+        notes.append(f"{len(deg)} degenerate scans (scan {deg[0][0]} at t = {deg[0][1]:.2f} s to scan "
+                     f"{deg[-1][0]} at t = {deg[-1][1]:.2f} s; weakest 1-sigma up to "
+                     f"{max(s for *_, s in deg):.2g} m): {', '.join(dirs)} {kept}")  # fmt: skip
+    return notes
 
 
 class LioPipeline:
@@ -285,6 +301,7 @@ class LioPipeline:
             gap = imu_gaps(self.imu.t_s)  # type: ignore[union-attr]
             if gap:
                 warnings.append(gap)
+            warnings.extend(guard_notes(est))
         for w in warnings:
             log.warning("%s: %s", self.dataset.name, w)
         if span is not None and not poses and lidar_span:
