@@ -58,7 +58,7 @@ OPTIONS: dict[str, tuple[list[str], dict[str, st.SearchStrategy[str]]]] = {
         "--gyro-unit": bad_choice(("rad/s", "deg/s")),
     }),
     "eval": (["gt.tum", "est.tum"], {
-        "--format": bad_choice(TRAJ), "--est-format": bad_choice(TRAJ),
+        "--format": bad_choice(("auto", *TRAJ)), "--est-format": bad_choice(("auto", *TRAJ)),
         "--align": bad_choice(("se3", "sim3", "yaw", "first", "none")), "--rpe-delta": positive(),
         "--rpe-unit": bad_choice(("frames", "m")), "--max-diff": positive(),
     }),

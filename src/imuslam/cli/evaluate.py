@@ -12,6 +12,7 @@ from imuslam.cli.common import console, friendly_errors, table
 
 
 class TrajFormat(StrEnum):
+    auto = "auto"
     tum = "tum"
     kitti = "kitti"
     euroc = "euroc"
@@ -38,7 +39,10 @@ def register(app: typer.Typer) -> None:
         gt: Path = typer.Argument(..., help="reference trajectory"),
         est: Path = typer.Argument(..., help="estimated trajectory"),
         fmt: TrajFormat = typer.Option(
-            TrajFormat.tum, "--format", help="tum, kitti, euroc or bag (both files)"
+            TrajFormat.auto,
+            "--format",
+            help="auto (TUM, KITTI or EuRoC csv by content, a bag by name), tum, kitti, euroc or bag "
+            "(both files)",
         ),
         est_format: TrajFormat | None = typer.Option(
             None, help="format of the estimate if it differs"
@@ -63,10 +67,12 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """APE and RPE with SE(3)/Sim(3)/yaw-only alignment; metrics.json, plots, aligned TUM."""
         from imuslam.eval.pipeline import EvalConfig, EvalPipeline
-        from imuslam.io.trajectory import read_trajectory
+        from imuslam.io.trajectory import detect_trajectory_format, read_trajectory
 
+        gf = detect_trajectory_format(gt) if fmt == TrajFormat.auto and gt.exists() else fmt.value
         ef = (est_format or fmt).value
-        ref = read_trajectory(gt, fmt.value, topic, gt_times)
+        ef = detect_trajectory_format(est) if ef == "auto" and est.exists() else ef
+        ref = read_trajectory(gt, gf, topic, gt_times)
         e = read_trajectory(est, ef, topic)
         cfg = EvalConfig(
             align=align.value,
@@ -74,7 +80,7 @@ def register(app: typer.Typer) -> None:
             rpe_unit=rpe_unit.value,
             max_diff_s=max_diff,
             kitti=kitti,
-            by_index=fmt.value == "kitti" and ef == "kitti" and gt_times is None,
+            by_index=gf == "kitti" and ef == "kitti" and gt_times is None,
         )
         pipeline = EvalPipeline(ref, e, cfg)
         res = pipeline.run()
@@ -91,6 +97,6 @@ def register(app: typer.Typer) -> None:
             rows.append([f"KITTI drift {L:g} m ({n} segments) [%]", f"{tp:.4g}", "", "", "", ""])
         console.print(table(f"{est} vs {gt}: {res.n_pairs} pairs, {res.align} (scale {res.scale:.6g})",
                             ["quantity [unit]", "rmse", "mean", "median", "std", "max"], rows))  # fmt: skip
-        pipeline.save(res, out, plots, gt=str(gt), est=str(est), format=fmt.value, est_format=ef)
+        pipeline.save(res, out, plots, gt=str(gt), est=str(est), format=gf, est_format=ef)
         pngs = "trajectories.png, ape.png, " if plots else ""
         console.print(f"wrote {out}/metrics.json, config.yaml, {pngs}estimate_aligned.tum")

@@ -28,6 +28,7 @@ TRAJ_FORMATS = ("tum", "kitti", "euroc", "bag")
 
 __all__ = [
     "TRAJ_FORMATS",
+    "detect_trajectory_format",
     "StateTruth",
     "Trajectory",
     "read_trajectory",
@@ -133,16 +134,78 @@ def read_bag_poses(path: str | Path, topic: str | None = None) -> Trajectory:
         return bag.trajectory(topic)
 
 
+_FORMAT_NAMES = {"tum": "TUM", "kitti": "KITTI", "euroc": "EuRoC csv", "bag": "a bag"}
+
+
+def detect_trajectory_format(path: str | Path) -> str:
+    """The format of a trajectory file by its content: a bag (``.bag``, ``.mcap``, ``.db3`` or a ROS 2
+    folder), EuRoC csv (comma-separated, integer ns stamps first), TUM (8 numbers a line) or KITTI (12
+    numbers a line: a 3x4 pose matrix). Comment lines (``#``) and a csv header are skipped."""
+    p = Path(path)
+    if p.is_dir() or p.suffix.lower() in (".bag", ".mcap", ".db3"):
+        return "bag"
+    with open(p, "rb") as f:
+        raw = f.read(1 << 16)
+    lines = raw.decode("utf-8", errors="replace").splitlines()
+    if len(raw) == 1 << 16 and len(lines) > 1:
+        lines = lines[:-1]  # cut by the read
+    for n, line in enumerate(lines, 1):
+        s = line.strip()
+        if not s or s.startswith(("#", "%", "//")):
+            continue
+        csv = "," in s
+        fields = [x.strip() for x in s.split(",")] if csv else s.split()
+        try:
+            [float(x) for x in fields]
+        except ValueError:
+            if csv and n == 1:
+                continue  # a header
+            raise InputError(
+                f"{p}: line {n} is not numbers; expected a trajectory (TUM, KITTI or EuRoC csv)"
+            ) from None
+        if csv and len(fields) >= 8 and fields[0].isdigit():
+            return "euroc"
+        if not csv and len(fields) == 8:
+            return "tum"
+        if not csv and len(fields) == 12:
+            return "kitti"
+        raise InputError(
+            f"{p}: line {n} has {len(fields)} {'comma-separated ' if csv else ''}columns; expected "
+            "TUM (8 space-separated: t x y z qx qy qz qw), KITTI (12: a 3x4 pose matrix) or EuRoC csv "
+            "(ns stamp, position, quaternion wxyz, ...)"
+        )
+    raise InputError(f"{p}: no pose in the file")
+
+
 def read_trajectory(
     path: str | Path, fmt: str, topic: str | None = None, times: str | Path | None = None
 ) -> Trajectory:
-    """Read a trajectory in ``fmt`` (tum, kitti, euroc, bag); an unknown format is an InputError."""
-    if fmt not in TRAJ_FORMATS:
+    """Read a trajectory in ``fmt`` (tum, kitti, euroc, bag, or auto: :func:`detect_trajectory_format`);
+    an unknown format is an InputError, and a file that does not read as ``fmt`` but looks like another
+    format says which ``--format`` to give."""
+    if fmt not in (*TRAJ_FORMATS, "auto"):
         raise InputError(
-            f"{path}: unknown trajectory format '{fmt}'; expected {', '.join(TRAJ_FORMATS)}"
+            f"{path}: unknown trajectory format '{fmt}'; expected auto, {', '.join(TRAJ_FORMATS)}"
         )
     if not Path(path).exists():
         raise InputError(f"{path}: no such file")
+    if fmt == "auto":
+        return _read_as(path, detect_trajectory_format(path), topic, times)
+    try:
+        return _read_as(path, fmt, topic, times)
+    except InputError as exc:
+        try:
+            kind = detect_trajectory_format(path)
+        except (InputError, OSError):
+            raise exc from None
+        if kind == fmt:
+            raise
+        raise InputError(
+            f"{exc}; the file looks like {_FORMAT_NAMES[kind]}: give --format {kind} (or auto)"
+        ) from None
+
+
+def _read_as(path: str | Path, fmt: str, topic: str | None, times: str | Path | None) -> Trajectory:
     if fmt == "tum":
         return read_tum(path)
     if fmt == "kitti":
