@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 from imuslam.cli import validate
-from imuslam.cli.common import console, friendly_errors, table
+from imuslam.cli.common import RRD_HELP, VIEWER_HELP, console, friendly_errors, table
 from imuslam.errors import HardwareError, InputError
 
 if TYPE_CHECKING:
@@ -101,6 +101,8 @@ def register(app: typer.Typer) -> None:
             help="folder of the calibration history",
             callback=validate.out_folder(),
         ),
+        rrd: Path | None = typer.Option(None, "--rrd", help=RRD_HELP),
+        viewer: bool = typer.Option(False, "--viewer", help=VIEWER_HELP),
     ) -> None:
         """Calibrate with the gimbal, publish, watch for drift in still moments, recalibrate."""
         import numpy as np
@@ -147,7 +149,19 @@ def register(app: typer.Typer) -> None:
                 if e.kind != "command":
                     console.print(f"{e.t_ns * 1e-9:8.1f} s  {e.kind:<13} {e.detail}")
         _print_history(pipeline.history)
+        _record(res, pipeline.history, rrd, viewer)
         pipeline.save(res, out, **inputs)
+
+
+def _record(res: Any, history: Any, rrd: Path | None, viewer: bool) -> None:
+    """With --rrd / --viewer: the run's events and calibrations in a recording (:mod:`imuslam.viz.online`)."""
+    if rrd is None and not viewer:
+        return
+    from imuslam.viz.online import log_online
+    from imuslam.viz.recording import open_recording
+
+    with open_recording("imuslam online", rrd, viewer) as rec:
+        log_online(rec, res, history)
 
 
 def _open_devices(imu_port: str, gimbal: str, rate: float) -> RobotDevices:
