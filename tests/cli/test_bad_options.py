@@ -22,7 +22,7 @@ SETTINGS = settings(
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow],
 )
-FORMATS = ("auto", "imutk", "euroc", "csv", "bag")
+FORMATS = ("auto", "imutk", "euroc", "csv", "bag", "matlab")
 TRAJ = ("tum", "kitti", "euroc", "bag")
 
 

@@ -164,6 +164,7 @@ class ImuFormatChoice(StrEnum):
     euroc = "euroc"
     csv = "csv"
     bag = "bag"
+    matlab = "matlab"
 
 
 class AccelUnitChoice(StrEnum):
@@ -327,4 +328,4 @@ def progress_option() -> Any:
     )
 
 
-FORMAT_HELP = "input format: auto, imutk, euroc, csv or bag"
+FORMAT_HELP = "input format: auto, imutk, euroc, csv, bag or matlab (v7.3 accelBuffer / gyroBuffer)"

@@ -36,7 +36,7 @@ def register(app: typer.Typer) -> None:
             callback=validate.positive("s"),
         ),
         fmt: str = typer.Option(
-            "auto", "--format", help="input format: auto, imutk, euroc, csv or bag"
+            "auto", "--format", help="input format: auto, imutk, euroc, csv, bag or matlab (v7.3)"
         ),
         topic: str | None = typer.Option(None, help="IMU topic of a bag"),
         accel_unit: str | None = typer.Option(None, help="m/s^2, g or counts (guessed if absent)"),

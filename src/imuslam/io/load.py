@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Literal
 
@@ -13,13 +14,16 @@ from imuslam.io.atomic import write_atomic
 from imuslam.io.kinds import SourceKind, source_kind
 from imuslam.io.readers import TimeUnit, read_csv, read_euroc, read_imutk
 
-ImuFormat = Literal["auto", "imutk", "euroc", "csv", "bag"]
-FORMATS = ("auto", "imutk", "euroc", "csv", "bag")
+ImuFormat = Literal["auto", "imutk", "euroc", "csv", "bag", "matlab"]
+FORMATS = ("auto", "imutk", "euroc", "csv", "bag", "matlab")
+_MAT_V73 = b"MATLAB 7.3 MAT-file"
+_MAT_OLD = b"MATLAB 5.0 MAT-file"
 
 
 def detect_format(path: str | Path) -> ImuFormat:
     """Format from the path: ``.bag``/``.mcap``/a ROS 2 bag folder -> bag; a EuRoC folder or a csv with
-    EuRoC's header -> euroc; anything else -> imu_tk text."""
+    EuRoC's header -> euroc; a MATLAB v7.3 file (by its header, whatever its name) -> matlab; anything
+    else -> imu_tk text (imu_tk's own logs are text named .mat)."""
     p = Path(path)
     kind = source_kind(p)
     if kind is SourceKind.BAG:
@@ -28,6 +32,13 @@ def detect_format(path: str | Path) -> ImuFormat:
         return "euroc"
     if p.is_dir():
         raise InputError(f"{p}: a folder that is neither a ROS 2 bag nor a EuRoC dataset")
+    head_bytes = _head(p)
+    if head_bytes.startswith(_MAT_V73):
+        return "matlab"
+    if head_bytes.startswith(_MAT_OLD):
+        raise InputError(
+            f"{p}: a MATLAB v5 .mat file; imuslam reads v7.3 (save it with save(..., '-v7.3')) or text"
+        )
     if p.suffix == ".csv":
         try:
             with open(p, encoding="utf-8", errors="replace") as fh:
@@ -37,6 +48,45 @@ def detect_format(path: str | Path) -> ImuFormat:
         if head.startswith("#timestamp") or "w_RS_S_x" in head:
             return "euroc"
     return "imutk"
+
+
+def _head(p: Path) -> bytes:
+    try:
+        with open(p, "rb") as fh:
+            return fh.read(len(_MAT_V73))
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+
+
+def _read_matlab(
+    acc_path: str | Path,
+    gyro_path: str | Path | None,
+    accel_unit: AccelUnit | None,
+    gyro_unit: GyroUnit | None,
+) -> ImuLog:
+    """``accelBuffer`` / ``gyroBuffer`` of MATLAB v7.3 files (:mod:`imuslam.io.matlab`): two files, or
+    one holding both. Units unless given: the accelerometer's from its magnitude, the gyro's deg/s, the
+    buffers' convention (a still gyro's magnitude cannot tell deg/s from rad/s); each said in a
+    warning."""
+    from imuslam.io.matlab import read_mat_buffers
+    from imuslam.io.readers import guess_units
+
+    log_ = read_mat_buffers(acc_path, gyro_path if gyro_path is not None else acc_path)
+    warnings = list(log_.warnings)
+    if accel_unit is None:
+        accel_unit = guess_units(log_.accel, log_.gyro)[0]
+        warnings.append(
+            f"{log_.source}: accelerometer unit not given; guessed {accel_unit} from the magnitudes"
+        )
+    if gyro_unit is None:
+        gyro_unit = "deg/s"
+        warnings.append(
+            f"{log_.source}: gyro unit not given; deg/s, the MATLAB buffers' convention "
+            "(--gyro-unit to change it)"
+        )
+    for w in warnings[len(log_.warnings) :]:
+        logging.getLogger(__name__).warning(w)
+    return ImuLog(log_.t_ns, log_.accel, log_.gyro, accel_unit, gyro_unit, log_.source, warnings)
 
 
 def load_imu(
@@ -63,6 +113,8 @@ def load_imu(
         return read_imu_bag(acc_path, topic)
     if f == "euroc":
         return read_euroc(acc_path)
+    if f == "matlab":
+        return _read_matlab(acc_path, gyro_path, accel_unit, gyro_unit)
     if f == "csv":
         if not columns:
             raise InputError(
