@@ -125,7 +125,7 @@ def register(app: typer.Typer) -> None:
             ) as bar,
         ):
             obs = _observer(rec, data.imu, calib is not None)
-            res = pipeline.run(bar.update, obs)
+            res = pipeline.run(bar.update, obs)  # type: ignore[arg-type]  # tqdm's update returns a flag
             if obs is not None:
                 obs.finish(res, truth)
         ev = None

@@ -195,9 +195,10 @@ class LioPipeline:
             return
         if pending:
             start = getattr(est, "start_poses", None)
-            refined = start is not None and len(start) == len(pending)
+            if start is None or len(start) != len(pending):  # not refined: the poses as returned
+                start = [s.T_w_b for s in pending]
             for i, s in enumerate(pending):
-                s.T_w_b = est.T_w_i0 @ (start[i] if refined else s.T_w_b)
+                s.T_w_b = est.T_w_i0 @ start[i]
                 observer(s)
             pending.clear()
         cov = getattr(est, "covariance", None)
