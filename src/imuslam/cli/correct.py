@@ -63,11 +63,19 @@ def register(app: typer.Typer) -> None:
         corrected = cal.correct(log)
         cal.check_magnitudes(corrected)
         f = detect_format(log_path) if fmt.value == "auto" else fmt.value
+        what = f"{len(log)} samples"
         if f == "bag":
             t = topic or log.source.rsplit(":", 1)[-1]
             with results_file(out) as tmp:
                 write_imu(corrected, tmp, "bag", template=log_path, topic=t)
             written = [out]
+            what = (f"{len(log)} samples of {t} (sensor_msgs/Imu; every other topic copied as it is, "
+                    "the bag's compression kept)")  # fmt: skip
+        elif f == "matlab":  # written as EuRoC csv: imuslam writes no MATLAB files
+            with results_file(out) as tmp:
+                write_imu(corrected, tmp, "euroc")
+            written = [out]
+            what += " (MATLAB in, EuRoC csv out)"
         elif gyro is not None:
             with results_folder(out) as tmp:
                 names = write_imu(corrected, tmp, f, two_files=True)  # type: ignore[arg-type]
@@ -76,4 +84,4 @@ def register(app: typer.Typer) -> None:
             with results_file(out) as tmp:
                 write_imu(corrected, tmp, f)  # type: ignore[arg-type]
             written = [out]
-        console.print(f"corrected {len(log)} samples -> {', '.join(map(str, written))}")
+        console.print(f"corrected {what} -> {', '.join(map(str, written))}")

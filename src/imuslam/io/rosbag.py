@@ -102,10 +102,37 @@ def write_imu_bag(
                 _single_mcap(tmp)
 
 
+def _same_compression(src: Path, kind: str, writer: Any) -> None:
+    """Set ``writer`` (not yet open) to compress as bag ``src`` does: a ROS 1 bag's chunks (bz2, lz4:
+    from the decompressor its first chunk needs), a ROS 2 bag's file or message compression."""
+    if kind == "ros1":
+        from rosbags.rosbag1 import Reader as Reader1
+
+        with Reader1(src) as r:
+            chunk = next(iter(r.chunks.values()), None)
+        mod = getattr(getattr(chunk, "decompressor", None), "__module__", "") or ""
+        fmt = {"bz2": Writer1.CompressionFormat.BZ2, "lz4": Writer1.CompressionFormat.LZ4}.get(
+            mod.split(".")[0]
+        )
+        if fmt is not None:
+            writer.set_compression(fmt)
+        return
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode
+    from rosbags.rosbag2 import Reader as Reader2
+
+    if kind == "mcap" or not src.is_dir():
+        return  # an .mcap file compresses its own chunks
+    with Reader2(src) as r:
+        fmt2, mode2 = r.compression_format, r.compression_mode
+    if fmt2 and mode2 and mode2.upper() in CompressionMode.__members__:
+        writer.set_compression(CompressionMode[mode2.upper()], CompressionFormat[fmt2.upper()])
+
+
 def replace_imu_topic(src: str | Path, dst: str | Path, topic: str, corrected: ImuLog) -> int:
-    """Copy bag ``src`` to ``dst`` (same kind) with the Imu messages of ``topic`` replaced, in order, by
-    the samples of ``corrected`` (whose stamps must equal the originals); every other message is copied
-    byte for byte. Returns the number of replaced messages. Written atomically."""
+    """Copy bag ``src`` to ``dst`` (same kind and compression) with the Imu messages of ``topic``
+    replaced, in order, by the samples of ``corrected`` (whose stamps must equal the originals); every
+    other message is copied byte for byte. Returns the number of replaced messages. Written
+    atomically."""
     _check_si(corrected)
     sp, dp = Path(src), Path(dst)
     kind = bag_kind(sp)
@@ -121,6 +148,7 @@ def replace_imu_topic(src: str | Path, dst: str | Path, topic: str, corrected: I
             else:
                 plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
                 writer = _writer2(tmp, plugin)
+            _same_compression(sp, kind, writer)
             writer.open()
             out_conns = {}
             for c in reader.connections:
