@@ -62,9 +62,7 @@ def register(app: typer.Typer) -> None:
         src = "--quick" if quick else str(study_file)
         data = QUICK if quick else read_study_data(study_file)  # type: ignore[arg-type]
         if is_log_study(data):
-            if scheduler:
-                raise InputError("--scheduler: a study of recorded logs runs in this process")
-            return _log_study(data, study_file, out)  # type: ignore[arg-type]
+            return _log_study(data, study_file, out, scheduler, workers)  # type: ignore[arg-type]
         study = parse_study(data, src)
         res = run_study(study, out, scheduler, workers, serial, show_progress(progress), source=src)
         n_err = int((res.table["status"] != "ok").sum())
@@ -91,9 +89,18 @@ def register(app: typer.Typer) -> None:
             )
 
 
-def _log_study(data: object, study_file: Path, out: Path) -> None:
+def _log_study(
+    data: object, study_file: Path, out: Path, scheduler: str | None, workers: int | None
+) -> None:
     """A study of recorded logs (``study.logstudy``): run, print each log's table, write the report."""
     from imuslam.cli.common import console, table
+    from imuslam.errors import InputError
+
+    if scheduler or workers:
+        raise InputError(
+            f"{'--scheduler' if scheduler else '--workers'}: a study of recorded logs runs its runs "
+            "one after another in this process; drop the option"
+        )
     from imuslam.study.logconfig import parse_log_study
     from imuslam.study.logreport import table_rows
     from imuslam.study.logstudy import run_log_study

@@ -8,19 +8,40 @@ from __future__ import annotations
 import base64
 import html
 import io
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 import pandas as pd
 import yaml
 
+from imuslam.interfaces import Trajectory
 from imuslam.io.atomic import write_atomic
 from imuslam.study.logconfig import LogSpec, LogStudyConfig
 from imuslam.study.report import _fmt, _md_table_html
 
-if TYPE_CHECKING:
-    from imuslam.study.logstudy import LogStudyRun, RunResult
+
+@dataclass
+class RunResult:
+    """One run: its trajectory, its metrics, and for map2d the map (probability grid) and the hits."""
+
+    log: str
+    run: str
+    imu: str
+    trajectory: Trajectory
+    metrics: dict[str, float]
+    grid: Any = None
+    wall_s: float = 0.0
+    imu_track: Trajectory | None = None  # vio: the IMU alone from the filter's first state
+
+
+@dataclass
+class LogStudyRun:
+    """Every run of every log, in the study's order."""
+
+    runs: list[RunResult] = field(default_factory=list)
+
 
 #: The report's columns: (metric key, header with its unit).
 COLUMNS = (

@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +26,7 @@ from imuslam.errors import InputError
 from imuslam.imu.model import ImuCalibration
 from imuslam.interfaces import ImuLog, Trajectory
 from imuslam.study.logconfig import LogSpec, LogStudyConfig, RunSpec
+from imuslam.study.logreport import LogStudyRun, RunResult
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
@@ -136,6 +137,8 @@ def prepare_log(spec: LogSpec, where: str) -> PreparedLog:
     if not Path(spec.path).exists():
         raise InputError(f"{where}.path: {spec.path}: no such file or folder")
     hint = "check the log's IMU units, or the calibration's units.accel_in / gyro_in"
+    data: Any
+    base: ImuLog | None
     if spec.estimator == "map2d":
         from imuslam.io.laserload import load_laser_log
         from imuslam.io.plausible import check_stamps
@@ -170,7 +173,7 @@ def prepare_log(spec: LogSpec, where: str) -> PreparedLog:
                               spec.left_topic, spec.right_topic, spec.imu_topic)  # fmt: skip
         except InputError as exc:
             raise InputError(f"{where} (vio needs stereo images and an IMU): {exc}") from None
-        data, base, times = src.data, src.data.imu, src.times_ns  # type: ignore[attr-defined]
+        data, base, times = src.data, getattr(src.data, "imu", None), src.times_ns
     if base is None and spec.estimator != "map2d":
         raise InputError(f"{where}: the log has no IMU ({spec.estimator} fuses one)")
     imus = {
@@ -178,27 +181,6 @@ def prepare_log(spec: LogSpec, where: str) -> PreparedLog:
         for i, r in enumerate(spec.runs)
     }
     return PreparedLog(spec, where, data, cfg, imus, _read_truth(spec, where), times)
-
-
-@dataclass
-class RunResult:
-    """One run: its trajectory, its metrics, and for map2d the map (probability grid) and the hits."""
-
-    log: str
-    run: str
-    imu: str
-    trajectory: Trajectory
-    metrics: dict[str, float]
-    grid: Any = None
-    wall_s: float = 0.0
-    imu_track: Trajectory | None = None  # vio: the IMU alone from the filter's first state
-
-
-@dataclass
-class LogStudyRun:
-    """Every run of every log, in the study's order."""
-
-    runs: list[RunResult] = field(default_factory=list)
 
 
 def map2d_points(log_: Any, poses_xy_yaw: FloatArray, cfg: Any) -> FloatArray:
