@@ -177,6 +177,23 @@ def analyse(
     return ClaimResult(claim, levels, pairs, overall_verdict(claim, [p.verdict for p in pairs]), d)
 
 
+# How to read a study's output, printed by the command and written at the head of both reports.
+READING = (
+    "A cell is one run of an estimator: one claim, scenario, IMU, alignment, variant and seed. "
+    "'N cells: M run, C from the cache, F failed' counts the cells of the plan, those computed by this "
+    "invocation, those read from the cells/ cache an earlier run left, and those (of either) that "
+    "failed, listed with their error.",
+    "Mean difference: per seed, the metric of the claimed-worse level minus the claimed-better one "
+    "(better minus worse when higher is better), in the metric's unit: positive is the claimed "
+    "direction, negative the reverse; its interval decides the pair's verdict against the practical "
+    "bound.",
+    "Verdicts of a claim: supported (every pair holds); partly supported (at least one pair holds, none "
+    "reversed, the others show no practical difference or are not resolved within the seed budget); "
+    "contradicted (a pair reversed); no practical difference (every pair within the bound); not "
+    "resolved (the budget ended first).",
+)
+
+
 def overall_verdict(claim: ClaimSpec, vs: list[str]) -> str:
     """The claim's verdict from its pairs' (in the claimed order)."""
     if not claim.expect:
@@ -330,7 +347,7 @@ def write_outputs(
 ) -> list[ClaimResult]:
     """results.parquet, results.csv, study.yaml, report.md and report.html in ``out`` (each atomic)."""
     results = [analyse(c, df, study.seeds) for c in study.claims]
-    md = "\n".join(markdown(r) for r in results)
+    md = "\n\n".join(READING) + "\n\n" + "\n".join(markdown(r) for r in results)
     failed = df[df["status"] != "ok"]
     buf = io.BytesIO()
     df.to_parquet(buf, index=False)
@@ -341,7 +358,8 @@ def write_outputs(
     parts = [f"<h1>Study {html.escape(study.name)}</h1>",
              f"<p>{len(df)} cells ({df['key'].nunique()} distinct), {len(failed)} failed; seeds {study.seeds}; "
              f"run on {html.escape(backend)}. Means with 95 % Student-t intervals over seeds; differences paired by seed, "
-             f"looked at after each batch of seeds, each look's interval at 1 - 0.05 / (planned looks).</p>"]  # fmt: skip
+             f"looked at after each batch of seeds, each look's interval at 1 - 0.05 / (planned looks).</p>",
+             *(f"<p>{html.escape(x)}</p>" for x in READING)]  # fmt: skip
     for r in results:
         png = base64.b64encode(figure_png(r)).decode()
         parts.append(_md_table_html(markdown(r)))
