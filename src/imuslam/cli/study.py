@@ -50,7 +50,7 @@ def register(app: typer.Typer) -> None:
         from imuslam.study.config import parse_study, read_study_data
         from imuslam.study.logconfig import is_log_study
         from imuslam.study.presets import QUICK
-        from imuslam.study.report import PAIR_COLUMNS, analyse, pair_table_rows
+        from imuslam.study.report import PAIR_COLUMNS, READING, analyse, pair_table_rows
         from imuslam.study.runner import run_study
 
         if quick == (study_file is not None):
@@ -79,6 +79,8 @@ def register(app: typer.Typer) -> None:
             console.print(
                 table("Pairs (difference > 0: as claimed)", list(PAIR_COLUMNS), pair_rows)
             )
+        for note in READING:  # what a cell, the difference's sign and each verdict mean
+            console.print(note, markup=False, highlight=False)
         console.print(
             f"wrote {out}/report.html, report.md, results.parquet, results.csv, study.yaml"
         )
