@@ -69,6 +69,10 @@ def test_cli_writes_the_results_folder_and_counts_bad_frames(
     assert g["frames"]["unreadable"] == 1
     assert g["vo"]["skipped_few_features"] + g["vo"]["skipped_few_inliers"] >= 1
     assert "1 unreadable" in text
+    # the closing line names every file the folder holds (metrics.json included)
+    wrote = "".join(text[text.index("wrote ") :].split())  # wrapped at 80 columns
+    for f in ("trajectory.tum", "vo.tum", "imu.tum", "metrics.json", "config.yaml"):
+        assert f in wrote, f
 
 
 @pytest.mark.parametrize(
