@@ -3,6 +3,7 @@ spawned viewer, or both."""
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
@@ -12,6 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import InputError
+
+log = logging.getLogger(__name__)
 
 #: The one line shown when the optional viewer package is missing.
 HINT = "the viewer needs rerun-sdk: pip install 'imuslam[viz]'"
@@ -96,12 +99,17 @@ def open_recording(name: str, rrd: Path | None, viewer: bool) -> Iterator[Any]:
             in_flight = sys.exc_info()[1]  # the block's own error goes on as it is
             try:
                 rec.flush()
-            except RuntimeError as exc:  # the viewer went away
+            except RuntimeError as exc:
                 rec.disconnect()
-                if in_flight is None and viewer:
-                    first = str(exc).strip().splitlines()[0]
-                    raise InputError(f"the rerun viewer could not be reached: {first}") from None
-                if in_flight is None:
-                    raise
+                first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+                if in_flight is None and viewer:  # the viewer went away: the file sink is complete
+                    log.warning(
+                        "the rerun viewer could not be reached (%s); the results are complete",
+                        first,
+                    )
+                elif in_flight is None:
+                    raise InputError(
+                        f"--rrd {rrd}: the recording could not be written ({first})"
+                    ) from None
             else:
                 rec.disconnect()
