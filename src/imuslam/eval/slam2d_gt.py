@@ -143,7 +143,9 @@ def reference_in_map(
         refp = carmen.laser_pose_xy_yaw[ri]
     else:
         ref = read_trajectory(p, "tum")
-        ei, ri = match_stamps(t_ns * 1e-9, ref.t_ns * 1e-9, 0.02)
+        ei, ri = match_stamps(
+            t_ns.astype(np.float64) * 1e-9, ref.t_ns.astype(np.float64) * 1e-9, 0.02
+        )
         yaw = np.arctan2(ref.R_w_b[ri, 1, 0], ref.R_w_b[ri, 0, 0])
         refp = np.column_stack([ref.p_w[ri, :2], yaw])
     if len(ri) < 2:

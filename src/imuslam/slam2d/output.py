@@ -89,16 +89,15 @@ def map_figure(
     r = grid.params.resolution
     H, W = prob.shape
     P = result.pose_xy_yaw
-    has_ref = reference_xy is not None and len(reference_xy) > 0
-    vx0, vx1, vy0, vy1 = view_limits(
-        grid, np.vstack([P[:, :2], reference_xy]) if has_ref else P[:, :2]
-    )  # type: ignore[list-item]
+    ref = np.asarray(reference_xy, dtype=float).reshape(-1, 2) if reference_xy is not None else None
+    has_ref = ref is not None and len(ref) > 0
+    shown = np.vstack([P[:, :2], ref]) if ref is not None and has_ref else P[:, :2]
+    vx0, vx1, vy0, vy1 = view_limits(grid, shown)
     fig = Figure(figsize=(8, 8 * (vy1 - vy0) / max(vx1 - vx0, 1e-9) + 0.5))
     ax = fig.add_subplot(111)
     ax.imshow(1.0 - prob, cmap="gray", origin="lower", vmin=0, vmax=1,
               extent=(x0, x0 + W * r, y0, y0 + H * r))  # fmt: skip
-    if has_ref:
-        ref = np.asarray(reference_xy)
+    if ref is not None and has_ref:
         ax.plot(
             ref[:, 0], ref[:, 1], "-", color="tab:orange", lw=0.7, label="reference (SE(2) aligned)"
         )
