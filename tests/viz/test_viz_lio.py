@@ -102,6 +102,12 @@ def test_the_imu_and_covariance(run: dict) -> None:  # type: ignore[type-arg]
     np.testing.assert_array_equal(acc.times_ns(), imu.t_ns)
     np.testing.assert_allclose(acc.array("Scalars:scalars"), imu.accel, rtol=1e-12)
     assert "/imu/corrected/accel" not in rec  # no --calib: nothing corrected
+    res = rec["/scan/residual_rms_m"].array("Scalars:scalars")
+    # one per filter update (the filter's first scan starts it without one); the simulator's 2 cm range
+    # noise seen on the map's planes: the matched points' RMS distance lies between its projection on a
+    # normal and its sum over scan and map (2.5 x 2 cm)
+    assert len(res) == rec["/world/covariance"].rows - 1
+    assert np.all((res > 0.005) & (res < 0.05))
     cov = rec["/world/covariance"]
     half = cov.array("Ellipsoids3D:half_sizes")
     assert 0 < cov.rows <= 30 and np.all(half > 0) and np.all(half < 1.0)  # 1-sigma, metres

@@ -707,7 +707,18 @@ class LioEstimator:
         self.last_n_corr = meas.n_corr
         self.last_n_used = len(surf_i) + len(edge_i)
         self.last_points = (surf_i, edge_i)
+        self._last_meas = meas
         return self._pose(x)
+
+    def last_residual_rms(self) -> float:
+        """RMS point-to-map distance, m, of the last scan's matched points at its estimated pose
+        (computed when asked: a viewer's figure, not the filter's); NaN before the filter starts."""
+        meas = getattr(self, "_last_meas", None)
+        corr = None if meas is None else meas._corr
+        if self.eskf is None or corr is None or len(corr) == 0:
+            return float("nan")
+        r, _ = corr.system(self.eskf.x.R_n_b, self.eskf.x.p_n)
+        return float(np.sqrt(np.mean(np.square(r))))
 
     def _check_lost(self, k: int, t_end: float, matched: float) -> None:
         """FilterDivergence when fewer than ``filter.min_match_fraction`` of a scan's points matched the

@@ -65,8 +65,9 @@ class LioStep:
     """What an observer of :meth:`LioPipeline.run` receives per registered scan, in the result's
     world frame: the scan's statistics, the pose ``T_w_b`` (4, 4) the trajectory holds at ``stats.t_ns``
     (IMU frame; LiDAR frame without an IMU), the registered points deskewed to the scan end in the frame
-    of that pose (M, 3), m, the position covariance (3, 3), m^2, when the estimator has one, and the
-    local map's points (K, 3), world frame, on demand (None while the start's frame is provisional)."""
+    of that pose (M, 3), m, the position covariance (3, 3), m^2, when the estimator has one, the
+    local map's points (K, 3), world frame, on demand (None while the start's frame is provisional),
+    and the RMS point-to-map distance of the matched points at the pose, m (NaN where not known)."""
 
     index: int
     stats: ScanStats
@@ -74,6 +75,7 @@ class LioStep:
     points_b: FloatArray
     cov_p: FloatArray | None = None
     local_map_w: Callable[[], FloatArray] | None = None
+    residual_rms: float = float("nan")
 
 
 #: Called after each registered scan; the steps of the start come once its world frame is settled.
@@ -207,6 +209,8 @@ class LioPipeline:
             step.cov_p = cov[sl, sl]
         m = est.map
         step.local_map_w = lambda: np.vstack([m.surf.points, m.edge.points])
+        if hasattr(est, "last_residual_rms"):
+            step.residual_rms = est.last_residual_rms()
         observer(step)
 
     def _run(self, observer: LioObserver | None = None) -> LioResult:

@@ -1,7 +1,8 @@
 """The LiDAR(-inertial) odometry in a recording: per scan (timelines ``sensor_time``, ``scan``) the
 body pose ``world/body``, its registered points deskewed to the scan end ``world/body/scan``, the
 1-sigma position ellipsoid ``world/covariance``, the local map ``world/local_map`` (at the first scan
-that has one, then every ``map_every`` scans) and the scan's figures ``scan/...``; at the end (static)
+that has one, then every ``map_every`` scans) and the scan's figures ``scan/...`` (iterations,
+correspondences, points, time, the residual RMS at the pose); at the end (static)
 the trajectory ``world/trajectory`` (the positions of trajectory.tum), the exported map ``world/map``
 and the ground truth ``world/ground_truth`` moved onto the estimate (SE(3) alignment, as the
 metrics)."""
@@ -72,6 +73,8 @@ class LioLogger:
         for name, v in (("iterations", st.iterations), ("correspondences", st.n_corr),
                         ("points_registered", st.n_used), ("time_ms", st.time_s * 1e3)):  # fmt: skip
             rec.log(f"scan/{name}", rr.Scalars(float(v)))
+        if np.isfinite(step.residual_rms):
+            rec.log("scan/residual_rms_m", rr.Scalars(step.residual_rms))
         self.n += 1
 
     def finish(self, result: LioResult, truth: Trajectory | None = None) -> None:
