@@ -11,6 +11,8 @@
     PYTHONPATH=src python bench/lio.py robust    # a wrong clock offset / extrinsic, without and with calibrate-lidar;
                                                  # dropped scans / IMU samples, an IMU gap, a clipped gyro, an open
                                                  # field, traffic: guards on / off, KISS-ICP (--part faults)
+    PYTHONPATH=src python bench/lio.py dense     # VLP-16, Ouster OS1-128 / OS1-64, Livox-like rosette: imuslam,
+                                                 # rko-lio and KISS-ICP on the same scans, drift and scans/s
     PYTHONPATH=src python bench/lio.py calib     # the LiDAR-IMU calibration's errors and 1-sigma per seed, and on the street
 
 Options: --duration S (drive length), --cache DIR (simulated drives are cached there, keyed by their
@@ -59,17 +61,29 @@ def true_calibration() -> ImuCalibration:
     )
 
 
+def lidar_pattern(name: str) -> Any:
+    """The simulator's LiDAR by name: vlp16 (the default), os1-64, os1-128 (Ouster OS1, 1024
+    columns), livox (a 70 deg rosette, 240k points/s)."""
+    from imuslam.sim.lidar import Lidar3dConfig
+
+    return {"vlp16": Lidar3dConfig(), "os1-64": Lidar3dConfig.os1(64), "os1-128": Lidar3dConfig.os1(128),
+            "livox": Lidar3dConfig.livox()}[name]  # fmt: skip
+
+
 def drive(
-    scene: str, duration: float, cache: Path, rotating_hz: float = 0.0, seed: int = 1
-) -> LidarDrive:
+    scene: str, duration: float, cache: Path, rotating_hz: float = 0.0, seed: int = 1,
+    lidar: str = "vlp16",
+) -> LidarDrive:  # fmt: skip
     cache.mkdir(parents=True, exist_ok=True)
-    f = cache / f"{scene}_{duration:.2f}s_rot{rotating_hz:g}_seed{seed}.pkl"
+    tag = "" if lidar == "vlp16" else f"_{lidar}"
+    f = cache / f"{scene}_{duration:.2f}s_rot{rotating_hz:g}_seed{seed}{tag}.pkl"
     if f.exists():
         with open(f, "rb") as fh:
             d: LidarDrive = pickle.load(fh)
             return d
     t0 = time.perf_counter()
-    d = simulate_lidar_drive(scene, duration, seed, rotating_platform_hz=rotating_hz, progress=True)
+    d = simulate_lidar_drive(scene, duration, seed, rotating_platform_hz=rotating_hz, progress=True,
+                             lidar=lidar_pattern(lidar))  # fmt: skip
     print(f"simulated {scene} {duration:g} s in {time.perf_counter() - t0:.0f} s")
     with open(f, "wb") as fh:
         pickle.dump(d, fh)
@@ -89,12 +103,12 @@ def metrics(gt: Trajectory, est: Trajectory) -> dict[str, float]:
 
 def run_imuslam(d: LidarDrive, mode: str = "direct", state: str = "full", align: str = "none",
                 imu: str = "cal", use_imu: bool = True, indoor: bool = False,
-                map_covariance: bool = True) -> tuple[LioResult, Trajectory]:  # fmt: skip
+                map_covariance: bool = True, scan_voxel: float = 1.0) -> tuple[LioResult, Trajectory]:  # fmt: skip
     # indoors (the 2 m corridor) the walls are closer than the outdoor 1 m minimum range and 1 m voxels
     fe = (
         FrontEndConfig(mode=mode, scan_voxel=0.25, min_range=0.2)
         if indoor
-        else FrontEndConfig(mode=mode, scan_voxel=1.0)
+        else FrontEndConfig(mode=mode, scan_voxel=scan_voxel)
     )  # type: ignore[arg-type]
     cfg = LioConfig(
         frontend=fe,
@@ -143,6 +157,83 @@ def run_kiss(d: LidarDrive) -> tuple[Trajectory, float, float]:
     P = P @ T_l_i  # LiDAR poses -> the body (IMU) frame, as the truth
     traj = Trajectory(np.array(t_ns), P[:, :3, 3], P[:, :3, :3], "kiss-icp")
     return traj, len(d.scans) / el, len(d.scans) / cpu
+
+
+def run_rko(d: LidarDrive, imu: Any) -> tuple[Trajectory, float]:
+    """rko-lio (PyPI ``rko-lio``, C++) on the same scans and the same (calibrated) IMU: the IMU samples
+    up to each scan's end, then the scan with absolute per-point times; its base frame is the IMU's.
+    Returns the IMU poses at the scan ends and scans/s (wall) of its scan step (IMU feeding included)."""
+    from rko_lio.config import LIOConfig
+    from rko_lio.lio import LIO
+
+    lio = LIO(LIOConfig(max_range=100.0, min_range=1.0))
+    eye = np.eye(4)
+    t_imu, j, el = imu.t_ns, 0, 0.0
+    poses, t_ns = [], []
+    for s in d.scans:
+        t_pts = s.t_ns + np.round(s.t_offset_s.astype(np.float64) * 1e9).astype(np.int64)
+        end = int(t_pts.max())
+        t0 = time.perf_counter()
+        while j < len(t_imu) and t_imu[j] <= end:
+            lio.add_imu_measurement(imu.accel[j], imu.gyro[j], int(t_imu[j]), eye)
+            j += 1
+        lio.register_scan(s.points_l.astype(np.float64), t_pts, d.T_i_l)
+        el += time.perf_counter() - t0
+        poses.append(lio.pose().copy())
+        t_ns.append(end)
+    P = np.array(poses)
+    return Trajectory(np.array(t_ns), P[:, :3, 3], P[:, :3, :3], "rko-lio"), len(d.scans) / el
+
+
+def dense_bench(args: Any) -> None:
+    """The street drive with each simulated LiDAR (``--patterns``: VLP-16 27k points a scan, Ouster
+    OS1-64 61k and OS1-128 122k at 1024 columns, a Livox-like 70 deg rosette 19k) at 10 Hz: imuslam
+    ``lio`` (the same config but for the front end's voxel, ``frontend.scan_voxel``: the scan
+    downsampled before matching, FAST-LIO2's point filter), rko-lio (PyPI, C++) and KISS-ICP (C++,
+    all cores, LiDAR only) on the same scans in the same run: drift, rotation, ATE, scans/s (wall,
+    the estimator step) and the ratio to KISS-ICP's."""
+    from dataclasses import replace
+
+    dur = args.duration or 20.0
+    rows = []
+    first = True
+    for name in args.patterns:
+        d = drive("street", dur, args.cache, lidar=name)
+        gt = truth(d)
+        npts = float(np.mean([len(s) for s in d.scans]))
+        if first:  # load the compiled kernels before any timing
+            run_imuslam(replace(d, scans=d.scans[:20]), "direct", "full")
+            first = False
+        kt, ksps, _ = run_kiss(d)
+        res, est = run_imuslam(
+            d, "direct", "full", scan_voxel=args.dense_voxel if len(d.scans[0]) > 40000 else 1.0
+        )
+        imu = true_calibration().correct(d.imu)
+        try:
+            rt, rsps = run_rko(d, imu)
+            rm: dict[str, float] | None = metrics(gt, rt)
+        except Exception as exc:  # a failing anchor is a row of the table
+            print(f"rko-lio failed on {name}: {exc}")
+            rm, rsps = None, float("nan")
+        rows.append(
+            (name, npts, metrics(gt, est), res.scans_per_s, rm, rsps, metrics(gt, kt), ksps)
+        )
+    print(
+        "| LiDAR | points / scan | run | KITTI drift % | rotation RMSE deg | ATE m | scans/s (wall) | speed / KISS-ICP |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for name, npts, m, sps, rm, rsps, km, ksps in rows:
+        for run, mm, ss in (
+            ("imuslam lio", m, sps),
+            ("rko-lio 0.4.0", rm, rsps),
+            ("KISS-ICP 1.x", km, ksps),
+        ):
+            cells = (
+                " | ".join(f"{mm[k]:.3f}" for k in ("drift_pct", "rot_deg", "ate_m"))
+                if mm
+                else "failed | |"
+            )
+            print(f"| {name} | {npts / 1e3:.0f}k | {run} | {cells} | {ss:.1f} | {ss / ksps:.2f} |")
 
 
 def row(name: str, m: dict[str, float], sps: float, extra: str = "") -> str:
@@ -768,9 +859,19 @@ def main() -> None:
             "rowmodel",
             "robust",
             "calib",
+            "dense",
         ],
     )
     ap.add_argument("--duration", type=float, default=None)
+    ap.add_argument(
+        "--patterns",
+        nargs="+",
+        default=["vlp16", "os1-128", "os1-64", "livox"],
+        choices=["vlp16", "os1-64", "os1-128", "livox"],
+        help="dense: the simulated LiDARs",
+    )
+    ap.add_argument("--dense-voxel", type=float, default=1.0,
+                    help="dense: frontend.scan_voxel for scans of more than 40k points, m")  # fmt: skip
     ap.add_argument("--part", choices=["all", "faults", "calib"], default="all",
                     help="robust: the sensor faults, the wrong offset / extrinsic, or both")  # fmt: skip
     ap.add_argument("--cache", type=Path, default=Path("/tmp/imuslam-bench-lio"))
@@ -836,7 +937,8 @@ def main() -> None:
     t0 = time.perf_counter()
     {"main": main_bench, "imu": imu_bench, "rotating": rotating_bench, "corridor": corridor_bench,
      "memory": memory_bench, "frontend": frontend_bench,
-     "consistency": consistency_bench, "rowmodel": rowmodel_bench, "robust": robust_bench, "calib": calib_bench}[args.what](args)  # fmt: skip
+     "consistency": consistency_bench, "rowmodel": rowmodel_bench, "robust": robust_bench, "calib": calib_bench,
+     "dense": dense_bench}[args.what](args)  # fmt: skip
     print(f"({time.perf_counter() - t0:.0f} s)")
 
 

@@ -194,6 +194,8 @@ def point_time_offsets(arr: NDArray[Any], stamp: int) -> tuple[FloatArray, str |
                     return (v - stamp).astype(np.float64) * 1e-9, name
                 return v.astype(np.float64) * 1e-9, name
             s = col.astype(np.float64)
+            if s.size and np.nanmax(np.abs(s)) > 1e15:  # absolute ns as floats (livox_ros_driver2)
+                return (s - float(stamp)) * 1e-9, name
             if s.size and np.nanmax(np.abs(s)) > 1e6:  # absolute seconds
                 whole = stamp // 1_000_000_000
                 return (s - whole) - (stamp - whole * 1_000_000_000) * 1e-9, name
@@ -219,22 +221,57 @@ def scan3d_from_msg(msg: Any) -> Scan3d:
     return Scan3d(stamp, pts[ok], toff[ok].astype(np.float32), ring[ok], inten[ok])
 
 
+# the drivers' point layouts (``pointcloud2_message``): name, dtype; fields starting with _ are padding
+POINT_LAYOUTS = {
+    # ouster-ros (driver 0.10+, the default point type): t in uint32 ns from the scan start
+    "ouster": [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("_pad0", "<f4"), ("intensity", "<f4"),
+               ("t", "<u4"), ("reflectivity", "<u2"), ("ring", "<u2"), ("ambient", "<u2"),
+               ("_pad1", "<u2"), ("range", "<u4")],
+    # livox_ros_driver2 (xfer_format 0): timestamp in float64 ns since the epoch, line = the laser
+    "livox": [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), ("tag", "u1"),
+              ("line", "u1"), ("timestamp", "<f8")],
+}  # fmt: skip
+
+
+def _fill_layout(arr: NDArray[Any], scan: Scan3d, layout: str) -> None:
+    """The time, ring and extra fields of a driver's layout from ``scan``."""
+    t_rel_ns = np.round(scan.t_offset_s.astype(np.float64) * 1e9)
+    if layout == "ouster":
+        arr["t"] = np.maximum(t_rel_ns, 0).astype(np.uint32)
+        arr["ring"] = scan.ring if len(scan.ring) == len(arr) else 0
+        arr["reflectivity"] = np.clip(scan.intensity * 255, 0, 65535).astype(np.uint16)
+        arr["range"] = np.round(np.linalg.norm(scan.points_l, axis=1) * 1e3).astype(np.uint32)
+    else:
+        arr["timestamp"] = float(scan.t_ns) + t_rel_ns
+        arr["line"] = scan.ring % 6 if len(scan.ring) == len(arr) else 0
+
+
 def pointcloud2_message(scan: Scan3d, frame_id: str = "lidar_link", dialect: Dialect = "ros2",
-                        time_field: str = "t") -> Any:  # fmt: skip
+                        time_field: str = "t", layout: str = "default") -> Any:  # fmt: skip
     """A ``sensor_msgs/PointCloud2`` stamped ``scan.t_ns`` with fields x, y, z, intensity (float32),
-    ``time_field`` (float32 s from the stamp) and ring (uint16)."""
+    ``time_field`` (float32 s from the stamp) and ring (uint16); or a driver's ``layout``
+    (``POINT_LAYOUTS``: ``ouster``, ``livox``)."""
     T = typestore(dialect).types
-    dt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), (time_field, "<f4"),
-                   ("ring", "<u2"), ("_pad", "<u2")])  # fmt: skip
+    if layout == "default":
+        spec = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4"), (time_field, "<f4"),
+                ("ring", "<u2"), ("_pad", "<u2")]  # fmt: skip
+    else:
+        spec = POINT_LAYOUTS[layout]
+    dt = np.dtype(spec)
     arr = np.zeros(len(scan.points_l), dtype=dt)
     arr["x"], arr["y"], arr["z"] = scan.points_l[:, 0], scan.points_l[:, 1], scan.points_l[:, 2]
-    arr["intensity"], arr[time_field], arr["ring"] = scan.intensity, scan.t_offset_s, scan.ring
+    arr["intensity"] = scan.intensity
+    if layout == "default":
+        arr[time_field], arr["ring"] = scan.t_offset_s, scan.ring
+    else:
+        _fill_layout(arr, scan, layout)
     PF = T["sensor_msgs/msg/PointField"]
-    layout = dt.fields
-    assert layout is not None
+    fl = dt.fields
+    assert fl is not None
     fields = [
-        PF(name=n, offset=layout[n][1], datatype=_PF_CODES[layout[n][0].str[1:]], count=1)
-        for n in ("x", "y", "z", "intensity", time_field, "ring")
+        PF(name=n, offset=fl[n][1], datatype=_PF_CODES[fl[n][0].str[1:]], count=1)
+        for n, _ in spec
+        if not n.startswith("_")
     ]
     return T[POINTCLOUD2](
         header=header(scan.t_ns, frame_id, dialect), height=1, width=len(arr), fields=fields,

@@ -91,7 +91,12 @@ def cast_rays_reference(
 
 @dataclass
 class Lidar3dConfig:
-    """Spinning LiDAR: beam elevations (deg), columns per turn, turn rate, range limits and noise."""
+    """A 3D LiDAR: range limits and noise, the scan rate, and its pattern. ``spinning``: beams at
+    ``elevations_deg`` fired together at each of ``columns`` azimuths per turn (a VLP-16 by default;
+    ``os1(128)`` / ``os1(64)``: an Ouster OS1's uniform beams over 45 deg, 1024 columns). ``rosette``:
+    a solid-state LiDAR looking along +x whose two counter-rotating prisms (Risley) draw a
+    non-repetitive rosette over a ``fov_deg`` cone, ``points_per_s`` points each with its own time
+    (``livox()``: a Livox Avia-like 70 deg cone at 240k points/s)."""
 
     elevations_deg: tuple[float, ...] = VLP16_ELEVATIONS_DEG
     columns: int = 1800  # 0.2 deg at 10 Hz
@@ -99,29 +104,89 @@ class Lidar3dConfig:
     min_range: float = 0.5
     max_range: float = 100.0
     range_noise_std: float = 0.02
+    pattern: str = "spinning"
+    fov_deg: float = 70.0
+    points_per_s: float = 240_000.0
+    prism_hz: tuple[float, float] = (121.37, 87.19)  # incommensurate: the rosette never repeats
+
+    @classmethod
+    def os1(cls, beams: int = 128, columns: int = 1024) -> Lidar3dConfig:
+        """An Ouster OS1 (``beams`` uniform over -22.5..22.5 deg, ``columns`` per turn, 10 Hz, 0.3-100 m,
+        3 cm range noise): 128 x 1024 = 131k rays a scan."""
+        el = tuple(float(e) for e in np.linspace(-22.5, 22.5, beams))
+        return cls(el, columns, 10.0, 0.3, 100.0, 0.03)
+
+    @classmethod
+    def livox(cls) -> Lidar3dConfig:
+        """A Livox Avia-like solid-state LiDAR: a 70 deg rosette, 240k points/s at 10 Hz, 1-100 m, 2 cm."""
+        return cls(min_range=1.0, pattern="rosette", fov_deg=70.0, points_per_s=240_000.0)
+
+
+def scan_rays(
+    config: Lidar3dConfig,
+) -> tuple[FloatArray, NDArray[np.int64], FloatArray, NDArray[np.uint16]]:
+    """The rays of one scan: firing times (U,) s from the scan start, each ray's index into them (R,),
+    unit directions (R, 3) in the sensor frame, and beam indices (R,) (0 for the rosette)."""
+    scan_time = 1.0 / config.rate_hz
+    if config.pattern == "spinning":
+        C = config.columns
+        el = np.deg2rad(np.asarray(config.elevations_deg))
+        B = el.size
+        az = 2.0 * np.pi * np.arange(C) / C
+        d_l = np.stack(
+            [np.cos(el)[None, :] * np.cos(az)[:, None], np.cos(el)[None, :] * np.sin(az)[:, None],
+             np.broadcast_to(np.sin(el)[None, :], (C, B))], axis=-1,
+        ).reshape(-1, 3)  # fmt: skip
+        ring = np.tile(np.arange(B, dtype=np.uint16), C)
+        return np.arange(C) * scan_time / C, np.repeat(np.arange(C), B), d_l, ring
+    if config.pattern == "rosette":
+        n = int(round(config.points_per_s * scan_time))
+        t = np.arange(n) * scan_time / n
+        return (
+            t,
+            np.arange(n),
+            rosette_directions(t, config.fov_deg, config.prism_hz),
+            np.zeros(n, np.uint16),
+        )
+    raise ValueError(f"unknown LiDAR pattern {config.pattern!r}; expected spinning or rosette")
+
+
+def rosette_directions(
+    t_s: FloatArray, fov_deg: float, prism_hz: tuple[float, float]
+) -> FloatArray:
+    """Unit directions (N, 3) of a Risley-prism rosette at times ``t_s`` (absolute, so consecutive scans
+    continue the pattern): the beam's offset from +x is the sum of two equal vectors turning in opposite
+    directions at ``prism_hz``, |offset| <= half the field of view."""
+    half = np.deg2rad(fov_deg) / 2.0
+    a1, a2 = 2 * np.pi * prism_hz[0] * t_s, -2 * np.pi * prism_hz[1] * t_s
+    oy = 0.5 * half * (np.cos(a1) + np.cos(a2))
+    oz = 0.5 * half * (np.sin(a1) + np.sin(a2))
+    rho, psi = np.hypot(oy, oz), np.arctan2(oz, oy)
+    return np.stack([np.cos(rho), np.sin(rho) * np.cos(psi), np.sin(rho) * np.sin(psi)], axis=1)
 
 
 MoversFn = Callable[[float], World]  # t_s -> the moving objects' rectangles at that time
 
 
 def _movers_hit(
-    movers: MoversFn, t_col: FloatArray, o_w: FloatArray, d_w: FloatArray, B: int,
+    movers: MoversFn, t_ray: FloatArray, o_w: FloatArray, d_w: FloatArray,
     dist: FloatArray, hit: NDArray[np.int64], max_range: float, chunks: int = 10,
 ) -> tuple[FloatArray, NDArray[np.int64], FloatArray]:  # fmt: skip
-    """The rays (C * B) cast again against the moving objects, placed where they are at each of
+    """The rays (R,) fired at ``t_ray`` (in time order) cast again against the moving objects, placed
+    where they are at each of
     ``chunks`` slices of the turn (a car at 11 m/s moves 11 cm in a slice at 10 Hz: the points on it
     are outliers to the matcher, whose shape within a slice does not matter): the nearer hit
     wins. Returns the distances, the hit ids (moving objects' ids after the world's: Q + j) and the
     hit intensities (NaN where the static world was hit)."""
-    C = len(t_col)
+    R = len(t_ray)
     inten = np.full(len(dist), np.nan)
-    for cols in np.array_split(np.arange(C), min(chunks, C)):
-        if not len(cols):
+    for rays in np.array_split(np.arange(R), min(chunks, R)):
+        if not len(rays):
             continue
-        m = movers(float(t_col[cols[len(cols) // 2]]))
+        m = movers(float(t_ray[rays[len(rays) // 2]]))
         if not len(m):
             continue
-        sl = slice(int(cols[0]) * B, (int(cols[-1]) + 1) * B)
+        sl = slice(int(rays[0]), int(rays[-1]) + 1)
         dm, hm = cast_rays(np.ascontiguousarray(o_w[sl]), np.ascontiguousarray(d_w[sl]),
                            m.centre, m.u, m.v, m.half, max_range)  # fmt: skip
         nearer = dm < dist[sl]
@@ -140,27 +205,21 @@ def simulate_lidar3d_scan(
     rng: np.random.Generator,
     movers: MoversFn | None = None,
 ) -> Scan3d:
-    """One turn of the spinning LiDAR starting at ``t0_s``; ``movers``: objects moving through the
-    scene (cars, pedestrians; ``sim.faults``), their surface ids 1000000 and up."""
-    C = config.columns
-    el = np.deg2rad(np.asarray(config.elevations_deg))
-    B = el.size
-    scan_time = 1.0 / config.rate_hz
-    t_col = t0_s + np.arange(C) * scan_time / C
-    az = 2.0 * np.pi * np.arange(C) / C
-    d_l = np.stack(
-        [np.cos(el)[None, :] * np.cos(az)[:, None], np.cos(el)[None, :] * np.sin(az)[:, None],
-         np.broadcast_to(np.sin(el)[None, :], (C, B))], axis=-1,
-    )  # (C, B, 3)  # fmt: skip
-    R, p = pose_w_l(t_col)
-    d_w = np.einsum("cij,cbj->cbi", R, d_l).reshape(-1, 3)
-    o_w = np.repeat(p, B, axis=0)
+    """One scan starting at ``t0_s`` (a turn of a spinning LiDAR, a tenth of a second of a rosette);
+    ``movers``: objects moving through the scene (cars, pedestrians; ``sim.faults``), their surface
+    ids 1000000 and up."""
+    t_u, idx, d_l, ring_all = scan_rays(config)
+    if config.pattern == "rosette":  # the prisms turn on: the pattern continues from scan to scan
+        d_l = rosette_directions(t0_s + t_u, config.fov_deg, config.prism_hz)
+    R, p = pose_w_l(t0_s + t_u)
+    d_w = np.einsum("rij,rj->ri", R[idx], d_l)
+    o_w = p[idx]
     dist, hit = cast_rays(
         o_w, np.ascontiguousarray(d_w), world.centre, world.u, world.v, world.half, config.max_range
     )
     inten = world.intensity[np.maximum(hit, 0)]
     if movers is not None:
-        dist, hit, im = _movers_hit(movers, t_col, o_w, d_w, B, dist, hit, config.max_range)
+        dist, hit, im = _movers_hit(movers, t0_s + t_u[idx], o_w, d_w, dist, hit, config.max_range)
         inten = np.where(np.isnan(im), inten, im)
     r = (
         dist + rng.normal(size=dist.shape) * config.range_noise_std
@@ -168,9 +227,9 @@ def simulate_lidar3d_scan(
         else dist
     )
     ok = np.isfinite(dist) & (r >= config.min_range) & (r <= config.max_range)
-    pts = d_l.reshape(-1, 3)[ok] * r[ok, None]
-    ring = np.tile(np.arange(B, dtype=np.uint16), C)[ok]
-    toff = np.repeat(t_col - t0_s, B)[ok]
+    pts = d_l[ok] * r[ok, None]
+    ring = ring_all[ok] if config.pattern == "spinning" else np.zeros(0, np.uint16)
+    toff = t_u[idx][ok]
     return Scan3d(
         int(round(t0_s * 1e9)), pts.astype(np.float32), toff.astype(np.float32), ring,
         inten[ok].astype(np.float32), hit[ok],
