@@ -166,6 +166,12 @@ def test_calibration_for_another_sensors_units(tmp_path: Path, shared_data: Path
         ([{"name": "a", "calibration": "nope.yaml"}], {}, "runs[0] (a).calibration: "),
         ([{"name": "a", "inject": "seed999"}], {}, "runs[0] (a).inject: Input should be 'seed000'"),
         (
+            [{"name": "a", "use_imu": False, "inject": "seed000"}],
+            {},
+            "run 'a': use_imu false with an IMU to corrupt or correct",
+        ),
+        ([{"name": "a", "use_imu": False}], {"estimator": "vio"}, "run 'a' without the IMU; vio"),
+        (
             [{"name": "a"}],
             {"estimator": "slam9000"},
             "logs[0] (backpack).estimator: Input should be",

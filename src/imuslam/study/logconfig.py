@@ -47,12 +47,20 @@ class RunSpec(_Strict):
     inject: Literal["seed000"] | None = None
     gimbal_calibration: Literal["seed000"] | None = None
     gimbal_seed: int = Field(0, ge=0, le=2**32 - 1)
+    use_imu: bool = Field(
+        True,
+        description="false: the estimator without the IMU (map2d, lio), what the IMU adds at all",
+    )
 
     @model_validator(mode="after")
     def _one_calibration(self) -> RunSpec:
         if self.calibration is not None and self.gimbal_calibration is not None:
             raise ValueError(
                 f"run '{self.name}': both calibration and gimbal_calibration; expected one of them"
+            )
+        if not self.use_imu and (self.inject or self.calibration or self.gimbal_calibration):
+            raise ValueError(
+                f"run '{self.name}': use_imu false with an IMU to corrupt or correct; expected one"
             )
         return self
 
@@ -101,6 +109,13 @@ class LogSpec(_Strict):
             raise ValueError(
                 f"log '{self.name}': reference '{self.reference}' is not a run ({', '.join(names)})"
             )
+        return self
+
+    @model_validator(mode="after")
+    def _vio_imu(self) -> LogSpec:
+        off = [r.name for r in self.runs if not r.use_imu]
+        if off and self.estimator == "vio":
+            raise ValueError(f"log '{self.name}': run '{off[0]}' without the IMU; vio fuses it")
         return self
 
     @property

@@ -110,7 +110,7 @@ def figure_png(spec: LogSpec, runs: list[RunResult]) -> bytes:
 
     maps = [r for r in runs if r.grid is not None]
     n = len(maps) + 1
-    fig = Figure(figsize=(min(4.0 * n, 18), 4.2))
+    fig = Figure(figsize=(min(4.0 * n, 20), 4.4))
     for i, r in enumerate(maps):
         ax = fig.add_subplot(1, n, i + 1)
         pr, known, x0, y0 = r.grid.cropped_known()
@@ -119,6 +119,11 @@ def figure_png(spec: LogSpec, runs: list[RunResult]) -> bytes:
         ax.imshow(img, cmap="gray", origin="lower", vmin=0, vmax=1,
                   extent=(x0, x0 + img.shape[1] * res, y0, y0 + img.shape[0] * res))  # fmt: skip
         ax.plot(r.trajectory.p_w[:, 0], r.trajectory.p_w[:, 1], "-", color="C1", lw=0.8)
+        c = r.trajectory.p_w[:, :2].mean(
+            axis=0
+        )  # the walls near the path, where the scans are dense
+        ax.set_xlim(c[0] - 6, c[0] + 6)
+        ax.set_ylim(c[1] - 6, c[1] + 6)
         ax.set_title(
             f"{r.run}: {_fmt(r.metrics.get('wall_spread_cm', float('nan')))} cm", fontsize=9
         )

@@ -55,6 +55,8 @@ def gimbal_calibration_seed000(seed: int) -> ImuCalibration:
 
 def describe_run(r: RunSpec) -> str:
     """What IMU a run gets, in words."""
+    if not r.use_imu:
+        return "not used"
     parts = ["seed 000's errors injected"] if r.inject else []
     if r.calibration is not None:
         parts.append(f"corrected by {Path(r.calibration).name}")
@@ -203,16 +205,17 @@ def map2d_points(log_: Any, poses_xy_yaw: FloatArray, cfg: Any) -> FloatArray:
     return np.concatenate(out) if out else np.zeros((0, 2))
 
 
-def _run_map2d(pl: PreparedLog, imu: ImuLog | None) -> tuple[Trajectory, dict[str, float], Any]:
+def _run_map2d(
+    pl: PreparedLog, imu: ImuLog | None, use_imu: bool
+) -> tuple[Trajectory, dict[str, float], Any]:
     from imuslam.eval.mapquality import point_map_quality
     from imuslam.slam2d.output import planar_trajectory
     from imuslam.slam2d.pipeline import Slam2dPipeline
 
     log_ = dataclasses.replace(pl.data, imu=imu)
-    run = Slam2dPipeline(log_, pl.cfg).run_and_render()
-    q = point_map_quality(
-        map2d_points(log_, run.result.pose_xy_yaw, pl.cfg), pl.spec.radius_m or 0.2
-    )
+    cfg = pl.cfg if use_imu else pl.cfg.model_copy(update={"use_imu": False})
+    run = Slam2dPipeline(log_, cfg).run_and_render()
+    q = point_map_quality(map2d_points(log_, run.result.pose_xy_yaw, cfg), pl.spec.radius_m or 0.2)
     g = run.grid
     occupied = int(np.count_nonzero(g.known() & (g.prob >= 0.65)))
     m = {"map_entropy": q.map_entropy, "wall_spread_cm": q.wall_spread_cm,
@@ -220,13 +223,16 @@ def _run_map2d(pl: PreparedLog, imu: ImuLog | None) -> tuple[Trajectory, dict[st
     return planar_trajectory(run.result), m, g
 
 
-def _run_lio(pl: PreparedLog, imu: ImuLog | None) -> tuple[Trajectory, dict[str, float]]:
+def _run_lio(
+    pl: PreparedLog, imu: ImuLog | None, use_imu: bool
+) -> tuple[Trajectory, dict[str, float]]:
     """LiDAR-inertial odometry with the run's IMU; the map (5 cm voxels) scored in 3D: mean map entropy
     and mean plane variance (``eval.mapquality.point_map_quality``)."""
     from imuslam.eval.mapquality import point_map_quality
     from imuslam.lio.pipeline import LioPipeline
 
-    res = LioPipeline(pl.data, pl.cfg, imu=imu, progress=False, map_voxel=0.05).run()
+    cfg = pl.cfg if use_imu else pl.cfg.model_copy(update={"use_imu": False})
+    res = LioPipeline(pl.data, cfg, imu=imu, progress=False, map_voxel=0.05).run()
     q = point_map_quality(res.map_points, pl.spec.radius_m or 0.3)
     m = {"map_entropy": q.map_entropy, "wall_spread_cm": q.wall_spread_cm,
          "plane_variance_m2": q.plane_variance_m2, "map_queries": float(q.queries)}  # fmt: skip
@@ -269,9 +275,9 @@ def run_log(pl: PreparedLog) -> list[RunResult]:
         imu = pl.imus[r.name]
         imu_track = None
         if pl.spec.estimator == "map2d":
-            traj, m, grid = _run_map2d(pl, imu)
+            traj, m, grid = _run_map2d(pl, imu, r.use_imu)
         elif pl.spec.estimator == "lio":
-            traj, m = _run_lio(pl, imu)
+            traj, m = _run_lio(pl, imu, r.use_imu)
             grid = None
         else:
             traj, m, imu_track = _run_vio(pl, imu, vo)
