@@ -70,3 +70,22 @@ def test_without_a_display_one_line(lio_run: dict, monkeypatch: pytest.MonkeyPat
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     r = RUNNER.invoke(app, ["view", str(lio_run["out"])])
     assert r.exit_code == 2 and "--rrd" in r.output and "Traceback" not in r.output
+
+
+def test_stamps_128_ns_apart_stay_apart(tmp_path: Path) -> None:
+    """vio's trajectory.tum holds an IMU sample beside a frame's mid-time 128 ns apart (EuRoC): the
+    reader keeps both stamps as written (float64 seconds would merge them), and so does the view."""
+    run = tmp_path / "vio_out"
+    run.mkdir()
+    stamps = ["1403715273.582142976", "1403715273.587142912", "1403715273.587143040"]
+    run.joinpath("trajectory.tum").write_text(
+        "# t x y z qx qy qz qw\n" + "".join(f"{t} {k} 0 0 0 0 0 1\n" for k, t in enumerate(stamps))
+    )
+    tum = read_trajectory(run / "trajectory.tum", "tum")
+    expected = np.array([1403715273582142976, 1403715273587142912, 1403715273587143040])
+    np.testing.assert_array_equal(tum.t_ns, expected)
+    r = RUNNER.invoke(app, ["view", str(run), "--rrd", str(tmp_path / "v.rrd")])
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(
+        load(tmp_path / "v.rrd")["/world/vio_out/body"].times_ns(), expected
+    )

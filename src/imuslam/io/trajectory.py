@@ -8,6 +8,7 @@ TUM is ``qx qy qz qw``, EuRoC ``qw qx qy qz``.
 from __future__ import annotations
 
 import logging
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -53,11 +54,34 @@ def _t_ns_from_seconds(
     )
 
 
+_DECIMAL_SECONDS = re.compile(r"([+-]?)(\d+)(?:\.(\d*))?")
+
+
+def _exact_stamps_ns(path: str | Path, t_ns: NDArray[np.int64], lines: NDArray[np.int64]) -> None:
+    """Replace in place the stamps of ``t_ns`` (read at ``lines``, 1-based) by the exact nanoseconds
+    of their decimal text: float64 resolves a 1.4e9 s stamp to 238 ns only, so two poses written 128 ns
+    apart (an IMU sample beside a camera frame's mid-time) would read as one time. A token in another
+    form (an exponent) keeps its float value."""
+    from imuslam.io.text import read_text
+
+    text = read_text(path).splitlines()
+    for j, ln in enumerate(lines):
+        tok = text[int(ln) - 1].replace(",", " ").split(maxsplit=1)[0]
+        m = _DECIMAL_SECONDS.fullmatch(tok)
+        if m is None:
+            continue
+        frac = (m.group(3) or "") + "0" * 10
+        ns = int(m.group(2)) * 1_000_000_000 + int(frac[:9]) + (frac[9] >= "5")
+        t_ns[j] = -ns if m.group(1) == "-" else ns
+
+
 def read_tum(path: str | Path) -> Trajectory:
-    """TUM: ``t x y z qx qy qz qw`` per line (s, m), spaces or commas, '#' comments."""
+    """TUM: ``t x y z qx qy qz qw`` per line (s, m), spaces or commas, '#' comments; stamps exact to
+    the nanosecond as written."""
     d, ln = read_table(path, 8)
     q = d[:, [7, 4, 5, 6]]
     t_ns = _t_ns_from_seconds(d[:, 0], str(path), ln)
+    _exact_stamps_ns(path, t_ns, ln)
     check_times(t_ns, str(path), ln)
     return Trajectory(t_ns, *check_poses(d[:, 1:4], q, str(path), ln), str(path))
 

@@ -24,6 +24,7 @@ TIMELINE = "sensor_time"
 
 def require_rerun() -> Any:
     """The ``rerun`` module, or an InputError (exit 2) with the install hint."""
+    logging.getLogger("numexpr").setLevel(logging.WARNING)  # rerun loads pandas, which loads numexpr
     try:
         import rerun as rr
     except ImportError:
