@@ -230,6 +230,18 @@ def prefetch_log(acc: Path, gyro: Path | None, fmt: str) -> None:
     prefetch_tables([acc, gyro], 4)
 
 
+def check_log_options(fmt: str, accel_unit: str | None, gyro_unit: str | None) -> None:
+    """The log-reading options named when wrong, before any file is read."""
+    from imuslam.io.load import FORMATS
+
+    if accel_unit is not None and accel_unit not in ("m/s^2", "g", "counts"):
+        raise InputError(f"--accel-unit: '{accel_unit}'; expected m/s^2, g or counts")
+    if gyro_unit is not None and gyro_unit not in ("rad/s", "deg/s", "counts"):
+        raise InputError(f"--gyro-unit: '{gyro_unit}'; expected rad/s, deg/s or counts")
+    if fmt not in FORMATS:
+        raise InputError(f"--format: '{fmt}'; expected one of {', '.join(FORMATS)}")
+
+
 def load_log(
     acc: Path,
     gyro: Path | None,
@@ -240,14 +252,9 @@ def load_log(
     columns: str | None,
 ) -> ImuLog:
     """Load a log from the command-line options (see :func:`imuslam.io.load.load_imu`)."""
-    from imuslam.io.load import FORMATS, load_imu
+    from imuslam.io.load import load_imu
 
-    if accel_unit is not None and accel_unit not in ("m/s^2", "g", "counts"):
-        raise InputError(f"--accel-unit: '{accel_unit}'; expected m/s^2, g or counts")
-    if gyro_unit is not None and gyro_unit not in ("rad/s", "deg/s", "counts"):
-        raise InputError(f"--gyro-unit: '{gyro_unit}'; expected rad/s, deg/s or counts")
-    if fmt not in FORMATS:
-        raise InputError(f"--format: '{fmt}'; expected one of {', '.join(FORMATS)}")
+    check_log_options(fmt, accel_unit, gyro_unit)
     return load_imu(
         acc,
         gyro,

@@ -50,6 +50,7 @@ def register(app: typer.Typer) -> None:
         """Score calibrations on a log: gravity-norm error per static pose, gyro-predicted gravity-direction
         error per pair of poses (RMS and worst), on poses found without any calibration."""
         from imuslam.cli.common import (
+            check_log_options,
             check_out_against_inputs,
             console,
             friendly_errors,
@@ -63,6 +64,7 @@ def register(app: typer.Typer) -> None:
             check_out_against_inputs(
                 {"out": out, "log_path": log_path, "calibs": calibs, "gyro": gyro}
             )
+            check_log_options(fmt, accel_unit, gyro_unit)
             _check_calib_files(calibs)  # before the log, which can take seconds to load
             log = load_log(log_path, gyro, fmt, topic, accel_unit, gyro_unit, None)
             # imu_tk .calib files carry neither units nor g: they are taken as the log's.
