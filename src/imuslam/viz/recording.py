@@ -24,7 +24,8 @@ TIMELINE = "sensor_time"
 
 def require_rerun() -> Any:
     """The ``rerun`` module, or an InputError (exit 2) with the install hint."""
-    logging.getLogger("numexpr").setLevel(logging.WARNING)  # rerun loads pandas, which loads numexpr
+    # rerun loads pandas, which loads numexpr, which logs its thread count at INFO
+    logging.getLogger("numexpr").setLevel(logging.WARNING)
     try:
         import rerun as rr
     except ImportError:
