@@ -47,7 +47,7 @@ def register(app: typer.Typer) -> None:
         ),
         gt_format: str = typer.Option(
             "auto",
-            help="tum, euroc or auto (by extension)",
+            help="tum, euroc or auto (by content)",
             callback=validate.choice(("auto", "tum", "euroc")),
         ),
         align: str = typer.Option(
@@ -113,8 +113,7 @@ def register(app: typer.Typer) -> None:
         if gt is not None:
             from imuslam.io.trajectory import read_trajectory
 
-            fmt = gt_format if gt_format != "auto" else ("euroc" if gt.suffix == ".csv" else "tum")
-            truth = read_trajectory(gt, fmt)
+            truth = read_trajectory(gt, gt_format)  # auto: TUM or EuRoC csv by content
         pipeline = VioPipeline(data, cfg)  # type: ignore[arg-type]
         from imuslam.viz.recording import open_recording
 
