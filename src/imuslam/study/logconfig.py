@@ -39,7 +39,7 @@ class RunSpec(_Strict):
     seed 000's table-2 errors (misalignment, scale, bias) before anything else, to see what they cost.
     gimbal_calibration: correct the IMU with a calibration imuslam estimates from a simulated 40-pose
     gimbal session of a sensor with those errors (``gimbal_seed``: the session's noise), as the online
-    calibrator would on the robot.
+    calibrator would on the robot (``gimbal_method``).
     """
 
     name: str = Field(pattern=r"^[A-Za-z0-9_.+-]+$")
@@ -47,6 +47,11 @@ class RunSpec(_Strict):
     inject: Literal["seed000"] | None = None
     gimbal_calibration: Literal["seed000"] | None = None
     gimbal_seed: int = Field(0, ge=0, le=2**32 - 1)
+    gimbal_method: Literal["online", "multipose"] = Field(
+        "online",
+        description="online: the online calibrator's start-up session, the 40 poses in the order "
+        "`imuslam online` flies them; multipose: one offline multi-position fit of a 40-pose log",
+    )
     use_imu: bool = Field(
         True,
         description="false: the estimator without the IMU (map2d, lio), what the IMU adds at all",
