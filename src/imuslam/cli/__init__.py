@@ -55,7 +55,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "Score calibrations on a log: gravity-norm error per static pose, gyro-predicted gravity-direction "
         "error per pair of poses (RMS and worst), on poses found without any calibration.",
     ),
-    "study": ("study", "Run a study: cells on Dask, results.parquet/.csv, report.html per claim."),
+    "study": (
+        "study",
+        "Run a study: cells on Dask, results.parquet/.csv, report.html per claim; or a study of "
+        "recorded logs (a YAML with 'logs'): the estimator once per calibration, maps and "
+        "trajectories compared.",
+    ),
     "vio": (
         "vio",
         "Stereo VO + IMU EKF: trajectory.tum (fused), vo.tum, imu.tum, metrics.json, plots.",
