@@ -279,8 +279,8 @@ def table(title: str, columns: list[str], rows: list[list[str]]) -> Table:
     from rich.text import Text
 
     t = Table(title=Text(title))
-    for c in columns:
-        left = c.split(" [")[0] in ("parameter", "quantity", "term", "file", "run", "estimate")
+    for i, c in enumerate(columns):
+        left = i == 0  # the row's label
         t.add_column(Text(c), justify="left" if left else "right", overflow="fold")
     for r in rows:
         t.add_row(*(Text(x) for x in r))
