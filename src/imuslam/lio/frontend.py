@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -16,6 +17,24 @@ from imuslam.lio.features import (
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+
+
+@numba.njit(cache=True)
+def _valid(p: NDArray[np.float32], t: NDArray[np.float32]) -> NDArray[np.bool_]:  # pragma: no cover
+    n = p.shape[0]
+    ok = np.empty(n, np.bool_)
+    for i in range(n):
+        x, y, z = p[i, 0], p[i, 1], p[i, 2]
+        ok[i] = (np.isfinite(x) and np.isfinite(y) and np.isfinite(z) and np.isfinite(t[i])
+                 and (x != 0.0 or y != 0.0 or z != 0.0))  # fmt: skip
+    return ok
+
+
+def valid_points(points: NDArray[np.floating], t: NDArray[np.floating]) -> NDArray[np.bool_]:
+    """(N,) True where a point (N, 3) and its time (N,) are finite and the point is not the origin
+    (a driver's no-return), in one compiled pass (numpy's row reductions on a 130k-point scan took a
+    quarter of the filter's time)."""
+    return _valid(np.ascontiguousarray(points, np.float32), np.ascontiguousarray(t, np.float32))  # type: ignore[no-any-return]
 
 
 def select_indices(

@@ -23,6 +23,7 @@ from imuslam.interfaces.sources import LidarSource
 from imuslam.io.trajectory import Trajectory
 from imuslam.lio.config import LioConfig
 from imuslam.lio.features import voxel_downsample
+from imuslam.lio.frontend import valid_points
 from imuslam.lio.guards import AXES
 from imuslam.lio.lidar_only import LidarOdometry
 from imuslam.lio.voxelmap import VoxelMap
@@ -114,15 +115,18 @@ def clean_scan(
 ) -> tuple[FloatArray, FloatArray, NDArray[np.uint16] | None, int]:
     """Points (N, 3) float64, point times (N,) s after the scan stamp, rings or None, and the number of
     NaN / infinite / zero points dropped."""
-    p = np.asarray(scan.points_l, dtype=np.float64)
-    t = np.asarray(scan.t_offset_s, dtype=np.float64)
+    p = np.asarray(scan.points_l)
+    t = np.asarray(scan.t_offset_s)
     if p.ndim != 2 or p.shape[1] != 3 or t.shape != (len(p),):
         raise InputError(
             f"scan {index}: expected points (N, 3) and times (N,), got {p.shape} and {t.shape}"
         )
-    ok = np.isfinite(p).all(axis=1) & np.isfinite(t) & (np.abs(p).sum(axis=1) > 0)
-    ring = np.asarray(scan.ring)[ok] if len(scan.ring) == len(p) and len(p) else None
-    return p[ok], t[ok], ring, int(len(p) - ok.sum())
+    ok = valid_points(p, t)
+    n_ok = int(np.count_nonzero(ok))
+    ring = np.asarray(scan.ring) if len(scan.ring) == len(p) and len(p) else None
+    if n_ok < len(p):  # a copy only when something is dropped (a dense scan is 130k points)
+        p, t, ring = p[ok], t[ok], (None if ring is None else ring[ok])
+    return p.astype(np.float64), t.astype(np.float64), ring, int(len(ok) - n_ok)
 
 
 def imu_gaps(t_s: FloatArray, limit_s: float = 0.1) -> str:
@@ -281,8 +285,11 @@ class LioPipeline:
                 if lidar_only:  # LiDAR frame -> the IMU frame of T_w
                     pb = pb @ T_l_i[:3, :3] - T_l_i[:3, :3].T @ T_l_i[:3, 3]
                 self._observe(observer, est, LioStep(k, stats[-1], T_w, pb), pending)
-            if k % 5 == 0:
-                used = pts[voxel_downsample(pts, self.map_voxel)]
+            if (
+                k % 5 == 0
+            ):  # at most 32k points of a scan (a dense scan fills the 0.2 m voxels anyway)
+                sub = pts[:: max(1, len(pts) // 32768)]
+                used = sub[voxel_downsample(sub, self.map_voxel)]
                 gmap.add(used @ T[:3, :3].T + T[:3, 3])
             if self.progress and k % 10 == 0:
                 bar.set_postfix(
