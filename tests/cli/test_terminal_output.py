@@ -88,7 +88,10 @@ def test_lio_says_which_configuration_ran_and_suggests_calibrating_a_raw_imu() -
     assert "--calib" in raw[1]
     calibrated = describe_run(cfg, has_imu=True, calibrated=True)
     assert len(calibrated) == 1 and "IMU calibrated (--calib)" in calibrated[0]
-    lidar_only = describe_run(cfg.model_copy(update={"use_imu": False}), True, False)
+    lidar_only = describe_run(cfg.model_copy(update={"use_imu": False}), False, False)
+    assert describe_run(cfg, has_imu=False, calibrated=False) == [
+        f"ran: LiDAR-only (constant-velocity model, no IMU), front end {cfg.frontend.mode}"
+    ]
     assert lidar_only == [
         f"ran: LiDAR-only (constant-velocity model, --no-imu), front end {cfg.frontend.mode}"
     ]

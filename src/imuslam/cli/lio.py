@@ -111,7 +111,9 @@ def describe_run(cfg: LioConfig, has_imu: bool, calibrated: bool) -> list[str]:
         what = f"LiDAR-inertial, IMU {'calibrated (--calib)' if calibrated else 'raw'}"
         what += f", state {cfg.filter.state} ({dim}), start alignment {cfg.align}"
     else:
-        what = "LiDAR-only (constant-velocity model" + (", --no-imu)" if has_imu else ", no IMU)")
+        what = "LiDAR-only (constant-velocity model" + (
+            ", no IMU)" if cfg.use_imu else ", --no-imu)"
+        )
     lines = [f"ran: {what}, front end {cfg.frontend.mode}"]
     if inertial and not calibrated:
         lines.append(
