@@ -43,7 +43,7 @@ def log_folder(rec: Any, folder: Path, name: str, colour: tuple[int, int, int]) 
     """Log what ``folder`` holds under ``world/<name>`` and ``metrics/<name>``; returns the files shown."""
     import rerun as rr
 
-    from imuslam.viz.recording import set_time
+    from imuslam.viz.recording import time_column
 
     part = rr.escape_entity_path_part(name)
     base, shown = f"world/{part}", []
@@ -53,9 +53,11 @@ def log_folder(rec: Any, folder: Path, name: str, colour: tuple[int, int, int]) 
 
         tr = read_trajectory(tum, "tum")
         rec.log(f"{base}/trajectory", rr.LineStrips3D([tr.p_w], colors=[colour]), static=True)
-        for k in range(len(tr)):
-            set_time(rec, int(tr.t_ns[k]), k, "pose")
-            rec.log(f"{base}/body", rr.Transform3D(translation=tr.p_w[k], mat3x3=tr.R_w_b[k]))
+        rec.send_columns(
+            f"{base}/body",
+            indexes=[time_column(rr, tr.t_ns), rr.TimeColumn("pose", sequence=np.arange(len(tr)))],
+            columns=rr.Transform3D.columns(translation=tr.p_w, mat3x3=tr.R_w_b),
+        )
         rec.log(f"{base}/body", rr.TransformAxes3D(0.3), static=True)
         shown.append(tum.name)
     cloud = next((folder / n for n in ("map.ply", "map.pcd") if (folder / n).is_file()), None)
