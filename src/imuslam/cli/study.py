@@ -62,7 +62,7 @@ def register(app: typer.Typer) -> None:
         src = "--quick" if quick else str(study_file)
         data = QUICK if quick else read_study_data(study_file)  # type: ignore[arg-type]
         if is_log_study(data):
-            return _log_study(data, study_file, out, scheduler, workers)  # type: ignore[arg-type]
+            return _log_study(data, study_file, out, scheduler, workers, show_progress(progress))  # type: ignore[arg-type]
         study = parse_study(data, src)
         res = run_study(study, out, scheduler, workers, serial, show_progress(progress), source=src)
         n_err = int((res.table["status"] != "ok").sum())
@@ -92,8 +92,9 @@ def register(app: typer.Typer) -> None:
 
 
 def _log_study(
-    data: object, study_file: Path, out: Path, scheduler: str | None, workers: int | None
-) -> None:
+    data: object, study_file: Path, out: Path, scheduler: str | None, workers: int | None,
+    progress: bool,
+) -> None:  # fmt: skip
     """A study of recorded logs (``study.logstudy``): run, print each log's table, write the report."""
     from imuslam.cli.common import console, table
     from imuslam.errors import InputError
@@ -108,7 +109,7 @@ def _log_study(
     from imuslam.study.logstudy import run_log_study
 
     study = parse_log_study(data, str(study_file), study_file.parent)
-    res = run_log_study(study, out, str(study_file))
+    res = run_log_study(study, out, str(study_file), progress)
     for spec in study.logs:
         head, rows = table_rows(spec, [r for r in res.runs if r.log == spec.name], imu=False)
         console.print(table(f"{spec.name}: {spec.estimator} on {Path(spec.path).name}", head, rows))

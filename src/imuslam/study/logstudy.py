@@ -279,7 +279,7 @@ def _compare(ref: Trajectory, traj: Trajectory, times: Any, align: str) -> dict[
             "rpe_m": ev.rpe_trans.rmse, "rpe_rot_deg": ev.rpe_rot_deg.rmse}  # fmt: skip
 
 
-def run_log(pl: PreparedLog) -> list[RunResult]:
+def run_log(pl: PreparedLog, tick: Any = None) -> list[RunResult]:
     """Every run of a prepared log, then each scored against the reference run and the truth."""
     vo = None
     if pl.spec.estimator == "vio":  # the VO front end does not see the IMU: once for every run
@@ -302,7 +302,9 @@ def run_log(pl: PreparedLog) -> list[RunResult]:
         m["path_length_m"] = float(np.sum(np.linalg.norm(np.diff(traj.p_w, axis=0), axis=1)))
         out.append(RunResult(pl.spec.name, r.name, describe_run(r), traj, m, grid,
                              time.perf_counter() - t0, imu_track))  # fmt: skip
-        log.info("%s / %s: %.1f s", pl.spec.name, r.name, out[-1].wall_s)
+        log.debug("%s / %s: %.1f s", pl.spec.name, r.name, out[-1].wall_s)
+        if tick is not None:
+            tick()
     ref = next(x for x in out if x.run == pl.spec.reference_run)
     for x in out:
         for k, v in _compare(ref.trajectory, x.trajectory, pl.times_ns, pl.spec.align).items():
@@ -319,7 +321,9 @@ def run_log(pl: PreparedLog) -> list[RunResult]:
     return out
 
 
-def run_log_study(study: LogStudyConfig, out: str | Path | None, source: str) -> LogStudyRun:
+def run_log_study(
+    study: LogStudyConfig, out: str | Path | None, source: str, progress: bool = False
+) -> LogStudyRun:
     """Check every log and run (nothing runs before all are good), run them, and with ``out`` write
     the report (``study.logreport.write_log_outputs``)."""
     if out is not None:
@@ -336,8 +340,12 @@ def run_log_study(study: LogStudyConfig, out: str | Path | None, source: str) ->
         prepare_log(lg, f"{source}: logs[{i}] ({lg.name})") for i, lg in enumerate(study.logs)
     ]
     res = LogStudyRun()
-    for pl in prepared:
-        res.runs += run_log(pl)
+    from tqdm import tqdm
+
+    n = sum(len(pl.spec.runs) for pl in prepared)
+    with tqdm(total=n, unit="run", desc="study", disable=not progress) as bar:
+        for pl in prepared:
+            res.runs += run_log(pl, bar.update)
     if out is not None:
         from imuslam.io.results import results_folder
         from imuslam.study.logreport import write_log_outputs
