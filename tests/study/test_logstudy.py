@@ -263,3 +263,23 @@ def test_injected_errors_are_the_simulators_and_a_calibration_undoes_them() -> N
     rec = cal.correct(bad)
     assert np.abs(rec.gyro - imu.gyro).max() < 2e-3
     assert np.abs(rec.accel - imu.accel).max() < 1e-2
+
+
+def test_a_log_in_counts_needs_a_calibration(tmp_path: Path) -> None:
+    """A log in raw counts given to an estimator as is, or corrected by a calibration in other units."""
+    from imuslam.errors import InputError
+    from imuslam.interfaces import ImuLog
+    from imuslam.study.logconfig import RunSpec
+    from imuslam.study.logstudy import _run_imu
+
+    n = 100
+    counts = ImuLog(np.arange(n) * 10_000_000, np.full((n, 3), 32768.0), np.full((n, 3), 32768.0),
+                    "counts", "counts", "log.txt")  # fmt: skip
+    with pytest.raises(InputError, match=r"runs\[0\] \(raw\): the log's IMU is in raw counts"):
+        _run_imu(counts, RunSpec(name="raw"), "runs[0] (raw)", "")
+    si = _calibration(tmp_path / "si.yaml")
+    with pytest.raises(
+        InputError, match=r"calibration: log.txt: the calibration applies to accel in m/s"
+    ):
+        _run_imu(counts, RunSpec(name="c", calibration=str(si)), "runs[1] (c)", "")
+    assert _run_imu(counts, RunSpec(name="off", use_imu=False), "w", "") is counts

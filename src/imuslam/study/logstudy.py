@@ -119,6 +119,11 @@ def _run_imu(base: ImuLog | None, r: RunSpec, where: str, platform_hint: str) ->
             raise InputError(f"{where}.calibration: {exc}") from None
     elif r.gimbal_calibration is not None:
         imu = gimbal_calibration_seed000(r.gimbal_seed, r.gimbal_method).correct(imu.to_si())
+    if "counts" in (imu.accel_unit, imu.gyro_unit) and r.use_imu:
+        raise InputError(
+            f"{where}: the log's IMU is in raw counts; expected a calibration that turns it into "
+            "m/s^2 and rad/s (calibration: the file imuslam calibrate wrote), or use_imu: false"
+        )
     try:
         check_units(imu, hint=platform_hint)
     except InputError as exc:
