@@ -374,3 +374,31 @@ def test_a_map2d_cell_repeats_exactly(tmp_path: Path) -> None:
             "loop_error_m", "loop_error_deg"]  # fmt: skip
     print(a[cols].iloc[0].to_dict())
     pd.testing.assert_frame_equal(a[cols], b[cols], check_exact=True)
+
+
+def test_kf_attitude_leaves_the_imu_errors_to_the_calibration() -> None:
+    """Alignment 'kf_attitude' runs the same Kalman alignment as 'kf' (the same attitude) but does not
+    apply its bias estimates. On the raw IMU (table 2's errors, no calibration) the uncompensated gyro
+    bias then tilts gravity into the horizontal, a position error of about g |b_g,xy| T^3 / 6 over the
+    run (Titterton & Weston, ch. 12: the T^3 term of a gyro bias); with 'kf' the alignment's bias
+    estimates remove most of it. Bound: a quarter of that term (the attitude is not constant)."""
+    from imuslam.study.config import DriftSpec
+    from imuslam.study.pipeline import G, run_cell
+
+    s = parse_study(small_study(imu=["raw"], alignment=["kf", "kf_attitude"],
+                                expect=["kf", "kf_attitude"]))  # fmt: skip
+    rows = {c.alignment: run_cell(c) for c in expand(s) if c.seed == 0}
+    assert all(r["status"] == "ok" for r in rows.values()), rows
+    assert rows["kf"]["align_att_err_deg"] == rows["kf_attitude"]["align_att_err_deg"]
+    b_g = sensor_spec("raw", DriftSpec(), 30.0).gyro.b
+    t_run = 10.0
+    tilt_term = G * float(np.hypot(b_g[0], b_g[1])) * t_run**3 / 6 / 4
+    assert rows["kf_attitude"]["final_err_m"] > tilt_term
+    assert rows["kf"]["final_err_m"] < tilt_term
+
+
+def test_kf_attitude_is_refused_for_an_estimator_that_aligns_itself(tmp_path: Path) -> None:
+    study = small_study(scenarios=[{"name": "street", "duration_s": 5.0}],
+                        estimators=[{"name": "lio"}], alignment=["kf_attitude", "kf"],
+                        expect=["kf_attitude", "kf"])  # fmt: skip
+    assert "estimator 'lio' aligns itself; alignment 'kf_attitude'" in _cli_error(tmp_path, study)

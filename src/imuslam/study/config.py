@@ -19,8 +19,10 @@ from imuslam.errors import InputError
 
 ImuCondition = Literal["ideal", "raw", "offline", "online", "drifting"]
 IMU_CONDITIONS = ("ideal", "raw", "offline", "online", "drifting")
-AlignName = Literal["none", "kf", "stkf", "rwnn"]
-ALIGN_NAMES = ("none", "kf", "stkf", "rwnn")
+# kf_attitude: the Kalman alignment's attitude only; its bias estimates are not applied, so the run's
+# IMU errors are what the calibration left (the cell then measures the calibration, not the alignment)
+AlignName = Literal["none", "kf", "stkf", "rwnn", "kf_attitude"]
+ALIGN_NAMES = ("none", "kf", "stkf", "rwnn", "kf_attitude")
 # navigation scenes of the simulator (sim/scenario.py); 'gimbal' is a calibration log, not a drive
 NAV_SCENARIOS = ("room", "square", "street", "corridor", "handheld")
 Factor = Literal["scenario", "imu", "alignment", "estimator"]

@@ -153,6 +153,11 @@ def check_study(study: StudyConfig, source: str = "<study>") -> None:
                 loc = ".".join(str(p) for p in err["loc"])
                 msg = "unknown option" if err["type"] == "extra_forbidden" else err["msg"]
                 raise InputError(f"{where} ({est.name}).options.{loc}: {msg}") from None
+            if e.own_alignment and "kf_attitude" in c.alignment:
+                raise InputError(
+                    f"{where}: estimator '{est.name}' aligns itself; alignment 'kf_attitude' is for the "
+                    "estimators the study aligns"
+                )
             for sc in c.scenarios:
                 if sc.name not in e.scenarios:
                     raise InputError(

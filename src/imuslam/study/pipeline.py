@@ -163,11 +163,13 @@ def _run(
     else:
         init = NavState(truth.p_w[0], truth.vel_w[0], so3_exp(att_err) @ truth.R_w_i[0])
         noise = KfNoise(spec.accel_density, spec.gyro_density, 1e-4, 1e-5)
+        method = cell.alignment.removesuffix("_attitude")
         res = run_alignment(log.slice(0, k0 + 1), Aiding(t_fix, "position", fixes, a.fix_std_m), init,
-                            cell.alignment, noise, g=G)  # type: ignore[arg-type]  # fmt: skip
+                            method, noise, g=G)  # type: ignore[arg-type]  # fmt: skip
         k_start = int(np.searchsorted(t, res.t_s[-1]))
         R0 = res.final.R_n_b
-        log = res.corrected(log)
+        if method == cell.alignment:  # kf_attitude keeps the calibration's biases
+            log = res.corrected(log)
     dR = so3_log(truth.R_w_i[k_start].T @ R0)
     lap("align")
 
