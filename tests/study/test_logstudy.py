@@ -119,6 +119,15 @@ def test_log_study_on_the_backpack_bag(tmp_path: Path, shared_data: Path) -> Non
     # the hits of a real indoor map lie within a few cm of their walls (the scanner's range noise is
     # about 1-3 cm); a map blurred by a wrong pose would show far more
     assert 0.5 < raw["wall_spread_cm"] < 5.0
+    # the metric sees a blur on real data: the poses turned by a yaw ramp reaching 1 deg at the end
+    # move a hit at range rho by up to 0.017 rho; the hits are mostly 2 m or more away (median 7 m),
+    # where the ramp spreads a wall by at least 0.017 * 2 / sqrt(12) = 1 cm, so sqrt(s^2 + 1 cm^2)
+    P = run.result.pose_xy_yaw.copy()
+    P[:, 2] += np.deg2rad(1.0) * np.linspace(0.0, 1.0, len(P))
+    blur = point_map_quality(map2d_points(log_, P, run.result.config), 0.2)
+    assert blur.wall_spread_cm > np.hypot(q.wall_spread_cm, 1.0) - 0.05
+    # and the entropy by at least 0.5 ln((s^2 + 1 cm^2) / s^2) with s about 3 cm: 0.05 nats
+    assert blur.map_entropy > q.map_entropy + 0.05
     assert "backpack: map2d on" in (out / "report.md").read_text()
 
 
