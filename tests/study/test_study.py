@@ -370,7 +370,7 @@ def test_a_map2d_cell_repeats_exactly(tmp_path: Path) -> None:
     a = run_study(study, tmp_path / "a", serial=True, progress=False).table
     b = run_study(study, tmp_path / "b", serial=True, progress=False).table
     assert (a["status"] == "ok").all() and len(a) == 1, a.get("error")
-    cols = ["ape_rmse_m", "ape_max_m", "final_err_m", "map_far_pct", "map_wall_thickness_cm",
+    cols = ["ape_rmse_m", "ape_max_m", "final_err_m", "map_far_pct", "map_wall_thickness_cm", "map_hit_rms_cm",
             "loop_error_m", "loop_error_deg"]  # fmt: skip
     print(a[cols].iloc[0].to_dict())
     pd.testing.assert_frame_equal(a[cols], b[cols], check_exact=True)

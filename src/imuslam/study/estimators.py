@@ -298,6 +298,11 @@ class Map2dOptions(BaseModel):
     use_imu: bool = True
     use_odometry: bool = True
     loop_closure: bool = True
+    score_hits: bool = Field(
+        True,
+        description="also score the scans' hits, placed with the aligned poses, against the true walls "
+        "(map_hit_rms_cm, map_hit_wall_width_cm: no grid, eval.mapquality.hit_sharpness)",
+    )
     config: dict[str, Any] = Field(
         default_factory=dict, description="further Slam2dConfig fields (imuslam.slam2d.slam)"
     )
@@ -343,7 +348,23 @@ def run_map2d_cell(inp: CellInput) -> Estimate:
     p = np.column_stack([P[:, :2], np.full(len(P), inp.traj.state(np.zeros(1)).p_w[0, 2])])
     extra = {"map_far_pct": 100 * q.frac_far, "map_wall_thickness_cm": 100 * q.wall_thickness_m,
              "loop_error_m": q.loop_error_m, "loop_error_deg": q.loop_error_deg}  # fmt: skip
+    if o.score_hits:
+        extra.update(_hit_scores(log_, cfg, P, truth, inp.world, sim.scan_height))
     return Estimate(Trajectory(res.t_ns, p, R, "map2d"), extra)
+
+
+def _hit_scores(log_: Any, cfg: Any, est: FloatArray, truth: FloatArray, world: Any,
+                height: float) -> dict[str, float]:  # fmt: skip
+    """The scans' hits placed with the estimate aligned to the truth (SE(2)), scored against the walls."""
+    from imuslam.eval.mapquality import align_se2, hit_sharpness, transform
+    from imuslam.slam2d import pose2
+    from imuslam.slam2d.pipeline import scan_points
+
+    al = transform(align_se2(est[:, :2], truth[:, :2]), est)
+    pts = scan_points(log_, cfg)
+    hits = np.concatenate([pose2.act(al[k], pts[k]) for k in range(len(al)) if len(pts[k])])
+    h = hit_sharpness(hits, world, height)
+    return {"map_hit_rms_cm": 100 * h.rms_m, "map_hit_wall_width_cm": 100 * h.wall_width_m}
 
 
 register(

@@ -52,7 +52,14 @@ log = logging.getLogger(__name__)
 #: The metrics an estimator adds to every cell's row beside the evaluation's (``pipeline.METRICS``), as
 #: its adapter in ``estimators.py`` returns them (a name ending in '*' is a prefix: vio's gating counts).
 ESTIMATOR_METRICS: dict[str, tuple[str, ...]] = {
-    "map2d": ("map_far_pct", "map_wall_thickness_cm", "loop_error_m", "loop_error_deg"),
+    "map2d": (
+        "map_far_pct",
+        "map_wall_thickness_cm",
+        "map_hit_rms_cm",
+        "map_hit_wall_width_cm",
+        "loop_error_m",
+        "loop_error_deg",
+    ),
     "vio": ("gate_rejected_*",),
     "lio": ("lio_scans_per_s",),
 }
