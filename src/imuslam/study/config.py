@@ -279,18 +279,23 @@ def parse_study(data: Any, source: str = "<study>") -> StudyConfig:
         return StudyConfig.model_validate(data)
     except ValidationError as exc:
         err = exc.errors()[0]
-        where = _where(tuple(err["loc"]), data)
-        msg = ": " + err["msg"].removeprefix("Value error, ")
-        if err["type"] == "extra_forbidden":
-            msg = ": unknown key"
-        elif err["type"] == "too_short":
-            what = (
-                "a study needs at least one seed"
-                if err["loc"][-1] == "seeds"
-                else "the study has no cells"
-            )
-            msg = f" is empty: {what}"
-        raise InputError(f"{source}: {where}{msg}") from None
+        empty = (
+            "a study needs at least one seed"
+            if err["loc"][-1] == "seeds"
+            else "the study has no cells"
+        )
+        raise InputError(f"{source}: {validation_line(exc, data, empty)}") from None
+
+
+def validation_line(exc: ValidationError, data: Any, empty: str) -> str:
+    """The first error of ``exc`` as '<where in data>: <what>'; ``empty`` says what an empty list means."""
+    err = exc.errors()[0]
+    where = _where(tuple(err["loc"]), data)
+    if err["type"] == "extra_forbidden":
+        return f"{where}: unknown key"
+    if err["type"] == "too_short":
+        return f"{where} is empty: {empty}"
+    return f"{where}: " + err["msg"].removeprefix("Value error, ")
 
 
 def read_study_data(path: str | Path) -> Any:

@@ -151,19 +151,14 @@ def is_log_study(data: Any) -> bool:
 def parse_log_study(data: Any, source: str, base: Path) -> LogStudyConfig:
     """Validate a log study; relative paths become paths from ``base`` (the study file's folder).
     The first problem is one InputError line naming the field."""
-    from imuslam.study.config import _where
+    from imuslam.study.config import validation_line
 
     try:
         st = LogStudyConfig.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        where = _where(tuple(err["loc"]), data)
-        msg = ": " + err["msg"].removeprefix("Value error, ")
-        if err["type"] == "extra_forbidden":
-            msg = ": unknown key"
-        elif err["type"] == "too_short":
-            msg = " is empty: the study has no runs"
-        raise InputError(f"{source}: {where}{msg}") from None
+        raise InputError(
+            f"{source}: {validation_line(exc, data, 'the study has no runs')}"
+        ) from None
 
     def rel(p: str | None) -> str | None:
         return None if p is None else str(p if Path(p).is_absolute() else base / p)
