@@ -5,7 +5,9 @@ kernels (``lio.guards``) against cases whose answer is known in closed form."""
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -195,3 +197,43 @@ def test_moving_cars_and_pedestrians() -> None:
     d = F.simulate_fault_drive("traffic", 8.0, seed=4, lidar=LIDAR)
     assert F.dynamic_fraction(d.scans) > 0.02
     _assert_tracks(d, _run(d))
+
+
+@pytest.mark.slow
+def test_the_command_on_a_clipped_gyro_bridges_it_or_exits_3_naming_the_scan(
+    tmp_path: Path,
+) -> None:
+    """``imuslam lio`` on a bag whose raw gyro clips at +-250 deg/s on the fast turn, with the IMU
+    calibration applied (``--calib``): with the range in the config, exit 0 and the bridged samples
+    reported; with the guard off, exit 3 and one line naming the scan, never a traceback."""
+    from typer.testing import CliRunner
+
+    from imuslam.cli import app
+    from imuslam.sim import export
+
+    d = F.simulate_fault_drive("spin", 8.0, seed=2, lidar=LIDAR)
+    pc = [(s.t_ns, "/points", export.pointcloud_message(s)[1]) for s in d.scans]
+    export.write_bag(
+        tmp_path / "bag", [export.imu_messages(F.saturate_gyro(d.imu, 250.0)), iter(pc)]
+    )
+    a, g = SEED000_ACCEL, SEED000_GYRO
+    cal = ImuCalibration(
+        TriadModel(a.T, a.K, a.b, a.bias_sign), TriadModel(g.T, g.K, g.b, g.bias_sign)
+    )
+    cal.save_yaml(tmp_path / "calibration.yaml")
+    runner = CliRunner()
+    out = {}
+    for name, filt in (("guard", "gyro_range_dps: 250"), ("off", "imu_guard: false")):
+        (tmp_path / f"{name}.yaml").write_text(
+            f"extrinsic:\n  p_i_l: [0.0, 0.0, 0.2]\nfrontend:\n  mode: direct\nfilter:\n  {filt}\n"
+        )
+        out[name] = runner.invoke(app, ["lio", str(tmp_path / "bag"), "--imu-topic", "/imu/data", "--points-topic",
+                                        "/points", "--config", str(tmp_path / f"{name}.yaml"), "--calib",
+                                        str(tmp_path / "calibration.yaml"), "--out", str(tmp_path / name)])  # fmt: skip
+    assert out["guard"].exit_code == 0, out["guard"].output
+    assert "bridged" in out["guard"].output
+    r = out["off"]
+    assert r.exit_code == 3, r.output
+    assert "Traceback" not in r.output and "lost the map" in r.output
+    assert re.search(r"scan \d+ \(t = ", r.output)
+    assert not (tmp_path / "off").exists()
