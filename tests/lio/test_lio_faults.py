@@ -236,4 +236,5 @@ def test_the_command_on_a_clipped_gyro_bridges_it_or_exits_3_naming_the_scan(
     assert r.exit_code == 3, r.output
     assert "Traceback" not in r.output and "lost the map" in r.output
     assert re.search(r"scan \d+ \(t = ", r.output)
+    assert "set filter.gyro_range_dps" in " ".join(r.output.split())
     assert not (tmp_path / "off").exists()

@@ -729,9 +729,14 @@ class LioEstimator:
         if len(self._lost) >= fc.lost_scans:
             k0, t0, _ = self._lost[0]
             fr = ", ".join(f"{100 * m:.0f} %" for *_, m in self._lost)
+            near = (self.t > t0 - 1.0) & (self.t <= t0)
+            peak = float(np.rad2deg(np.abs(self.imu.gyro[near]).max())) if near.any() else 0.0
+            hint = (f"; the gyro read up to {peak:.0f} deg/s in the second before: if that is its "
+                    "range, set filter.gyro_range_dps" if peak > 100.0 and fc.gyro_range_dps is None
+                    else "")  # fmt: skip
             raise FilterDivergence(
                 f"scan {k0} (t = {t0:.3f} s): the filter lost the map: {fr} of the points of scans "
-                f"{k0}-{k} matched it (at least {100 * fc.min_match_fraction:g} % expected)"
+                f"{k0}-{k} matched it (at least {100 * fc.min_match_fraction:g} % expected){hint}"
             )
 
     @staticmethod
