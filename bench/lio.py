@@ -870,7 +870,7 @@ def main() -> None:
         choices=["vlp16", "os1-64", "os1-128", "livox"],
         help="dense: the simulated LiDARs",
     )
-    ap.add_argument("--dense-voxel", type=float, default=1.0,
+    ap.add_argument("--dense-voxel", type=float, default=1.5,
                     help="dense: frontend.scan_voxel for scans of more than 40k points, m")  # fmt: skip
     ap.add_argument("--part", choices=["all", "faults", "calib"], default="all",
                     help="robust: the sensor faults, the wrong offset / extrinsic, or both")  # fmt: skip
