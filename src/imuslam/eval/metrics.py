@@ -67,7 +67,7 @@ def ape(ref: Trajectory, est: Trajectory) -> tuple[FloatArray, FloatArray]:
 def rpe_pairs(est: Trajectory, delta: float, unit: str) -> tuple[IntArray, IntArray]:
     """Index pairs (i, j) for the RPE: consecutive pairs ``delta`` frames or metres apart (evo's rule)."""
     if not (np.isfinite(delta) and delta > 0):
-        raise InputError(f"RPE delta {delta}; expected a positive number of {unit}")
+        raise ValueError(f"RPE delta {delta}; expected a positive number of {unit}")
     if unit == "frames":
         if delta != int(delta):
             raise InputError(f"RPE delta {delta} frames; expected a whole number of frames")
@@ -77,7 +77,7 @@ def rpe_pairs(est: Trajectory, delta: float, unit: str) -> tuple[IntArray, IntAr
 
         ids = path_ids(np.ascontiguousarray(est.p_w), float(delta))
     else:
-        raise InputError(f"RPE unit '{unit}'; expected frames or m")
+        raise ValueError(f"RPE unit '{unit}'; expected frames or m")
     if len(ids) < 2:
         raise InputError(
             f"RPE with delta {delta} {unit} gives no pair in {len(est)} poses; use a smaller delta"

@@ -80,7 +80,7 @@ def relation_error(
     As Kümmerle 2009, eq. 2: the difference of the relative displacements, its translation norm and
     absolute angle."""
     if len(i) == 0:
-        raise InputError("no relations to evaluate")
+        raise ValueError("no relations to evaluate")
     de = _between(est_xy_yaw[i], est_xy_yaw[j])
     dr = _between(ref_xy_yaw[i], ref_xy_yaw[j])
     et = np.hypot(de[:, 0] - dr[:, 0], de[:, 1] - dr[:, 1])

@@ -198,7 +198,7 @@ class ImuCalibration:
         if self.gyro_g_sensitivity is None:
             return w
         if accel_s is None:
-            raise InputError(
+            raise ValueError(
                 "this calibration has a gyro g-sensitivity: correcting the gyro needs the accelerometer "
                 "samples of the same instants"
             )

@@ -49,12 +49,12 @@ class Aiding:
 
     def __post_init__(self) -> None:
         if self.kind not in tuple(AidingKind):
-            raise InputError(f"aiding kind '{self.kind}'; expected position, velocity or zupt")
+            raise ValueError(f"aiding kind '{self.kind}'; expected position, velocity or zupt")
         self.kind = AidingKind(self.kind)
         self.t_s = np.asarray(self.t_s, dtype=float)
         self.values = np.asarray(self.values, dtype=float)
         if self.t_s.ndim != 1 or self.values.shape != (len(self.t_s), 3):
-            raise InputError(
+            raise ValueError(
                 f"aiding: expected times (M,) and values (M, 3), got {self.t_s.shape} and {self.values.shape}"
             )
         bad = ~(np.isfinite(self.t_s) & np.isfinite(self.values).all(axis=1))
@@ -140,14 +140,14 @@ def run_alignment(
         return AlignmentResult("rwnn", t[idx], r.accel_error[idx], r.accel_error_std[idx], r.gyro_error[idx], r.gyro_error_std[idx], r.R_n_b[idx],
                                r.p_n[idx], r.v_n[idx], np.ones(len(idx)), NavState(r.p_n[idx[-1]], r.v_n[idx[-1]], r.R_n_b[idx[-1]]))  # fmt: skip
     if method not in ("kf", "stkf"):
-        raise InputError(f"alignment method '{method}'; expected one of {', '.join(METHODS)}")
+        raise ValueError(f"alignment method '{method}'; expected one of {', '.join(METHODS)}")
     if P0_diag is None:
         layout = ErrorLayout.full(gravity=estimate_gravity)
         p0 = layout.diag(theta=0.05**2, p=0.1**2, v=0.1**2, ba=0.2**2, bg=0.02**2, g=0.05**2)
     else:
         p0 = np.asarray(P0_diag, dtype=float)
         if len(p0) not in (15, 18):
-            raise InputError(f"P0_diag has {len(p0)} entries; expected 15 (or 18 with gravity)")
+            raise ValueError(f"P0_diag has {len(p0)} entries; expected 15 (or 18 with gravity)")
         layout = ErrorLayout.full(gravity=len(p0) == 18)
     nz = noise or KfNoise()
     q = nz.q

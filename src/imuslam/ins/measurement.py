@@ -9,7 +9,6 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.errors import InputError
 from imuslam.ins.state import ErrorLayout, InsState
 
 FloatArray = NDArray[np.float64]
@@ -22,7 +21,7 @@ def chi2_threshold(prob: float, dof: int) -> float:
     from scipy.special import gammaincinv
 
     if not 0.0 < prob < 1.0:
-        raise InputError(f"gate probability must be in (0, 1), got {prob}")
+        raise ValueError(f"gate probability must be in (0, 1), got {prob}")
     return float(2.0 * gammaincinv(0.5 * dof, prob))
 
 

@@ -22,7 +22,6 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.errors import InputError
 from imuslam.geometry.so3_nb import exp_nb, hat_nb, right_jacobian_nb
 from imuslam.interfaces.nav import ImuBias, NavState
 
@@ -108,7 +107,7 @@ class PreintegratedImu:
         w = np.ascontiguousarray(gyro, dtype=float).reshape(-1, 3)
         h = np.atleast_1d(np.asarray(dt, dtype=float))
         if len(a) != len(w) or len(a) != len(h) or np.any(~(h > 0)):
-            raise InputError(
+            raise ValueError(
                 f"preintegration: {len(a)} accel, {len(w)} gyro samples and {len(h)} positive dt expected"
             )
         self.dR, self.dv, self.dp, self.cov, self.jac_bias = _preintegrate(

@@ -67,7 +67,6 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, Field
 
-from imuslam.errors import InputError
 from imuslam.ins.aiding import AidingKind
 from imuslam.ins.core import boxplus_attitude, strapdown_step
 
@@ -648,11 +647,11 @@ def run_rwnn(
     1-sigma ``aid_std`` (m or m/s); ``accel_noise`` is the accelerometer's white noise density
     (m/s^2/sqrt(Hz)) for the learning's measurement variance (:func:`innovation_variance`)."""
     if aid_kind not in tuple(AidingKind):
-        raise InputError(f"aiding kind '{aid_kind}'; expected position, velocity or zupt")
+        raise ValueError(f"aiding kind '{aid_kind}'; expected position, velocity or zupt")
     if not (np.isfinite(aid_std) and aid_std > 0):
-        raise InputError(f"aiding 1-sigma must be positive, got {aid_std}")
+        raise ValueError(f"aiding 1-sigma must be positive, got {aid_std}")
     if not (np.isfinite(accel_noise) and accel_noise >= 0):
-        raise InputError(f"accelerometer noise density must be >= 0, got {accel_noise}")
+        raise ValueError(f"accelerometer noise density must be >= 0, got {accel_noise}")
     c = config or RwnnConfig()
     settings = RwnnSettings.from_config(c)
     t = np.asarray(t_s, float)

@@ -22,7 +22,6 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from imuslam.errors import InputError
 from imuslam.geometry import quat_from_matrix
 from imuslam.io.atomic import write_atomic
 from imuslam.sim import export
@@ -78,9 +77,9 @@ def run_scenario(
 ) -> SimulationResult:
     """Simulate ``name`` for ``duration_s`` seconds into ``out_dir`` (bag/, ground_truth.tum, sim.npz)."""
     if name not in SCENARIOS:
-        raise InputError(f"unknown scenario '{name}'; expected one of {', '.join(SCENARIOS)}")
+        raise ValueError(f"unknown scenario '{name}'; expected one of {', '.join(SCENARIOS)}")
     if not duration_s > 0:
-        raise InputError(f"--duration must be positive, got {duration_s}")
+        raise ValueError(f"duration_s must be positive, got {duration_s}")
     out = Path(out_dir)
     rng = np.random.default_rng(seed)
     arrays: dict[str, Any] = {}

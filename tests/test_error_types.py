@@ -1,0 +1,126 @@
+"""Error types by meaning: a library call that breaks its own contract (a wrong shape, an unknown name
+that the command line takes as a choice, an argument no command can produce) raises a plain ValueError,
+which the command line does not turn into an exit-2 message; bad data stays an InputError."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imuslam.errors import InputError
+from imuslam.eval.metrics import rpe_pairs
+from imuslam.eval.relations import relation_error
+from imuslam.imu.model import ImuCalibration, TriadModel
+from imuslam.ins.align import Aiding, run_alignment
+from imuslam.ins.measurement import chi2_threshold
+from imuslam.ins.preintegration import PreintegratedImu
+from imuslam.ins.rwnn import run_rwnn
+from imuslam.interfaces.imu import ImuLog
+from imuslam.interfaces.nav import NavState
+from imuslam.interfaces.trajectory import Trajectory
+from imuslam.sim.scenario import run_scenario
+
+T = np.arange(10) * 0.1
+Z = np.zeros((10, 3))
+
+
+def _still_log() -> ImuLog:
+    t_ns = np.arange(200, dtype=np.int64) * 10_000_000
+    accel = np.tile([0.0, 0.0, 9.80665], (200, 1))
+    return ImuLog(t_ns, accel, np.zeros((200, 3)), source="still.csv")
+
+
+def _aiding() -> Aiding:
+    return Aiding(T + 0.1, "zupt", Z, 0.01)
+
+
+def _start() -> NavState:
+    return NavState(np.zeros(3), np.zeros(3), np.eye(3))
+
+
+def _line(n: int = 10) -> Trajectory:
+    p = np.c_[np.arange(n, dtype=float), np.zeros(n), np.zeros(n)]
+    return Trajectory(np.arange(n, dtype=np.int64) * 10**8, p, np.tile(np.eye(3), (n, 1, 1)))
+
+
+def _g_sensitive() -> ImuCalibration:
+    return ImuCalibration(TriadModel(), TriadModel(), gyro_g_sensitivity=np.eye(3) * 1e-4)
+
+
+MISUSE: dict[str, tuple[Callable[[Path], object], str]] = {
+    "aiding kind": (lambda _: Aiding(T, "heading", Z, 0.01), "aiding kind 'heading'"),
+    "aiding shape": (lambda _: Aiding(T, "zupt", np.zeros((10, 2)), 0.01), r"values \(M, 3\)"),
+    "alignment method": (
+        lambda _: run_alignment(_still_log(), _aiding(), _start(), "ekf"),  # type: ignore[arg-type]
+        "alignment method 'ekf'",
+    ),
+    "P0_diag length": (
+        lambda _: run_alignment(_still_log(), _aiding(), _start(), "kf", P0_diag=np.ones(9)),
+        "P0_diag has 9 entries",
+    ),
+    "rwnn aiding kind": (
+        lambda _: run_rwnn(T, Z, Z, T, Z, "heading", np.zeros(3), np.zeros(3), np.eye(3)),
+        "aiding kind",
+    ),
+    "rwnn aiding std": (
+        lambda _: run_rwnn(T, Z, Z, T, Z, "zupt", np.zeros(3), np.zeros(3), np.eye(3), aid_std=0.0),
+        "1-sigma",
+    ),
+    "rwnn accel noise": (
+        lambda _: run_rwnn(
+            T, Z, Z, T, Z, "zupt", np.zeros(3), np.zeros(3), np.eye(3), accel_noise=-1.0
+        ),
+        "noise density",
+    ),
+    "gate probability": (lambda _: chi2_threshold(1.5, 3), r"gate probability must be in \(0, 1\)"),
+    "preintegration lengths": (
+        lambda _: PreintegratedImu().integrate(Z, Z, np.full(9, 0.01)),
+        "preintegration: 10 accel, 10 gyro samples and 9",
+    ),
+    "RPE unit": (lambda _: rpe_pairs(_line(), 1.0, "km"), "RPE unit 'km'"),
+    "RPE delta": (lambda _: rpe_pairs(_line(), 0.0, "m"), "RPE delta 0.0"),
+    "no relations": (
+        lambda _: relation_error(Z, Z, np.zeros(0, np.int64), np.zeros(0, np.int64)),
+        "no relations",
+    ),
+    "scenario name": (lambda d: run_scenario("moon", 1.0, d / "out"), "unknown scenario 'moon'"),
+    "scenario duration": (
+        lambda d: run_scenario("room", 0.0, d / "out"),
+        "duration_s must be positive",
+    ),
+    "gyro without accel": (
+        lambda _: _g_sensitive().correct_gyro(Z),
+        "needs the accelerometer samples",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(MISUSE))
+def test_api_misuse_is_a_value_error_not_an_input_error(case: str, tmp_path: Path) -> None:
+    call, message = MISUSE[case]
+    with pytest.raises(ValueError, match=message) as exc:
+        call(tmp_path)
+    assert not isinstance(exc.value, InputError), f"{case}: {exc.value!r} would exit 2 as bad input"
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (
+            lambda: Aiding(T, "zupt", np.where(np.arange(10)[:, None] == 7, np.nan, Z), 0.01),
+            "measurement 7 is NaN",
+        ),
+        (lambda: Aiding(T[::-1], "zupt", Z, 0.01), "goes back in time"),
+        (lambda: rpe_pairs(_line(), 1.5, "frames"), "whole number of frames"),
+        (lambda: rpe_pairs(_line(3), 50.0, "m"), "gives no pair"),
+    ],
+)
+def test_bad_data_and_reachable_options_stay_input_errors(
+    call: Callable[[], object], message: str
+) -> None:
+    with pytest.raises(InputError, match=message):
+        call()
