@@ -14,6 +14,7 @@ from imuslam.errors import InputError
 from imuslam.eval.metrics import rpe_pairs
 from imuslam.eval.relations import relation_error
 from imuslam.imu.model import ImuCalibration, TriadModel
+from imuslam.imu.online import OnlineCalibrator
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.measurement import chi2_threshold
 from imuslam.ins.preintegration import PreintegratedImu
@@ -91,6 +92,11 @@ MISUSE: dict[str, tuple[Callable[[Path], object], str]] = {
         lambda d: run_scenario("room", 0.0, d / "out"),
         "duration_s must be positive",
     ),
+    "quaternion shape": (
+        lambda _: Trajectory.from_quat(np.arange(10), Z, Z),
+        r"expected \(N, 4\) quaternions",
+    ),
+    "pose plan": (lambda _: OnlineCalibrator(np.zeros((5, 2)), None), "a pose plan of 5 poses"),
     "gyro without accel": (
         lambda _: _g_sensitive().correct_gyro(Z),
         "needs the accelerometer samples",

@@ -1,7 +1,8 @@
 """The errors imuslam raises, and the exit codes the command line gives them.
 
 - :class:`InputError` (exit 2): bad input; the message names the file (line, field) or option and what
-  was expected.
+  was expected. A caller's misuse of the library (a wrong shape, an unknown method name) is a
+  ValueError or TypeError instead, never exit 2.
 - :class:`EstimatorError` (exit 3), e.g. :class:`FilterDivergence`: the input was read but an estimator
   failed on it; the message names the sample, scan or frame.
 - :class:`HardwareError` (exit 4): a device did not answer as its protocol says.

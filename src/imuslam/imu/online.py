@@ -177,7 +177,7 @@ class OnlineCalibrator:
         self.cfg = config or OnlineConfig()
         self.plan = np.asarray(plan_deg, dtype=float).reshape(-1, 2)
         if len(self.plan) < 10:
-            raise InputError(
+            raise ValueError(
                 f"a pose plan of {len(self.plan)} poses cannot determine 9 + 9 parameters"
             )
         self.command = command

@@ -49,7 +49,7 @@ class Trajectory:
         """From stamps (N,) ns, positions (N, 3) m and Hamilton quaternions (N, 4) w x y z."""
         q = np.asarray(quat_wxyz, dtype=float)
         if q.ndim != 2 or q.shape[1] != 4:
-            raise InputError(f"{source}: expected (N, 4) quaternions w x y z, got {q.shape}")
+            raise ValueError(f"{source}: expected (N, 4) quaternions w x y z, got {q.shape}")
         return cls(np.asarray(t_ns), np.asarray(p_w, dtype=float), quat_to_matrix(q), source)
 
     def __len__(self) -> int:
