@@ -72,7 +72,10 @@ class Aiding:
 @dataclass
 class AlignmentResult:
     """Estimates at the aiding times: t_s (M,), accel_bias / gyro_bias (M, 3) and their 1-sigma (M, 3),
-    R_n_b (M, 3, 3), p_n, v_n (M, 3); fading factors (STKF, else ones); the final state."""
+    R_n_b (M, 3, 3), p_n, v_n (M, 3); fading factors (STKF, else ones); the final state; the aiding
+    update's normalised innovation squared against its predicted covariance (M,; kf and stkf, else NaN):
+    its mean is the aiding's dimension (3) when the stated noise is right, far below when it is overstated
+    (then strong tracking never fades: ``docs/study_evidence.md``)."""
 
     method: str
     t_s: FloatArray
@@ -85,6 +88,7 @@ class AlignmentResult:
     v_n: FloatArray
     fading: FloatArray
     final: NavState
+    nis: FloatArray
 
     def corrected(self, log: ImuLog) -> ImuLog:
         """The log with the final bias estimates removed (measured = true + bias)."""
@@ -117,7 +121,7 @@ def run_alignment(
         idx = np.clip(np.searchsorted(t, aiding.t_s), 0, len(t) - 1)
         z = np.zeros((len(idx), 3))
         return AlignmentResult("none", t[idx], z, z + np.inf, z, z + np.inf, R[idx], P[idx], V[idx], np.ones(len(idx)),
-                               NavState(P[-1], V[-1], R[-1]))  # fmt: skip
+                               NavState(P[-1], V[-1], R[-1]), np.full(len(idx), np.nan))  # fmt: skip
     if method == "rwnn":
         r = run_rwnn(
             t,
@@ -138,7 +142,8 @@ def run_alignment(
         # the error estimates are the network's whole output (bias weights + nodes), their 1-sigma that of
         # the least-squares learning of the output weights
         return AlignmentResult("rwnn", t[idx], r.accel_error[idx], r.accel_error_std[idx], r.gyro_error[idx], r.gyro_error_std[idx], r.R_n_b[idx],
-                               r.p_n[idx], r.v_n[idx], np.ones(len(idx)), NavState(r.p_n[idx[-1]], r.v_n[idx[-1]], r.R_n_b[idx[-1]]))  # fmt: skip
+                               r.p_n[idx], r.v_n[idx], np.ones(len(idx)), NavState(r.p_n[idx[-1]], r.v_n[idx[-1]], r.R_n_b[idx[-1]]),
+                               np.full(len(idx), np.nan))  # fmt: skip
     if method not in ("kf", "stkf"):
         raise ValueError(f"alignment method '{method}'; expected one of {', '.join(METHODS)}")
     if P0_diag is None:
@@ -176,5 +181,5 @@ def run_alignment(
     return AlignmentResult(
         method, aiding.t_s[:n_ok], res.accel_bias, res.accel_bias_std, res.gyro_bias,
         res.gyro_bias_std, res.R_n_b, res.p_n, res.v_n, res.fading,
-        NavState(res.final_p, res.final_v, res.final_R),
+        NavState(res.final_p, res.final_v, res.final_R), res.nis,
     )  # fmt: skip

@@ -73,14 +73,15 @@ def eskf_kernel(
     off: NDArray[np.int64],
 ) -> tuple[
     FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
-    FloatArray, FloatArray, FloatArray, FloatArray, int, int,
+    FloatArray, FloatArray, FloatArray, FloatArray, int, int, FloatArray,
 ]:  # fmt: skip  # pragma: no cover - compiled
     """The compiled loop of :func:`eskf_batch`, positional arrays in and out.
 
     The filter over every aiding epoch j (sample ``aid_k[j]``): predict, then update by ``kind`` (0
     position, 1 velocity, 2 zupt = zero velocity and the block's mean rate with 1-sigma ``zaru_std[j]``).
     Returns the histories (M, ...) of b_a, b_g, their 1-sigma, R, p, v, fading; the final p, v, R, P; the
-    number of epochs done and, on divergence, the sample index (else -1). ``off``: the layout's
+    number of epochs done and, on divergence, the sample index (else -1); the aiding update's NIS (M,).
+    ``off``: the layout's
     offsets (:class:`imuslam.ins.core.ErrorLayout`), with both bias blocks."""
     m = P.shape[0]
     ith, ip, iv, iba, ibg, ig = off[0], off[1], off[2], off[3], off[4], off[5]
@@ -93,6 +94,7 @@ def eskf_kernel(
     hp = np.zeros((M_, 3))
     hv = np.zeros((M_, 3))
     hf = np.ones(M_)
+    hn = np.full(M_, np.nan)
     Qsum = np.zeros((m, m))
     V0 = np.zeros((3, 3))
     V1 = np.zeros((3, 3))
@@ -110,10 +112,10 @@ def eskf_kernel(
             Qsum += Qs
             k = kn
             if not (np.all(np.isfinite(P)) and np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
-                return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, j, k
+                return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, j, k, hn
             P = 0.5 * (P + P.T)
             if not is_pd(P + np.eye(m) * 1e-18):
-                return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, j, k
+                return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, j, k, hn
         H = np.zeros((3, m))
         if kind == 0:
             H[:, ip : ip + 3] = np.eye(3)
@@ -137,6 +139,9 @@ def eskf_kernel(
                 )
                 have1 = True
             else:
+                # normalised innovation squared against the predicted covariance (before any fading)
+                S = H @ P @ H.T + Rm
+                hn[j] = r @ np.linalg.solve(S, r)
                 dx, P, V0, fad = kalman_update(
                     P, Qsum, r, H, Rm, stkf, V0, have0, rho, beta, max_fading
                 )
@@ -152,9 +157,9 @@ def eskf_kernel(
                 dg = dg + dx[ig : ig + 3]
             Qsum[:, :] = 0.0
             if not (np.all(np.isfinite(P)) and np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
-                return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, j, kn
+                return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, j, kn, hn
             if not is_pd(P + np.eye(m) * 1e-18):
-                return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, j, kn
+                return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, j, kn, hn
         hb_a[j] = ba
         hb_g[j] = bg
         for i in range(3):
@@ -163,7 +168,7 @@ def eskf_kernel(
         hR[j] = R
         hp[j] = p
         hv[j] = v
-    return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, M_, -1
+    return hb_a, hb_g, hs_a, hs_g, hR, hp, hv, hf, p, v, R, P, M_, -1, hn
 
 
 @dataclass(frozen=True)
@@ -207,7 +212,9 @@ class FilterStart:
 @dataclass
 class EskfBatchResult:
     """The histories at the aiding epochs (M, ...): biases, their 1-sigma, R_n_b, p_n, v_n, fading
-    factors; the final p, v, R, P; the epochs done and, on divergence, the sample index (else -1)."""
+    factors; the final p, v, R, P; the epochs done and, on divergence, the sample index (else -1); the
+    aiding update's normalised innovation squared r^T S^-1 r (M,), S = H P H^T + R the predicted
+    innovation covariance (chi-square with 3 dof when the filter's noise is right; NaN past divergence)."""
 
     accel_bias: FloatArray
     gyro_bias: FloatArray
@@ -223,6 +230,7 @@ class EskfBatchResult:
     final_P: FloatArray
     epochs_done: int
     diverged_at: int
+    nis: FloatArray
 
 
 def eskf_batch(
