@@ -13,6 +13,7 @@ import pytest
 from imuslam.errors import InputError
 from imuslam.eval.metrics import rpe_pairs
 from imuslam.eval.relations import relation_error
+from imuslam.imu.allan import allan, overlapped_adev
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.imu.online import OnlineCalibrator
 from imuslam.ins.align import Aiding, run_alignment
@@ -96,6 +97,7 @@ MISUSE: dict[str, tuple[Callable[[Path], object], str]] = {
         lambda _: Trajectory.from_quat(np.arange(10), Z, Z),
         r"expected \(N, 4\) quaternions",
     ),
+    "Allan series length": (lambda _: overlapped_adev(np.zeros(2), 100.0), "needs at least 3"),
     "pose plan": (lambda _: OnlineCalibrator(np.zeros((5, 2)), None), "a pose plan of 5 poses"),
     "gyro without accel": (
         lambda _: _g_sensitive().correct_gyro(Z),
@@ -123,6 +125,7 @@ def test_api_misuse_is_a_value_error_not_an_input_error(case: str, tmp_path: Pat
         (lambda: Aiding(T[::-1], "zupt", Z, 0.01), "goes back in time"),
         (lambda: rpe_pairs(_line(), 1.5, "frames"), "whole number of frames"),
         (lambda: rpe_pairs(_line(3), 50.0, "m"), "gives no pair"),
+        (lambda: allan(_still_log()), "an Allan analysis needs a long static log"),
     ],
 )
 def test_bad_data_and_reachable_options_stay_input_errors(

@@ -98,7 +98,7 @@ def overlapped_adev(
         yy = yy[:, None]
     n = yy.shape[0]
     if n < 3:
-        raise InputError(f"{n} samples: the Allan deviation needs at least 3")
+        raise ValueError(f"{n} samples: the Allan deviation needs at least 3")
     tau0 = 1.0 / rate_hz
     mm = cluster_sizes(n) if ms is None else np.asarray(ms, dtype=np.int64)
     mm = mm[(mm >= 1) & (2 * mm < n)]
