@@ -17,6 +17,7 @@ from imuslam.imu.allan import allan, overlapped_adev
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.imu.online import OnlineCalibrator
 from imuslam.ins.align import Aiding, run_alignment
+from imuslam.ins.kf import KfNoise
 from imuslam.ins.measurement import chi2_threshold
 from imuslam.ins.preintegration import PreintegratedImu
 from imuslam.ins.rwnn import run_rwnn
@@ -77,6 +78,10 @@ MISUSE: dict[str, tuple[Callable[[Path], object], str]] = {
         ),
         "noise density",
     ),
+    "noise arrays": (
+        lambda _: KfNoise.from_log(Z, np.zeros((10, 2)), 100.0),
+        r"\(N, 3\) accel and gyro",
+    ),
     "gate probability": (lambda _: chi2_threshold(1.5, 3), r"gate probability must be in \(0, 1\)"),
     "preintegration lengths": (
         lambda _: PreintegratedImu().integrate(Z, Z, np.full(9, 0.01)),
@@ -126,6 +131,7 @@ def test_api_misuse_is_a_value_error_not_an_input_error(case: str, tmp_path: Pat
         (lambda: rpe_pairs(_line(), 1.5, "frames"), "whole number of frames"),
         (lambda: rpe_pairs(_line(3), 50.0, "m"), "gives no pair"),
         (lambda: allan(_still_log()), "an Allan analysis needs a long static log"),
+        (lambda: KfNoise.from_log(Z[:2], Z[:2], 100.0), "at least 3 samples, got 2"),
     ],
 )
 def test_bad_data_and_reachable_options_stay_input_errors(

@@ -69,10 +69,12 @@ class KfNoise:
         fl = floor or cls()
         a = np.asarray(accel, float)
         w = np.asarray(gyro, float)
-        if a.ndim != 2 or a.shape[1] != 3 or a.shape != w.shape or len(a) < 3:
-            raise InputError(
-                f"noise estimate needs (N >= 3, 3) accel and gyro, got {a.shape} and {w.shape}"
+        if a.ndim != 2 or a.shape[1] != 3 or a.shape != w.shape:
+            raise ValueError(
+                f"noise estimate needs (N, 3) accel and gyro, got {a.shape} and {w.shape}"
             )
+        if len(a) < 3:
+            raise InputError(f"noise estimate needs at least 3 samples, got {len(a)}")
         if not (np.isfinite(rate_hz) and rate_hz > 0):
             raise InputError(f"noise estimate needs a positive sample rate, got {rate_hz}")
 
