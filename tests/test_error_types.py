@@ -16,6 +16,7 @@ from imuslam.eval.relations import relation_error
 from imuslam.imu.allan import allan, overlapped_adev
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.imu.online import OnlineCalibrator
+from imuslam.imu.score import score_calibrations
 from imuslam.ins.align import Aiding, run_alignment
 from imuslam.ins.kf import KfNoise
 from imuslam.ins.measurement import chi2_threshold
@@ -103,6 +104,10 @@ MISUSE: dict[str, tuple[Callable[[Path], object], str]] = {
         r"expected \(N, 4\) quaternions",
     ),
     "Allan series length": (lambda _: overlapped_adev(np.zeros(2), 100.0), "needs at least 3"),
+    "no calibration": (
+        lambda _: score_calibrations(_still_log(), [], 9.80665),
+        "no calibration to score",
+    ),
     "pose plan": (lambda _: OnlineCalibrator(np.zeros((5, 2)), None), "a pose plan of 5 poses"),
     "gyro without accel": (
         lambda _: _g_sensitive().correct_gyro(Z),

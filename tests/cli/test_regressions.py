@@ -74,6 +74,7 @@ def multipose(tmp_path_factory: pytest.TempPathFactory) -> Path:
         (["simulate", "moon"], "'scenario'"),
         (["align", "IMU", "--method", "ekf"], "--method"),
         (["eval", "GT", "EST", "--rpe-unit", "km"], "--rpe-unit"),
+        (["score", "IMU"], "CALIB"),
         (["eval", "GT", "EST", "--rpe-delta", "0"], "--rpe-delta"),
         (["eval", "GT", "EST", "--rpe-delta", "nan"], "--rpe-delta"),
         (["online", "--sim", "--t-init", "0"], "--t-init"),

@@ -176,7 +176,7 @@ def score_calibrations(
 ) -> ScoreResult:
     """Score each ``(name, calibration)`` on the static poses of ``log`` (found without any calibration)."""
     if not calibrations:
-        raise InputError(
+        raise ValueError(
             "no calibration to score: give a calibration.yaml or an imu_tk .calib pair"
         )
     poses = detect_poses(log, t_init_s)
