@@ -124,6 +124,30 @@ def test_paired_verdicts() -> None:
     assert res.pairs[0].lo < 0 < res.pairs[0].hi
 
 
+def test_differences_figure_draws_each_pairs_evidence() -> None:
+    """The report's picture of a verdict: one panel per pair with the per-seed paired differences (the
+    frame's own none - kf values), their mean and interval as the verdict has them, and the bound."""
+    from imuslam.study.report import differences_figure
+
+    claim = parse_study(small_study(max_seeds=8)).claims[0]
+    rows = _fake_rows(1.0, 0.1, 8, 0)
+    res = analyse(claim, rows)
+    fig = differences_figure(res)
+    (ax,) = fig.axes
+    by_seed = rows.pivot_table(index="seed", columns="alignment", values="ape_rmse_m")
+    dots = ax.lines[0].get_ydata()
+    np.testing.assert_allclose(np.sort(dots), np.sort((by_seed["none"] - by_seed["kf"]).to_numpy()))
+    p = res.pairs[0]
+    bar = ax.containers[0]  # the errorbar: its caps at the verdict's interval
+    caps = sorted(float(c.get_ydata()[0]) for c in bar.lines[1])
+    np.testing.assert_allclose(caps, [p.lo, p.hi])
+    patch = ax.patches[0]  # the shaded practical bound, in the metric's units
+    ys = patch.get_patch_transform().transform(patch.get_path().vertices)[:, 1]
+    np.testing.assert_allclose([ys.min(), ys.max()], [-0.05, 0.05])
+    assert "bound +-0.05" in [t.get_text() for t in ax.get_legend().get_texts()]
+    assert p.verdict in ax.get_title()
+
+
 # ---------------------------------------------------------------------------------------------
 # cells
 

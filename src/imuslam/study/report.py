@@ -90,6 +90,9 @@ class PairRow:
     level: float = float("nan")
     power: float = float("nan")
     scheduled: int = 0  # seeds of the schedule up to the deciding (or last) look
+    diffs: tuple[
+        float, ...
+    ] = ()  # the per-seed differences the verdict took, in the schedule's order
 
 
 @dataclass
@@ -172,7 +175,7 @@ def analyse(
             pairs.append(
                 PairRow(name, better, worse, dec.n, dec.mean, dec.lo, dec.hi, agree, dec.verdict,
                         bound, sizes[-1], dec.look, dec.looks, dec.level, dec.power,
-                        sizes[dec.look - 1] if dec.look else 0)
+                        sizes[dec.look - 1] if dec.look else 0, tuple(float(x) for x in used))
             )  # fmt: skip
     return ClaimResult(claim, levels, pairs, overall_verdict(claim, [p.verdict for p in pairs]), d)
 
@@ -316,6 +319,45 @@ def figure_png(res: ClaimResult) -> bytes:
     return buf.getvalue()
 
 
+def differences_figure(res: ClaimResult) -> Any:
+    """Per pair: the paired differences per seed (dots), their mean with the verdict's interval, and the
+    practical bound (shaded, +-bound): the picture of each verdict. None when no pair has data."""
+    from matplotlib.figure import Figure
+
+    pairs = [p for p in res.pairs if p.diffs]
+    if not pairs:
+        return None
+    fig = Figure(figsize=(min(1.0 + 3.0 * len(pairs), 16), 3.6))
+    for i, p in enumerate(pairs):
+        ax = fig.add_subplot(1, len(pairs), i + 1)
+        d = np.asarray(p.diffs, float)
+        ax.plot(
+            np.linspace(-0.15, 0.15, len(d)), d, ".", color="0.5", ms=5, label=f"seeds ({len(d)})"
+        )
+        if np.isfinite(p.mean) and np.isfinite(p.lo):
+            ax.errorbar([0.4], [p.mean], yerr=[[p.mean - p.lo], [p.hi - p.mean]], fmt="o",
+                        color="C0", capsize=4, label="mean, interval")  # fmt: skip
+        if np.isfinite(p.bound) and p.bound > 0:
+            ax.axhspan(-p.bound, p.bound, color="C2", alpha=0.15, label=f"bound +-{p.bound:g}")
+        ax.axhline(0.0, color="k", lw=0.8)
+        ax.set_xlim(-0.5, 0.8)
+        ax.set_xticks([])
+        ax.set_title(f"{p.better} > {p.worse}\n{p.verdict}", fontsize=8)
+        if i == 0:
+            ax.set_ylabel(f"difference, {res.claim.metric}")
+        ax.legend(fontsize=6, loc="best")
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"{res.claim.name}: paired differences (positive: as claimed)", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def _png(fig: Any) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    return base64.b64encode(buf.getvalue()).decode()
+
+
 def _md_table_html(md: str) -> str:
     """The markdown tables of :func:`markdown` as HTML tables (the rest as paragraphs)."""
     out: list[str] = []
@@ -364,6 +406,10 @@ def write_outputs(
         png = base64.b64encode(figure_png(r)).decode()
         parts.append(_md_table_html(markdown(r)))
         parts.append(f'<img alt="{html.escape(r.claim.name)}" src="data:image/png;base64,{png}">')
+        diff_fig = differences_figure(r)
+        if diff_fig is not None:
+            parts.append(f'<img alt="{html.escape(r.claim.name)}: paired differences" '
+                         f'src="data:image/png;base64,{_png(diff_fig)}">')  # fmt: skip
     if len(failed):
         cols = ["claim", "scenario", "imu", "alignment", "variant", "seed", "error"]
         parts.append("<h2>Failed cells</h2>" + failed[cols].to_html(index=False, escape=True))
