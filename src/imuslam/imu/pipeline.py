@@ -10,15 +10,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from imuslam.imu.calibrate import CalibrationConfig, CalibrationResult, calibrate
-from imuslam.imu.crossval import CrossValidation, cross_validate
 from imuslam.imu.model import ACCEL_PARAM_NAMES, GYRO_PARAM_NAMES
 from imuslam.interfaces.imu import ImuLog
 from imuslam.interfaces.sources import ImuSource
+
+if TYPE_CHECKING:  # the cross-validation (and its pose scorer) loads only when folds are asked for
+    from imuslam.imu.crossval import CrossValidation
 
 
 @dataclass
@@ -72,6 +74,8 @@ class CalibratePipeline:
     def cross_validate(self, result: CalibrationResult) -> CrossValidation | None:
         if not self.cv_folds:
             return None
+        from imuslam.imu.crossval import cross_validate
+
         return cross_validate(
             self.log, self.config, result.intervals, self.cv_folds, result.calibration
         )
