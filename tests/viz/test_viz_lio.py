@@ -113,6 +113,30 @@ def test_the_imu_and_covariance(run: dict) -> None:  # type: ignore[type-arg]
     assert 0 < cov.rows <= 30 and np.all(half > 0) and np.all(half < 1.0)  # 1-sigma, metres
 
 
+def test_the_recording_carries_its_layout(run: dict) -> None:  # type: ignore[type-arg]
+    """The recording's blueprint: the 3D world on two thirds of the window, a plot for every per-scan
+    series the recording holds, the IMU's gyro and accel (read back from the file's blueprint store)."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(run["rrd"])
+    (store,) = reader.blueprints()
+    views: list[tuple[str, str]] = []
+    shares: list[list[float]] = []
+    for chunk in reader.stream(store=store):
+        rb = chunk.to_record_batch()
+        if "ViewBlueprint:space_origin" in rb.schema.names:
+            origins = rb.column("ViewBlueprint:space_origin").to_pylist()
+            kinds = rb.column("ViewBlueprint:class_identifier").to_pylist()
+            views += [(o[0], k[0]) for o, k in zip(origins, kinds, strict=True) if o and k]
+        if "ContainerBlueprint:col_shares" in rb.schema.names:
+            shares += [s for s in rb.column("ContainerBlueprint:col_shares").to_pylist() if s]
+    assert ("world", "3D") in views and shares == [[2.0, 1.0]]
+    series = {p.removeprefix("/") for p in run["rec"] if p.startswith("/scan/")}
+    assert len(series) == 5 and all((p, "TimeSeries") in views for p in series)
+    assert views.count(("imu", "TimeSeries")) == 2  # gyro and accel
+    assert len(views) == 1 + 5 + 2
+
+
 def test_rrd_is_never_an_input_nor_an_existing_file(run: dict, tmp_path: Path) -> None:  # type: ignore[type-arg]
     root = run["root"]
     gt = root / "gt.tum"

@@ -5,7 +5,7 @@ that has one, then every ``map_every`` scans) and the scan's figures ``scan/...`
 correspondences, points, time, the residual RMS at the pose); at the end (static)
 the trajectory ``world/trajectory`` (the positions of trajectory.tum), the exported map ``world/map``
 and the ground truth ``world/ground_truth`` moved onto the estimate (SE(3) alignment, as the
-metrics)."""
+metrics). The recording carries its layout (:func:`lio_blueprint`)."""
 
 from __future__ import annotations
 
@@ -46,6 +46,32 @@ def log_covariance(rr: Any, rec: Any, path: str, centre: FloatArray, C: FloatArr
                                   quaternions=[rr.Quaternion(xyzw=quat_xyzw(V))]))  # fmt: skip
 
 
+SCAN_FIGURES = (
+    ("residual_rms_m", "residual RMS (m)"),
+    ("points_registered", "points registered"),
+    ("correspondences", "correspondences"),
+    ("iterations", "iterations"),
+    ("time_ms", "time per scan (ms)"),
+)
+
+
+def lio_blueprint() -> Any:
+    """The viewer's layout of a ``lio`` recording: the 3D world (map, trajectory, ground truth, the
+    scan) on two thirds of the window; beside it the per-scan figures (one tab each, the residual RMS
+    first) above the IMU (gyro and accel tabs, raw and corrected together). Left to itself the viewer
+    gives each of the seven series a plot and the 3D view an eighth of the window."""
+    import rerun.blueprint as rrb
+
+    scan = [rrb.TimeSeriesView(origin=f"scan/{k}", name=name) for k, name in SCAN_FIGURES]
+    imu = [
+        rrb.TimeSeriesView(origin="imu", contents=[f"imu/raw/{k}", f"imu/corrected/{k}"], name=name)
+        for k, name in (("gyro", "IMU gyro (rad/s)"), ("accel", "IMU accel (m/s^2)"))
+    ]
+    world = rrb.Spatial3DView(origin="world", name="world")
+    right = rrb.Vertical(rrb.Tabs(*scan), rrb.Tabs(*imu))
+    return rrb.Blueprint(rrb.Horizontal(world, right, column_shares=[2.0, 1.0]))
+
+
 class LioLogger:
     """The observer of :meth:`imuslam.lio.pipeline.LioPipeline.run` writing to ``rec``."""
 
@@ -56,6 +82,7 @@ class LioLogger:
         self.n = 0
         self.map_at = -map_every  # the step the local map was last logged at
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.send_blueprint(lio_blueprint())
 
     def __call__(self, step: LioStep) -> None:
         rr, rec, st = self.rr, self.rec, step.stats
