@@ -142,7 +142,15 @@ class FilterConfig(BaseModel):
     (m; rotation as metres at 10 m) is kept at the IMU's prediction (Zhang 2016's solution remapping);
     the degenerate scans are reported either way; min_match_fraction / lost_scans: fewer of a scan's
     points matched to the map than this fraction for that many scans in a row is a divergence the
-    filter reports (exit 3) instead of going on with a map it lost (0 turns the check off)."""
+    filter reports (exit 3) instead of going on with a map it lost (0 turns the check off);
+    estimate_extrinsic / estimate_time_offset (off by default): the LiDAR's rotation and translation
+    on the IMU (6 states) and the LiDAR-to-IMU clock offset (1 state) refined inside the filter
+    (``lio.online_calib``), from the ``extrinsic`` section as prior with the 1-sigma
+    extrinsic_rot_std_deg (about each IMU axis, deg), extrinsic_p_std (m) and time_offset_std (s), and
+    a random walk per sqrt(s) (extrinsic_rot_rw_deg, extrinsic_p_rw, time_offset_rw);
+    extrinsic_guard (default on): a direction of those states that the motion has not excited (its
+    1-sigma from the scans alone above ``lio.extrinsic.ObservabilityLimits``) is held at its prior
+    (a consider state) instead of following the filter's noise."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     state: Literal["reduced", "full"] = "full"
@@ -170,6 +178,15 @@ class FilterConfig(BaseModel):
     degenerate_std: float = Field(0.1, gt=0)
     min_match_fraction: float = Field(0.15, ge=0, lt=1)
     lost_scans: int = Field(3, ge=1)
+    estimate_extrinsic: bool = False
+    estimate_time_offset: bool = False
+    extrinsic_rot_std_deg: float = Field(3.0, gt=0, le=30.0)
+    extrinsic_p_std: float = Field(0.15, gt=0, le=2.0)
+    time_offset_std: float = Field(0.03, gt=0, le=0.5)
+    extrinsic_rot_rw_deg: float = Field(0.01, ge=0)
+    extrinsic_p_rw: float = Field(1e-3, ge=0)
+    time_offset_rw: float = Field(1e-4, ge=0)
+    extrinsic_guard: bool = True
     g: float = Field(9.80665, ge=9.7, le=9.9, description="gravity on earth, m/s^2")
 
     @model_validator(mode="after")
@@ -178,6 +195,11 @@ class FilterConfig(BaseModel):
             raise ValueError(
                 "filter.start_covariance needs filter.lidar_model plane or plane_diag (the start's "
                 "registration covariance comes from the rows' model)"
+            )
+        if (self.estimate_extrinsic or self.estimate_time_offset) and self.lidar_model != "dof":
+            raise ValueError(
+                "filter.estimate_extrinsic and filter.estimate_time_offset need filter.lidar_model "
+                "dof (the point-to-plane rows; the plane models whiten them into 6 rows)"
             )
         return self
 

@@ -42,6 +42,7 @@ from imuslam.lio.matcher import Correspondences, LocalMap, huber_weights
 if TYPE_CHECKING:  # lio.rowcov (scipy.sparse) is imported only with ``filter.lidar_model: plane``
     import scipy.sparse as sp
 
+    from imuslam.lio.online_calib import OnlineCalibration
     from imuslam.lio.rowcov import SensorOrigins
 
 log = logging.getLogger(__name__)
@@ -330,6 +331,13 @@ class LioEstimator:
         self.layout = (
             ErrorLayout.reduced() if fc.state == "reduced" else ErrorLayout.full(gravity=True)
         )
+        # the extrinsic / offset as states (off by default)
+        self.calib: OnlineCalibration | None = None
+        if fc.estimate_extrinsic or fc.estimate_time_offset:
+            from imuslam.lio.online_calib import OnlineCalibration
+
+            self.calib = OnlineCalibration(config, self.layout)
+            self.layout = self.calib.layout
         self.degeneracy = DegeneracyGuard(self.layout, fc.degenerate_std, fc.degeneracy_guard)
         # (scan, time s, degenerate directions, the weakest direction's 1-sigma m) per degenerate scan
         self.degenerate_scans: list[tuple[int, float, list[str], float]] = []
@@ -540,7 +548,12 @@ class LioEstimator:
         sb = 0.05 if cfg.align == "none" else 0.01
         P0 = np.diag(lay.diag(theta=np.deg2rad(1.0) ** 2, p=0.05**2, v=0.2**2, ba=sb**2 * 100,
                               bg=sb**2, g=0.05**2))  # fmt: skip
-        self.eskf = Eskf(x, P=P0, noise=self.noise, layout=lay)
+        if self.calib is None:
+            self.eskf = Eskf(x, P=P0, noise=self.noise, layout=lay)
+        else:  # the start's errors follow the prior extrinsic's (``OnlineCalibration.start``)
+            self.eskf = self.calib.filter(
+                x, P0, self._samples(t_end - 0.02, t_end)[2][-1] - bg, self.noise
+            )
         if cfg.filter.map_covariance:
             # the world is the first IMU pose (the first scan's end, levelled once by R_w_i0): the map
             # has no error there by construction (FAST-LIO2's world); the points from before the filter
@@ -612,6 +625,10 @@ class LioEstimator:
             T_w_i = self.T_i_l @ T_l @ np.linalg.inv(self.T_i_l)
             return T_w_i  # the first IMU frame, before the filter's levelled world exists
         eskf = self.eskf
+        x_prior = eskf.x
+        if self.calib is not None:  # the offset estimated so far moves the scan onto the IMU clock
+            t_s, self.T_i_l = self.calib.scan_clock(x_prior, t_s)
+            t_end = float(np.max(t_s))
         if t_end <= self.t_state:
             raise InputError(
                 f"scan {k}: ends at {t_end:.3f} s, not after the previous scan ({self.t_state:.3f} s)"
@@ -623,6 +640,8 @@ class LioEstimator:
         x = eskf.x
         omega = gyr - x.gyro_bias
         f_w = np.einsum("kij,kj->ki", Rs, acc - x.accel_bias)
+        if self.calib is not None:  # the extra states' random walk, the unguarded covariance
+            self.calib.predicted(eskf, Rs, gyr, tk, f_w)
         a_w = f_w + x.g_n
         sel = select_indices(points_l, t_s, ring, self.config.frontend)
         if sel is None:  # deskew everything, then the reference front end
@@ -654,7 +673,10 @@ class LioEstimator:
         lin(eskf.x)
         if meas.n_corr >= 3 * self.layout.dim:
             x_start = None
-            upd = self.degeneracy.wrap(lin)  # tested on the prior's rows, remapped if degenerate
+            # tested on the prior's rows, remapped if degenerate
+            upd = self.degeneracy.wrap(
+                lin if self.calib is None else self.calib.wrap(lin, eskf.x, meas)
+            )
             if coarse:
                 first = eskf.iterated_update(upd, fc.max_iterations, fc.converge, commit=False)
                 meas.set_tight(True)
@@ -698,7 +720,10 @@ class LioEstimator:
         if self.shared is not None:  # the LiDAR origin the inserted points were measured from
             self.shared.origins.record(tag, x.R_n_b @ self.shared.p_i_l + x.p_n)
         self._n_inserted += 1
-        self.map.insert(surf_i, edge_i, x.R_n_b, x.p_n, tag)
+        R_ins, p_ins = x.R_n_b, x.p_n
+        if self.calib is not None:  # the points with the updated extrinsic, at their updated time
+            surf_i, edge_i, R_ins, p_ins = self.calib.insertion(x, x_prior, surf_l, edge_l)
+        self.map.insert(surf_i, edge_i, R_ins, p_ins, tag)
         if k % 10 == 0:
             self.map.prune(x.p_n)
         self.peak_map_points = max(self.peak_map_points, len(self.map))

@@ -86,8 +86,10 @@ LioObserver = Callable[[LioStep], None]
 @dataclass
 class LioResult:
     """Poses of the IMU frame (LiDAR frame when there is no IMU) at each scan end, per-scan statistics,
-    the downsampled global map (world frame), warnings, the effective configuration, and the start's
-    alignment (``ins.align.AlignmentResult``; None with ``align none`` or without an IMU)."""
+    the downsampled global map (world frame), warnings, the effective configuration, the start's
+    alignment (``ins.align.AlignmentResult``; None with ``align none`` or without an IMU), and with
+    ``filter.estimate_extrinsic`` / ``estimate_time_offset`` the final extrinsic and offset with their
+    1-sigma and what the motion excited (``OnlineCalibration.report``)."""
 
     trajectory: Trajectory
     stats: list[ScanStats]
@@ -97,6 +99,7 @@ class LioResult:
     peak_map_points: int = 0
     wall_s: float = 0.0
     alignment: AlignmentResult | None = None
+    online_calibration: dict[str, Any] | None = None
 
     @property
     def scans_per_s(self) -> float:
@@ -314,6 +317,10 @@ class LioPipeline:
             if gap:
                 warnings.append(gap)
             warnings.extend(guard_notes(est))
+        online = None
+        if getattr(est, "calib", None) is not None and est.eskf is not None:
+            online = est.calib.report(est.eskf.x, est.eskf.P)
+            warnings.extend(f"online extrinsic: {u}" for u in online["unobserved"])
         for w in warnings:
             log.warning("%s: %s", self.dataset.name, w)
         if span is not None and not poses and lidar_span:
@@ -338,4 +345,4 @@ class LioPipeline:
         )
         return LioResult(traj, stats, gmap.points, self.config, warnings,
                          getattr(est, "peak_map_points", 0), time.perf_counter() - wall0,
-                         getattr(est, "alignment", None))  # fmt: skip
+                         getattr(est, "alignment", None), online)  # fmt: skip

@@ -39,6 +39,8 @@ def write_results(
         "map_points": len(result.map_points),
         "warnings": list(result.warnings),
     }
+    if result.online_calibration is not None:
+        run["online_calibration"] = result.online_calibration
 
     def extra(tmp: Path) -> None:
         write_ply(tmp / "map.ply", result.map_points)
