@@ -19,7 +19,7 @@ import yaml
 from imuslam.interfaces import Trajectory
 from imuslam.io.atomic import write_atomic
 from imuslam.study.logconfig import LogSpec, LogStudyConfig
-from imuslam.study.report import _fmt, _md_table_html
+from imuslam.study.report import fmt_number, md_table_html
 
 
 @dataclass
@@ -62,7 +62,7 @@ COLUMNS = (
 
 def _num(x: float) -> str:
     """A figure; a difference below 1e-12 (a run against itself, round-off) as 0."""
-    return "0" if np.isfinite(x) and abs(x) < 1e-12 else _fmt(x)
+    return "0" if np.isfinite(x) and abs(x) < 1e-12 else fmt_number(x)
 
 
 #: The terminal's shorter table leaves these out (they are in report.md and results.csv).
@@ -125,7 +125,7 @@ def figure_png(spec: LogSpec, runs: list[RunResult]) -> bytes:
         ax.set_xlim(c[0] - 6, c[0] + 6)
         ax.set_ylim(c[1] - 6, c[1] + 6)
         ax.set_title(
-            f"{r.run}: {_fmt(r.metrics.get('wall_spread_cm', float('nan')))} cm", fontsize=9
+            f"{r.run}: {fmt_number(r.metrics.get('wall_spread_cm', float('nan')))} cm", fontsize=9
         )
         ax.set_aspect("equal")
     ax = fig.add_subplot(1, n, n)
@@ -163,7 +163,7 @@ def write_log_outputs(study: LogStudyConfig, res: LogStudyRun, out: Path) -> Non
         mds.append(md)
         png = base64.b64encode(figure_png(spec, runs)).decode()
         parts += [
-            _md_table_html(md),
+            md_table_html(md),
             f'<img alt="{html.escape(spec.name)}" src="data:image/png;base64,{png}">',
         ]
         (out / spec.name).mkdir(exist_ok=True)

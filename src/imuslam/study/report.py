@@ -214,7 +214,7 @@ def overall_verdict(claim: ClaimSpec, vs: list[str]) -> str:
     return "partly supported" if HOLDS in vs else "not resolved"
 
 
-def _fmt(x: float) -> str:
+def fmt_number(x: float) -> str:
     if not np.isfinite(x):
         return "-"
     return f"{x:.3g}" if abs(x) < 1000 else f"{x:,.0f}"
@@ -229,16 +229,16 @@ def markdown(res: ClaimResult) -> str:
              "| context | level | seeds | mean | 95 % CI | median | failed |", "|---|---|---:|---:|---|---:|---:|"]  # fmt: skip
     for r in res.levels:
         lines.append(
-            f"| {r.context} | {r.level} | {r.n} | {_fmt(r.mean)} | [{_fmt(r.lo)}, {_fmt(r.hi)}] | {_fmt(r.median)} | {r.failed} |"
+            f"| {r.context} | {r.level} | {r.n} | {fmt_number(r.mean)} | [{fmt_number(r.lo)}, {fmt_number(r.hi)}] | {fmt_number(r.median)} | {r.failed} |"
         )
     if c.practical_bound is not None:
-        lines += ["", f"Practical bound: {_fmt(c.practical_bound)} ({c.metric}): {c.reason.strip()}. "
+        lines += ["", f"Practical bound: {fmt_number(c.practical_bound)} ({c.metric}): {c.reason.strip()}. "
                   f"Seed budget: {c.max_seeds}."]  # fmt: skip
     lines += ["", "| context | better | than | seeds (look) | mean difference | interval | seeds agreeing | verdict |",
               "|---|---|---|---:|---:|---|---:|---|"]  # fmt: skip
     for p in res.pairs:
         lines.append(
-            f"| {p.context} | {p.better} | {p.worse} | {pair_seeds(p)} | {_fmt(p.mean)} | {pair_interval(p)} | {p.agree}/{p.n} | {pair_verdict(p)} |"
+            f"| {p.context} | {p.better} | {p.worse} | {pair_seeds(p)} | {fmt_number(p.mean)} | {pair_interval(p)} | {p.agree}/{p.n} | {pair_verdict(p)} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -250,8 +250,8 @@ def pair_table_rows(res: ClaimResult) -> list[list[str]]:
     """One row per pair for the terminal (:data:`PAIR_COLUMNS`): the effect with its interval, the
     verdict and the seeds it took."""
     return [
-        [res.claim.name, p.context, f"{p.better} > {p.worse}", _fmt(p.mean), pair_interval(p),
-         _fmt(p.bound), pair_verdict(p), pair_seeds(p)]
+        [res.claim.name, p.context, f"{p.better} > {p.worse}", fmt_number(p.mean), pair_interval(p),
+         fmt_number(p.bound), pair_verdict(p), pair_seeds(p)]
         for p in res.pairs
     ]  # fmt: skip
 
@@ -264,7 +264,7 @@ def pair_seeds(p: PairRow) -> str:
 def pair_interval(p: PairRow) -> str:
     """'[lo, hi] 98.8 %': the interval of the deciding look and its confidence."""
     level = f" {100 * p.level:.4g} %" if np.isfinite(p.level) else ""
-    return f"[{_fmt(p.lo)}, {_fmt(p.hi)}]{level}"
+    return f"[{fmt_number(p.lo)}, {fmt_number(p.hi)}]{level}"
 
 
 def pair_verdict(p: PairRow) -> str:
@@ -358,7 +358,7 @@ def _png(fig: Any) -> str:
     return base64.b64encode(buf.getvalue()).decode()
 
 
-def _md_table_html(md: str) -> str:
+def md_table_html(md: str) -> str:
     """The markdown tables of :func:`markdown` as HTML tables (the rest as paragraphs)."""
     out: list[str] = []
     rows: list[list[str]] = []
@@ -404,7 +404,7 @@ def write_outputs(
              *(f"<p>{html.escape(x)}</p>" for x in READING)]  # fmt: skip
     for r in results:
         png = base64.b64encode(figure_png(r)).decode()
-        parts.append(_md_table_html(markdown(r)))
+        parts.append(md_table_html(markdown(r)))
         parts.append(f'<img alt="{html.escape(r.claim.name)}" src="data:image/png;base64,{png}">')
         diff_fig = differences_figure(r)
         if diff_fig is not None:
