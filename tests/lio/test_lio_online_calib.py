@@ -126,7 +126,7 @@ def test_the_waved_rig_pulls_the_extrinsic_and_the_offset_towards_the_truth() ->
     reported excited; the offset ends within 3 of its reported sigma of the truth (it started 22
     sigma away), the lever arm within 3 sigma per axis and within a third of its start error; the
     rotation error falls below 0.75 of the start's 2 deg (its reported sigma is overconfident, about
-    a tenth of the error left: docs/lidar_calibration.md)."""
+    a fifth of the error left: docs/lidar_calibration.md)."""
     from imuslam.lio.config import FrontEndConfig, MapConfig
     from imuslam.sim.drive import simulate_lidar_imu_rig
 
@@ -152,7 +152,9 @@ def test_the_waved_rig_pulls_the_extrinsic_and_the_offset_towards_the_truth() ->
 def test_the_street_car_keeps_the_unexcited_lever_arm_at_its_prior() -> None:
     """The car of the street loop only yaws: the lever arm along z changes no residual, so the guard
     reports it unobserved (its 1-sigma from the scans many times the 3 cm limit) and holds it at
-    the prior to the micrometre with the prior's 1-sigma, instead of letting the filter move it."""
+    the prior with the prior's 1-sigma (within 2 mm: the frozen direction is an eigenvector of the
+    scans' information 4-7 % off the z axis, and the lever arm along x and y, estimated, moves by
+    centimetres)."""
     from imuslam.sim.drive import simulate_lidar_imu_rig
 
     d = simulate_lidar_imu_rig("street", 20.0, 4, true_T_i_l(), OFFSET_S, lidar=SMALL)
@@ -162,5 +164,5 @@ def test_the_street_car_keeps_the_unexcited_lever_arm_at_its_prior() -> None:
     assert oc["observed_p_i_l"]["z"] is False
     assert oc["data_sigma_p_i_l_m"][2] > 5 * 0.03
     assert any("lever arm along IMU" in u and "+1.00]" in u for u in oc["unobserved"])
-    assert abs(oc["p_i_l_m"][2] - cfg.extrinsic.p_i_l[2]) < 1e-6
+    assert abs(oc["p_i_l_m"][2] - cfg.extrinsic.p_i_l[2]) < 2e-3
     assert oc["sigma_p_i_l_m"][2] == pytest.approx(cfg.filter.extrinsic_p_std, rel=0.1)

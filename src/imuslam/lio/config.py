@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
@@ -39,6 +40,17 @@ class ExtrinsicConfig(BaseModel):
         T[:3, :3] = quat_to_matrix(np.asarray(self.quat_wxyz_i_l, dtype=float))
         T[:3, 3] = self.p_i_l
         return T
+
+
+@dataclass
+class ObservabilityLimits:
+    """The largest 1-sigma at which a parameter still counts as observed: rotation about an IMU axis,
+    deg; lever arm along an IMU axis, m; clock offset, s (``lio.extrinsic``'s verdict and the
+    filter's guard, ``lio.online_calib``)."""
+
+    rotation_deg: float = 0.5
+    translation_m: float = 0.03
+    time_offset_s: float = 0.005
 
 
 class FrontEndConfig(BaseModel):
@@ -148,9 +160,9 @@ class FilterConfig(BaseModel):
     (``lio.online_calib``), from the ``extrinsic`` section as prior with the 1-sigma
     extrinsic_rot_std_deg (about each IMU axis, deg), extrinsic_p_std (m) and time_offset_std (s), and
     a random walk per sqrt(s) (extrinsic_rot_rw_deg, extrinsic_p_rw, time_offset_rw);
-    extrinsic_guard (default on): a direction of those states that the motion has not excited (its
-    1-sigma from the scans alone above ``lio.extrinsic.ObservabilityLimits``) is held at its prior
-    (a consider state) instead of following the filter's noise."""
+    extrinsic_guard (default on): a direction of those states whose 1-sigma from the scans alone is
+    still above the prior's is held at its prior instead of following the filter's noise; the run
+    reports the directions whose 1-sigma from the scans exceeds ``ObservabilityLimits`` unobserved."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     state: Literal["reduced", "full"] = "full"

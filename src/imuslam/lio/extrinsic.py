@@ -54,22 +54,12 @@ from scipy.spatial.transform import Rotation, RotationSpline, Slerp
 
 from imuslam.errors import InputError
 from imuslam.interfaces import ImuLog, Scan3d
-from imuslam.lio.config import ExtrinsicConfig, LioConfig
+from imuslam.lio.config import ExtrinsicConfig, LioConfig, ObservabilityLimits
 from imuslam.lio.lidar_only import LidarOdometry
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 AXES = ("x", "y", "z")
-
-
-@dataclass
-class ObservabilityLimits:
-    """The largest 1-sigma at which a parameter still counts as observed: rotation about an IMU axis,
-    deg; lever arm along an IMU axis, m; clock offset, s."""
-
-    rotation_deg: float = 0.5
-    translation_m: float = 0.03
-    time_offset_s: float = 0.005
 
 
 @dataclass
