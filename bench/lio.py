@@ -10,7 +10,8 @@
     PYTHONPATH=src python bench/lio.py rowmodel  # one scan's covariance against a map from the true poses
     PYTHONPATH=src python bench/lio.py robust    # a wrong clock offset / extrinsic, without and with calibrate-lidar;
                                                  # dropped scans / IMU samples, an IMU gap, a clipped gyro, an open
-                                                 # field, traffic: guards on / off, KISS-ICP (--part faults)
+                                                 # field, traffic: guards on / off, KISS-ICP (--part faults);
+                                                 # the extrinsic / offset as filter states off / on (--part online)
     PYTHONPATH=src python bench/lio.py dense     # VLP-16, Ouster OS1-128 / OS1-64, Livox-like rosette: imuslam,
                                                  # rko-lio and KISS-ICP on the same scans, drift and scans/s
     PYTHONPATH=src python bench/lio.py calib     # the LiDAR-IMU calibration's errors and 1-sigma per seed, and on the street
@@ -748,6 +749,71 @@ def robust_bench(args: Any) -> None:
         faults_bench(args)
     if args.part in ("all", "calib"):
         offsets_bench(args)
+    if args.part in ("all", "online"):
+        online_bench(args)
+
+
+def online_bench(args: Any) -> None:
+    """The extrinsic and clock offset refined inside the filter (``filter.estimate_extrinsic`` /
+    ``estimate_time_offset``, ``lio.online_calib``), off / on, started 2 deg / 10 cm / 20 ms away, on
+    the waved rig (20 s, the room's front end of ``offsets_bench``) and the street car (20 s, yaw only,
+    seed 4: the tests' drives), with the true values as the first row of each: ATE after an SE(3)
+    alignment, the final errors with their reported 1-sigma, the directions reported unobserved and
+    whether the guard held them."""
+    from scipy.spatial.transform import Rotation
+
+    from imuslam.sim.drive import simulate_lidar_imu_rig
+    from imuslam.sim.lidar import Lidar3dConfig
+
+    dur = args.duration or 20.0
+    T = np.eye(4)
+    r, p, y = RIG_T_I_L_RPY_DEG
+    T[:3, :3] = Rotation.from_euler("ZYX", [y, p, r], degrees=True).as_matrix()
+    T[:3, 3] = RIG_P_I_L
+    dR = Rotation.from_rotvec(np.deg2rad(2.0) * np.ones(3) / np.sqrt(3)).as_matrix()
+    dp = 0.1 * np.array([1.0, -1.0, 1.0]) / np.sqrt(3)
+
+    def ext(R: FloatArr, p: FloatArr, off: float) -> ExtrinsicConfig:
+        x, y, z, w = Rotation.from_matrix(R).as_quat()
+        return ExtrinsicConfig(p_i_l=tuple(p), quat_wxyz_i_l=(w, x, y, z), time_offset_s=off)  # type: ignore[arg-type]
+
+    print("| drive | extrinsic / offset given | in-filter refinement | ATE m | rotation RMSE deg | rotation err deg "
+          "(1-sigma) | lever-arm err cm (1-sigma) | offset err ms (1-sigma) | unobserved (the guard) | s |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    room = {"frontend": FrontEndConfig(mode="features", scan_voxel=0.25, min_range=0.2),
+            "map": MapConfig(voxel=0.2)}  # fmt: skip
+    for motion, seed in (("excited", 1), ("street", 4)):
+        d = simulate_lidar_imu_rig(motion, dur, seed, T, 0.02, lidar=Lidar3dConfig(columns=900))
+        R0, p0 = d.T_i_l[:3, :3], d.T_i_l[:3, 3]
+        imu = true_calibration().correct(d.imu)
+        for given, online in (("truth", False), ("2 deg / 10 cm / 20 ms off", False),
+                              ("2 deg / 10 cm / 20 ms off", True)):  # fmt: skip
+            start = ext(R0, p0, 0.02) if given == "truth" else ext(dR @ R0, p0 + dp, 0.0)
+            cfg = LioConfig(extrinsic=start, **(room if motion == "excited" else {}))  # type: ignore[arg-type]
+            if online:
+                f = cfg.filter.model_copy(
+                    update={"estimate_extrinsic": True, "estimate_time_offset": True}
+                )
+                cfg = cfg.model_copy(update={"filter": f})
+            t0 = time.perf_counter()
+            res = LioPipeline(MemoryDataset(d.scans, imu, "rig"), cfg, progress=False).run()
+            ev = evaluate(truth(d), res.trajectory, "se3", 1.0, "frames", 0.02)
+            oc = res.online_calibration
+            errs = ["", "", "", ""]
+            if oc is not None:
+                q = oc["quat_wxyz_i_l"]
+                Rq = Rotation.from_quat([q[1], q[2], q[3], q[0]]).as_matrix()
+                er = np.rad2deg(Rotation.from_matrix(Rq @ R0.T).as_rotvec())
+                ep = 100 * (np.array(oc["p_i_l_m"]) - p0)
+                f3 = lambda v: " ".join(f"{x:+.2f}" for x in v)  # noqa: E731
+                errs = [f"{f3(er)} ({f3(oc['sigma_rot_deg'])})",
+                        f"{f3(ep)} ({f3(100 * np.array(oc['sigma_p_i_l_m']))})",
+                        f"{1e3 * (oc['time_offset_s'] - 0.02):+.2f} ({1e3 * oc['sigma_time_offset_s']:.2f})",
+                        "; ".join(f"{u.split(':')[0]} ({u.rsplit(', ', 1)[-1]})" for u in oc["unobserved"])
+                        or "none"]  # fmt: skip
+            print(f"| {motion} | {given} | {'on' if online else 'off'} | {ev.ape_trans.rmse:.4f} | "
+                  f"{ev.ape_rot_deg.rmse:.3f} | {' | '.join(errs)} | {time.perf_counter() - t0:.0f} |",
+                  flush=True)  # fmt: skip
 
 
 def offsets_bench(args: Any) -> None:
@@ -872,8 +938,9 @@ def main() -> None:
     )
     ap.add_argument("--dense-voxel", type=float, default=1.5,
                     help="dense: frontend.scan_voxel for scans of more than 40k points, m")  # fmt: skip
-    ap.add_argument("--part", choices=["all", "faults", "calib"], default="all",
-                    help="robust: the sensor faults, the wrong offset / extrinsic, or both")  # fmt: skip
+    ap.add_argument("--part", choices=["all", "faults", "calib", "online"], default="all",
+                    help="robust: the sensor faults, the wrong offset / extrinsic (calibrate-lidar; "
+                         "online: the filter's own refinement), or all")  # fmt: skip
     ap.add_argument("--cache", type=Path, default=Path("/tmp/imuslam-bench-lio"))
     ap.add_argument("--columns", type=int, default=450, help="memory: LiDAR columns per turn")
     ap.add_argument("--every", type=int, default=1000, help="memory: scans between table rows")
