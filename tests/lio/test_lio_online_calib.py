@@ -125,8 +125,8 @@ def test_the_waved_rig_pulls_the_extrinsic_and_the_offset_towards_the_truth() ->
     ``bench/lio.py robust``), the filter started 2 deg / 10 cm / 20 ms away: every direction is
     reported excited; the offset ends within 3 of its reported sigma of the truth (it started 22
     sigma away), the lever arm within 3 sigma per axis and within a third of its start error; the
-    rotation error falls below 0.75 of the start's 2 deg (its reported sigma is overconfident, about
-    a fifth of the error left: docs/lidar_calibration.md)."""
+    rotation error falls below 0.75 of the start's 2 deg (its reported sigma is overconfident, a
+    third to a half of the error left: docs/lidar_calibration.md)."""
     from imuslam.lio.config import FrontEndConfig, MapConfig
     from imuslam.sim.drive import simulate_lidar_imu_rig
 

@@ -195,7 +195,7 @@ class FilterConfig(BaseModel):
     extrinsic_rot_std_deg: float = Field(3.0, gt=0, le=30.0)
     extrinsic_p_std: float = Field(0.15, gt=0, le=2.0)
     time_offset_std: float = Field(0.03, gt=0, le=0.5)
-    extrinsic_rot_rw_deg: float = Field(0.01, ge=0)
+    extrinsic_rot_rw_deg: float = Field(0.05, ge=0)
     extrinsic_p_rw: float = Field(1e-3, ge=0)
     time_offset_rw: float = Field(1e-4, ge=0)
     extrinsic_guard: bool = True
