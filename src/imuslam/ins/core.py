@@ -443,28 +443,32 @@ class Eskf:
         converges gives the same estimate); with ``commit=False`` the state and covariance are left as
         they were and the result's dx is the last iterate's offset from the prior."""
         x0 = self.x
-        P0 = self.P
+        proj, P0 = self._update_prior(self.P)
         try:
             Pinv = np.linalg.inv(P0)
         except np.linalg.LinAlgError:
             raise FilterDivergence(
                 f"filter diverged at sample {self.n_samples} (t = {self._t_s:.3f} s): prior covariance singular"
             ) from None
-        xj = x0 if x_start is None else x_start
+        xj = x0 if x_start is None else self._start(x_start)
         r0 = np.zeros(0)
         nis = float("nan")
         m = self.n
         KH: FloatArray = np.zeros((m, m))
+        H0: FloatArray = np.zeros((0, m))
+        R0: FloatArray = np.zeros(0)
         it = 0
         for it in range(1, max_iter + 1):
             r, H, Rm = linearize_fn(xj)
             if it == 1:
-                r0 = r
+                r0, H0, R0 = r, H, Rm
                 if gate_prob is not None:
                     ok, nis = gate(r, H, Rm, P0, gate_prob)
                     if not ok:
                         return UpdateResult(False, nis, r, np.zeros(m), 0)
-            delta = boxminus(xj, x0, self.layout)
+            if proj is not None:
+                H = H @ proj
+            delta = self._minus(xj, x0)
             # R^-1 H; a 1-D R is the diagonal (independent rows: thousands of point-to-plane residuals)
             Rinv_H = H / Rm[:, None] if np.ndim(Rm) == 1 else np.linalg.solve(Rm, H)
             HtRH = H.T @ Rinv_H
@@ -472,19 +476,39 @@ class Eskf:
             # K = A^-1 H^T R^-1 never formed (m x k): only K H and K r are needed
             KH = np.asarray(np.linalg.solve(A, HtRH), dtype=np.float64)
             step = np.linalg.solve(A, Rinv_H.T @ r) - (np.eye(m) - KH) @ delta
-            xj = boxplus(xj, step, self.layout)
+            xj = self._plus(xj, step)
             if not np.all(np.isfinite(step)):
                 break
             if float(np.linalg.norm(step)) < eps:
                 break
         if not commit:
-            return UpdateResult(True, nis, r0, boxminus(xj, x0, self.layout), it)
+            return UpdateResult(True, nis, r0, self._minus(xj, x0), it)
+        self._committed(H0, R0)
         self.x = xj
         self.P = (np.eye(m) - KH) @ P0
         self.P = 0.5 * (self.P + self.P.T)
         self._Qsum = np.zeros_like(self.P)
         self._check()
-        return UpdateResult(True, nis, r0, boxminus(xj, x0, self.layout), it)
+        return UpdateResult(True, nis, r0, self._minus(xj, x0), it)
+
+    # the iterated update's hooks: a filter with states ``boxplus`` leaves to their owner (the LIO's
+    # in-filter extrinsic, lio.online_calib) overrides them; the defaults are the plain ESKF's
+    def _plus(self, x: InsState, dx: FloatArray) -> InsState:
+        return boxplus(x, dx, self.layout)
+
+    def _minus(self, x1: InsState, x0: InsState) -> FloatArray:
+        return boxminus(x1, x0, self.layout)
+
+    def _start(self, x: InsState) -> InsState:
+        """The first iterate from a caller's start state."""
+        return x
+
+    def _update_prior(self, P: FloatArray) -> tuple[FloatArray | None, FloatArray]:
+        """(a projector applied to H's columns, or None; the prior covariance the update uses)."""
+        return None, P
+
+    def _committed(self, H: FloatArray, R: FloatArray) -> None:
+        """Called with the first iterate's Jacobian and noise when an update is committed."""
 
     # the alignment's measurements by name
     def update_position(self, p_meas: FloatArray, std: float, t_s: float) -> FloatArray:

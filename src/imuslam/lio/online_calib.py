@@ -25,8 +25,8 @@ error, and the rotation and offset took it up: 1 deg and 17 ms left against 0.2 
 unguarded.) The start's attitude and position come from the
 LiDAR through the prior extrinsic and offset; their errors are a linear function of the extra states'
 (``start_jacobian``) and enter the initial covariance with that correlation. ``ins.core``'s
-``boxplus`` leaves extra states to their owner, so ``CalibratingEskf`` runs the iterated update on
-``LioState``.
+``boxplus`` leaves extra states to their owner, so ``CalibratingEskf`` fills ``Eskf.iterated_update``'s
+hooks for ``LioState`` (one iterated update for every filter).
 """
 
 from __future__ import annotations
@@ -38,9 +38,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.errors import FilterDivergence
 from imuslam.geometry.so3 import exp, hat, log
-from imuslam.ins.core import ErrorLayout, Eskf, InsState, UpdateResult, boxminus, boxplus
+from imuslam.ins.core import ErrorLayout, Eskf, InsState, boxminus, boxplus
 from imuslam.lio.config import ObservabilityLimits
 
 if TYPE_CHECKING:
@@ -391,57 +390,30 @@ class CalibratingEskf(Eskf):
         super().__init__(x, P, layout=calib.layout, **kw)
         self.calib = calib
 
-    def iterated_update(
-        self,
-        linearize_fn: Callable[[InsState], tuple[FloatArray, FloatArray, FloatArray]],
-        max_iter: int = 5,
-        eps: float = 1e-6,
-        gate_prob: float | None = None,
-        x_start: InsState | None = None,
-        commit: bool = True,
-    ) -> UpdateResult:
-        """``Eskf.iterated_update`` (FAST-LIO2 eqs. 18-20) on the augmented state; the step's rows
-        along the unexcited directions zeroed by ``OnlineCalibration.projector`` (Schmidt's gain) and
-        the covariance in Joseph form ``(I - E K H) P (I - E K H)^T + E K R K^T E^T``."""
-        c = self.calib
-        x0 = self.x
-        Proj, P0 = c.freeze(self.P)
-        try:
-            Pinv = np.linalg.inv(P0)
-        except np.linalg.LinAlgError:
-            raise FilterDivergence(
-                f"filter diverged at sample {self.n_samples} (t = {self._t_s:.3f} s): prior covariance singular"
-            ) from None
-        m = self.n
-        xj = x0 if x_start is None else x_start
-        if not isinstance(xj, LioState):  # a start from ins.core's boxplus keeps x0's extra states
-            xj = c.boxplus(x0, boxminus(xj, x0, self.layout))
-        r0, it = np.zeros(0), 0
-        A, HtRH = Pinv, np.zeros((m, m))
-        for it in range(1, max_iter + 1):
-            r, H, Rm = linearize_fn(xj)
-            if it == 1:
-                r0, H_free, R_free = r, H, Rm
-            H = H @ Proj
-            delta = c.boxminus(xj, x0)
-            Rinv_H = H / Rm[:, None] if np.ndim(Rm) == 1 else np.linalg.solve(Rm, H)
-            HtRH = H.T @ Rinv_H
-            A = HtRH + Pinv
-            KH = np.linalg.solve(A, HtRH)
-            step = np.linalg.solve(A, Rinv_H.T @ r) - (np.eye(m) - KH) @ delta
-            xj = c.boxplus(xj, step)
-            if not np.all(np.isfinite(step)) or float(np.linalg.norm(step)) < eps:
-                break
-        if not commit:
-            return UpdateResult(True, float("nan"), r0, c.boxminus(xj, x0), it)
-        c.n_updates += 1
-        Rinv_H = (
-            H_free / R_free[:, None] if np.ndim(R_free) == 1 else np.linalg.solve(R_free, H_free)
+    # Eskf.iterated_update's hooks (FAST-LIO2 eqs. 18-20 on the augmented state): the extra states'
+    # nominal values carried through the iterates, and the step's columns along the unexcited
+    # directions zeroed by ``OnlineCalibration.freeze`` (Schmidt's consider states)
+    def _plus(self, x: InsState, dx: FloatArray) -> InsState:
+        return self.calib.boxplus(x, dx)
+
+    def _minus(self, x1: InsState, x0: InsState) -> FloatArray:
+        return self.calib.boxminus(x1, x0)
+
+    def _start(self, x: InsState) -> InsState:
+        # a start from ins.core's boxplus keeps the prior's extra states
+        return (
+            x
+            if isinstance(x, LioState)
+            else self.calib.boxplus(self.x, boxminus(x, self.x, self.layout))
         )
-        c.P_free = np.linalg.inv(H_free.T @ Rinv_H + np.linalg.inv(c.P_free))
+
+    def _update_prior(self, P: FloatArray) -> tuple[FloatArray | None, FloatArray]:
+        return self.calib.freeze(P)
+
+    def _committed(self, H: FloatArray, R: FloatArray) -> None:
+        """The scans-only covariance (the guard's evidence) takes the update unprojected."""
+        c = self.calib
+        c.n_updates += 1
+        Rinv_H = H / R[:, None] if np.ndim(R) == 1 else np.linalg.solve(R, H)
+        c.P_free = np.linalg.inv(H.T @ Rinv_H + np.linalg.inv(c.P_free))
         c.P_free = 0.5 * (c.P_free + c.P_free.T)
-        P = (np.eye(m) - np.linalg.solve(A, HtRH)) @ P0
-        self.x, self.P = xj, 0.5 * (P + P.T)
-        self._Qsum = np.zeros_like(self.P)
-        self._check()
-        return UpdateResult(True, float("nan"), r0, c.boxminus(xj, x0), it)
