@@ -644,9 +644,36 @@ RIG_T_I_L_RPY_DEG = (5.0, -3.0, 90.0)  # roll, pitch, yaw of the LiDAR on the IM
 RIG_P_I_L = (0.1, -0.05, 0.15)
 
 
+def rig_T_i_l() -> FloatArr:
+    """The rig's true LiDAR pose on the IMU (4 x 4)."""
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    r, p, y = RIG_T_I_L_RPY_DEG
+    T[:3, :3] = Rotation.from_euler("ZYX", [y, p, r], degrees=True).as_matrix()
+    T[:3, 3] = RIG_P_I_L
+    return T
+
+
+def extrinsic(R: FloatArr, p: FloatArr, offset_s: float) -> ExtrinsicConfig:
+    """The config's extrinsic from a rotation, a lever arm and a clock offset."""
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return ExtrinsicConfig(p_i_l=tuple(p), quat_wxyz_i_l=(w, x, y, z), time_offset_s=offset_s)  # type: ignore[arg-type]
+
+
+def off_by_2deg_10cm(R: FloatArr, p: FloatArr) -> tuple[FloatArr, FloatArr]:
+    """The start the tests use: the rotation turned 2 deg about (1, 1, 1), the lever arm moved 10 cm
+    along (1, -1, 1)."""
+    from scipy.spatial.transform import Rotation
+
+    dR = Rotation.from_rotvec(np.deg2rad(2.0) * np.ones(3) / np.sqrt(3)).as_matrix()
+    return dR @ R, p + 0.1 * np.array([1.0, -1.0, 1.0]) / np.sqrt(3)
+
+
 def rig(duration: float, offset_s: float, cache: Path, seed: int = 1) -> Any:
     """The excited LiDAR-IMU rig of tests/lio/test_lio_extrinsic.py (900 columns), cached."""
-    from scipy.spatial.transform import Rotation
 
     from imuslam.sim.drive import simulate_lidar_imu_rig
     from imuslam.sim.lidar import Lidar3dConfig
@@ -656,12 +683,8 @@ def rig(duration: float, offset_s: float, cache: Path, seed: int = 1) -> Any:
     if f.exists():
         with open(f, "rb") as fh:
             return pickle.load(fh)
-    T = np.eye(4)
-    r, p, y = RIG_T_I_L_RPY_DEG
-    T[:3, :3] = Rotation.from_euler("ZYX", [y, p, r], degrees=True).as_matrix()
-    T[:3, 3] = RIG_P_I_L
     d = simulate_lidar_imu_rig(
-        "excited", duration, seed, T, offset_s, lidar=Lidar3dConfig(columns=900)
+        "excited", duration, seed, rig_T_i_l(), offset_s, lidar=Lidar3dConfig(columns=900)
     )
     with open(f, "wb") as fh:
         pickle.dump(d, fh)
@@ -766,17 +789,7 @@ def online_bench(args: Any) -> None:
     from imuslam.sim.lidar import Lidar3dConfig
 
     dur = args.duration or 20.0
-    T = np.eye(4)
-    r, p, y = RIG_T_I_L_RPY_DEG
-    T[:3, :3] = Rotation.from_euler("ZYX", [y, p, r], degrees=True).as_matrix()
-    T[:3, 3] = RIG_P_I_L
-    dR = Rotation.from_rotvec(np.deg2rad(2.0) * np.ones(3) / np.sqrt(3)).as_matrix()
-    dp = 0.1 * np.array([1.0, -1.0, 1.0]) / np.sqrt(3)
-
-    def ext(R: FloatArr, p: FloatArr, off: float) -> ExtrinsicConfig:
-        x, y, z, w = Rotation.from_matrix(R).as_quat()
-        return ExtrinsicConfig(p_i_l=tuple(p), quat_wxyz_i_l=(w, x, y, z), time_offset_s=off)  # type: ignore[arg-type]
-
+    T = rig_T_i_l()
     print("| drive | extrinsic / offset given | in-filter refinement | ATE m | rotation RMSE deg | rotation err deg "
           "(1-sigma) | lever-arm err cm (1-sigma) | offset err ms (1-sigma) | unobserved (the guard) | s |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|")
@@ -788,7 +801,11 @@ def online_bench(args: Any) -> None:
         imu = true_calibration().correct(d.imu)
         for given, online in (("truth", False), ("2 deg / 10 cm / 20 ms off", False),
                               ("2 deg / 10 cm / 20 ms off", True)):  # fmt: skip
-            start = ext(R0, p0, 0.02) if given == "truth" else ext(dR @ R0, p0 + dp, 0.0)
+            start = (
+                extrinsic(R0, p0, 0.02)
+                if given == "truth"
+                else extrinsic(*off_by_2deg_10cm(R0, p0), 0.0)
+            )
             cfg = LioConfig(extrinsic=start, **(room if motion == "excited" else {}))  # type: ignore[arg-type]
             if online:
                 f = cfg.filter.model_copy(
@@ -830,15 +847,9 @@ def offsets_bench(args: Any) -> None:
     fe = FrontEndConfig(mode="features", scan_voxel=0.25, min_range=0.2)
     mp = MapConfig(voxel=0.2)
 
-    def ext(R: FloatArr, p: FloatArr, off: float) -> ExtrinsicConfig:
-        x, y, z, w = Rotation.from_matrix(R).as_quat()
-        return ExtrinsicConfig(p_i_l=tuple(p), quat_wxyz_i_l=(w, x, y, z), time_offset_s=off)  # type: ignore[arg-type]
-
     print("| drive | extrinsic / offset given | calibrated | ATE m | ATE % of path | rotation RMSE deg "
           "| calib. rotation err deg | calib. lever-arm err cm | calib. offset err ms | s |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|")
-    dR = Rotation.from_rotvec(np.deg2rad(2.0) * np.ones(3) / np.sqrt(3)).as_matrix()
-    dp = 0.1 * np.array([1.0, -1.0, 1.0]) / np.sqrt(3)
     cases: list[tuple[float, str, str]] = [(0.005, "truth", "no"), (0.005, "offset 0", "no"), (0.005, "offset 0", "yes"),
                                            (0.02, "truth", "no"), (0.02, "offset 0", "no"), (0.02, "offset 0", "yes"),
                                            (0.05, "truth", "no"), (0.05, "offset 0", "no"), (0.05, "offset 0", "yes"),
@@ -847,8 +858,9 @@ def offsets_bench(args: Any) -> None:
     for off, given, cal in cases:
         d = rig(dur, off, args.cache)
         R, p = d.T_i_l[:3, :3], d.T_i_l[:3, 3]
-        start = {"truth": ext(R, p, off), "offset 0": ext(R, p, 0.0),
-                 "2 deg / 10 cm off": ext(dR @ R, p + dp, off), "both": ext(dR @ R, p + dp, 0.0)}[given]  # fmt: skip
+        Rw, pw = off_by_2deg_10cm(R, p)
+        start = {"truth": extrinsic(R, p, off), "offset 0": extrinsic(R, p, 0.0),
+                 "2 deg / 10 cm off": extrinsic(Rw, pw, off), "both": extrinsic(Rw, pw, 0.0)}[given]  # fmt: skip
         imu = true_calibration().correct(d.imu)
         t0 = time.perf_counter()
         errs = ["", "", ""]
@@ -878,14 +890,8 @@ def calib_bench(args: Any) -> None:
     from imuslam.sim.lidar import Lidar3dConfig
 
     dur = args.duration or 20.0
-    T = np.eye(4)
-    r, p, y = RIG_T_I_L_RPY_DEG
-    T[:3, :3] = Rotation.from_euler("ZYX", [y, p, r], degrees=True).as_matrix()
-    T[:3, 3] = RIG_P_I_L
-    dR = Rotation.from_rotvec(np.deg2rad(2.0) * np.ones(3) / np.sqrt(3)).as_matrix()
-    x, yq, z, w = Rotation.from_matrix(dR @ T[:3, :3]).as_quat()
-    p0 = T[:3, 3] + 0.1 * np.array([1.0, -1.0, 1.0]) / np.sqrt(3)
-    start = ExtrinsicConfig(p_i_l=tuple(p0), quat_wxyz_i_l=(w, x, yq, z), time_offset_s=0.0)  # type: ignore[arg-type]
+    T = rig_T_i_l()
+    start = extrinsic(*off_by_2deg_10cm(T[:3, :3], T[:3, 3]), 0.0)
 
     def f3(v: FloatArr, k: float = 1.0, fmt: str = "+.3f") -> str:
         return ", ".join(f"{k * a:{fmt}}" for a in v)
