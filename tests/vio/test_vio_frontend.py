@@ -11,10 +11,10 @@ import pytest
 import yaml
 
 from imuslam.errors import InputError
+from imuslam.io.camcalib import read_calibration, read_kalibr_camchain
 from imuslam.sim.render import CameraRig, render_stereo
 from imuslam.sim.stereo_run import SimRectification, SimStereoRun, StereoRunConfig
 from imuslam.sim.world import room_8x8
-from imuslam.vio.calib import read_calibration, read_kalibr_camchain
 from imuslam.vio.dataset import EurocStereo
 from imuslam.vio.frontend import StereoVO, VoConfig
 from imuslam.vio.zncc import (

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from imuslam.vio.calib import PinholeCamera, Rectification, StereoCalibration
+from imuslam.io.camcalib import PinholeCamera, Rectification, StereoCalibration
 from imuslam.vio.frontend import StereoVO
 from imuslam.vio.measurements import twist_velocity
 

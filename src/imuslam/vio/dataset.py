@@ -18,8 +18,8 @@ from numpy.typing import NDArray
 
 from imuslam.errors import InputError
 from imuslam.interfaces.imu import ImuLog
+from imuslam.io.camcalib import Rectification, StereoCalibration, read_calibration
 from imuslam.io.kinds import is_bag
-from imuslam.vio.calib import Rectification, StereoCalibration, read_calibration
 
 if TYPE_CHECKING:
     from imuslam.interfaces import Trajectory
@@ -273,7 +273,7 @@ def open_stereo(
 
         run = SimStereoRun(sim or StereoRunConfig())
         return OpenedStereo(run, run.truth(), run.t_frames_ns)  # type: ignore[arg-type]
-    from imuslam.vio.calib import read_kalibr_camchain
+    from imuslam.io.camcalib import read_kalibr_camchain
 
     cal = read_kalibr_camchain(camchain) if camchain is not None else None
     p = Path(dataset)

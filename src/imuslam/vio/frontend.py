@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from imuslam.geometry.so3_nb import exp_nb, log_nb
-from imuslam.vio.calib import Rectification
+from imuslam.io.camcalib import Rectification
 from imuslam.vio.motion_nb import huber_terms, normal_terms, snooped_q
 from imuslam.vio.zncc import disparity_slopes, slanted_disparity, stereo_match, track
 
