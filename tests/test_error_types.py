@@ -4,8 +4,11 @@ which the command line does not turn into an exit-2 message; bad data stays an I
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -23,9 +26,18 @@ from imuslam.ins.measurement import chi2_threshold
 from imuslam.ins.preintegration import PreintegratedImu
 from imuslam.ins.rwnn import run_rwnn
 from imuslam.interfaces.imu import ImuLog
+from imuslam.interfaces.lidar import Scan3d
 from imuslam.interfaces.nav import NavState
 from imuslam.interfaces.trajectory import Trajectory
+from imuslam.lio.config import LioConfig
+from imuslam.lio.estimator import LioEstimator
+from imuslam.lio.pipeline import clean_scan
 from imuslam.sim.scenario import run_scenario
+from imuslam.study.config import StudyConfig
+from imuslam.study.estimators import get_estimator
+from imuslam.study.logstudy import _run_vio
+from imuslam.study.runner import plan
+from imuslam.study.scenes import scene
 
 T = np.arange(10) * 0.1
 Z = np.zeros((10, 3))
@@ -48,6 +60,13 @@ def _start() -> NavState:
 def _line(n: int = 10) -> Trajectory:
     p = np.c_[np.arange(n, dtype=float), np.zeros(n), np.zeros(n)]
     return Trajectory(np.arange(n, dtype=np.int64) * 10**8, p, np.tile(np.eye(3), (n, 1, 1)))
+
+
+def _flat_scan() -> Scan3d:
+    """Points (5, 2): no reader makes them (every one gives x, y, z)."""
+    n = 5
+    return Scan3d(0, np.zeros((n, 2), np.float32), np.zeros(n, np.float32),
+                  np.zeros(n, np.uint16), np.zeros(n, np.float32))  # fmt: skip
 
 
 def _g_sensitive() -> ImuCalibration:
@@ -112,6 +131,24 @@ MISUSE: dict[str, tuple[Callable[[Path], object], str]] = {
     "gyro without accel": (
         lambda _: _g_sensitive().correct_gyro(Z),
         "needs the accelerometer samples",
+    ),
+    # every LIO dataset gives m/s^2 and rad/s, and a calibration's correct() too
+    "LIO IMU units": (
+        lambda _: LioEstimator(LioConfig(), dataclasses.replace(_still_log(), accel_unit="g")),
+        "the LIO needs the IMU in m/s",
+    ),
+    "LIO scan shape": (lambda _: clean_scan(_flat_scan(), 3), r"scan 3: expected points \(N, 3\)"),
+    # a study file's scenario names are checked by ScenarioSpec, its estimators by check_study
+    "study scene": (lambda _: scene("moon"), "unknown scenario 'moon'"),
+    "study estimator": (lambda _: get_estimator("slam9000"), "unknown estimator 'slam9000'"),
+    "study without cells": (
+        lambda _: plan(StudyConfig.model_construct(claims=[], seeds=[0]), "s.yaml"),
+        "s.yaml: the study has no cells",
+    ),
+    # a vio log without an IMU is refused when it is read, a vio run without it by its config
+    "log study vio without IMU": (
+        lambda _: _run_vio(cast(Any, SimpleNamespace(where="logs[0]")), None, None),
+        "logs\\[0\\]: vio needs the log's IMU",
     ),
 }
 

@@ -294,6 +294,32 @@ def test_a_log_in_counts_needs_a_calibration(tmp_path: Path) -> None:
     assert _run_imu(counts, RunSpec(name="off", use_imu=False), "w", "") is counts
 
 
+def test_a_gimbal_session_without_a_calibration_is_an_estimator_failure(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The simulated session that corrects a run's IMU ends without a calibration: the calibrator
+    failed on a session it made itself (exit 3), not a bad study file (exit 2)."""
+    from types import SimpleNamespace
+
+    import imuslam.imu.online_sim as online_sim
+    import imuslam.imu.poseplan as poseplan
+    from imuslam.errors import EstimatorError, InputError
+    from imuslam.study.logstudy import gimbal_calibration_seed000
+
+    monkeypatch.setattr(poseplan, "optimise_order", lambda model, plan, iterations: plan)
+    none = SimpleNamespace(calibrator=SimpleNamespace(current=None))
+    monkeypatch.setattr(online_sim, "run_simulated_robot", lambda *args: none)
+    gimbal_calibration_seed000.cache_clear()
+    try:
+        with pytest.raises(
+            EstimatorError, match="gimbal_seed 7: the simulated online session"
+        ) as e:
+            gimbal_calibration_seed000(7)
+        assert not isinstance(e.value, InputError)
+    finally:
+        gimbal_calibration_seed000.cache_clear()
+
+
 @pytest.mark.slow  # the VO over 95 stereo pairs, the filter four times: about 10-20 s
 def test_log_study_vio_on_euroc(tmp_path: Path, shared_data: Path) -> None:
     """vio over the real EuRoC V1_01 excerpt: an identity calibration changes nothing; seed 000's

@@ -273,6 +273,24 @@ def test_no_cells_and_missing_estimator(tmp_path: Path) -> None:
     assert "unknown estimator 'ekf9000'" in line
 
 
+def test_an_unavailable_estimator_is_named_in_the_study(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A study file naming an estimator whose dependency is missing: one line naming the field, exit 2
+    (the library's lookup raises a ValueError: no command reaches it before ``check_study``)."""
+    import dataclasses
+
+    off = dataclasses.replace(
+        estimators.REGISTRY["ins"], run=None, missing="numba is not installed"
+    )
+    monkeypatch.setitem(estimators.REGISTRY, "ins", off)
+    line = _cli_error(tmp_path, small_study())
+    assert "claims[0] (align).estimators[0]: estimator 'ins' is not available: numba is not" in line
+    with pytest.raises(ValueError, match="estimator 'ins' is not available") as exc:
+        estimators.get_estimator("ins")
+    assert not isinstance(exc.value, InputError)
+
+
 def test_unreachable_scheduler(tmp_path: Path) -> None:
     import socket
 

@@ -316,7 +316,7 @@ class LioEstimator:
 
     def __init__(self, config: LioConfig, imu: ImuLog) -> None:
         if imu.accel_unit != "m/s^2" or imu.gyro_unit != "rad/s":
-            raise InputError(f"{imu.source}: the LIO needs the IMU in m/s^2 and rad/s")
+            raise ValueError(f"{imu.source}: the LIO needs the IMU in m/s^2 and rad/s")
         if len(imu) < 10:
             raise InputError(f"{imu.source}: {len(imu)} IMU samples; at least 10 are needed")
         self.config = config

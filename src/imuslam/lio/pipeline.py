@@ -121,7 +121,7 @@ def clean_scan(
     p = np.asarray(scan.points_l)
     t = np.asarray(scan.t_offset_s)
     if p.ndim != 2 or p.shape[1] != 3 or t.shape != (len(p),):
-        raise InputError(
+        raise ValueError(
             f"scan {index}: expected points (N, 3) and times (N,), got {p.shape} and {t.shape}"
         )
     ok = valid_points(p, t)

@@ -125,16 +125,23 @@ def register(
 
 
 def get_estimator(name: str) -> EstimatorEntry:
-    """The entry of ``name``; InputError when it is unknown or not available."""
+    """The entry of ``name``; ValueError when it is unknown or not available (a study file's names
+    are checked by :func:`check_study` first, as InputErrors naming the field)."""
+    problem = estimator_problem(name)
+    if problem:
+        raise ValueError(problem)
+    return REGISTRY[name]
+
+
+def estimator_problem(name: str) -> str:
+    """Why ``name`` cannot run (unknown, or its dependency missing), or '' when it can."""
     e = REGISTRY.get(name)
     avail = ", ".join(k for k, v in REGISTRY.items() if v.run is not None)
     if e is None:
-        raise InputError(
-            f"unknown estimator '{name}'; expected one of {', '.join(REGISTRY)} (available: {avail})"
-        )
+        return f"unknown estimator '{name}'; expected one of {', '.join(REGISTRY)} (available: {avail})"
     if e.run is None:
-        raise InputError(f"estimator '{name}' is not available: {e.missing} (available: {avail})")
-    return e
+        return f"estimator '{name}' is not available: {e.missing} (available: {avail})"
+    return ""
 
 
 def check_study(study: StudyConfig, source: str = "<study>") -> None:
@@ -142,10 +149,10 @@ def check_study(study: StudyConfig, source: str = "<study>") -> None:
     for k, c in enumerate(study.claims):
         for i, est in enumerate(c.estimators):
             where = f"{source}: claims[{k}] ({c.name}).estimators[{i}]"
-            try:
-                e = get_estimator(est.name)
-            except InputError as exc:
-                raise InputError(f"{where}: {exc}") from None
+            problem = estimator_problem(est.name)
+            if problem:
+                raise InputError(f"{where}: {problem}")
+            e = REGISTRY[est.name]
             try:
                 e.options.model_validate(est.options)
             except ValidationError as exc:

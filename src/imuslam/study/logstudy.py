@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.errors import InputError
+from imuslam.errors import EstimatorError, InputError
 from imuslam.imu.model import ImuCalibration
 from imuslam.interfaces import ImuLog, Trajectory
 from imuslam.study.logconfig import LogSpec, LogStudyConfig, RunSpec
@@ -64,8 +64,10 @@ def gimbal_calibration_seed000(seed: int, method: str = "online") -> ImuCalibrat
     rng = np.random.default_rng(seed)
     plan = optimise_order(PlanModel.seed000(), sphere_plan_deg(40, rng), iterations=1000)
     cal = run_simulated_robot(plan, 0.0, Drift(), rng, OnlineConfig()).calibrator.current
-    if cal is None:  # the session always ends with a calibration on the simulator
-        raise InputError(f"gimbal_seed {seed}: the simulated online session gave no calibration")
+    if cal is None:  # the session always ends with one on the simulator: the calibrator failed
+        raise EstimatorError(
+            f"gimbal_seed {seed}: the simulated online session gave no calibration"
+        )
     return cal
 
 
@@ -267,7 +269,7 @@ def _run_vio(
     from imuslam.vio.pipeline import run_vio
 
     if imu is None:
-        raise InputError(f"{pl.where}: vio needs the log's IMU")
+        raise ValueError(f"{pl.where}: vio needs the log's IMU")
     data = pl.data
     data.imu = imu
     res = run_vio(data, pl.cfg, vo_run=vo)

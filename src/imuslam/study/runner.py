@@ -137,7 +137,7 @@ def plan(study: StudyConfig, source: str = "<study>") -> list[Cell]:
     check_estimator_configs(study, source)
     cells = expand(study)
     if not cells:
-        raise InputError(f"{source}: the study has no cells")
+        raise ValueError(f"{source}: the study has no cells")
     return cells
 
 

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-from imuslam.errors import InputError
 from imuslam.sim.trajectory import (
     CarLoop,
     CorridorDrive,
@@ -27,4 +26,4 @@ def scene(name: str) -> tuple[EulerTrajectory, World, float]:
         return CorridorDrive(), corridor(), 100.0
     if name == "handheld":
         return Handheld(), room_8x8(), 200.0
-    raise InputError(f"unknown scenario '{name}'")
+    raise ValueError(f"unknown scenario '{name}'")
