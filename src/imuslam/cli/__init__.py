@@ -139,12 +139,64 @@ def _root(
     )
 
 
+class _Deferred(type):
+    """A stand-in for a rich class that imports its module when first used (called, or an attribute
+    read: ``Traceback.from_exception``)."""
+
+    _where: tuple[str, str]
+
+    def _real(cls) -> Any:
+        return getattr(importlib.import_module(cls._where[0]), cls._where[1])
+
+    def __getattr__(cls, attr: str) -> Any:
+        if attr.startswith("__"):
+            raise AttributeError(attr)
+        return getattr(cls._real(), attr)
+
+    def __call__(cls, *args: Any, **kwargs: Any) -> Any:
+        return cls._real()(*args, **kwargs)
+
+
+def _import_typer_help_lightly() -> None:
+    """Import typer's help renderer without the two rich modules it names at its top and a help
+    does not use: ``rich.markdown`` (markdown_it, pygments; for the markdown markup mode, not ours)
+    and ``rich.traceback`` (rich.pretty, attrs; for a crash's pretty traceback). Together they are
+    about a third of a ``--help``'s start-up. The renderer gets stand-ins that import the real class
+    when it is first used; the real modules stay importable as before. Anything unexpected (another
+    typer's renderer naming other names) falls back to the plain import."""
+    import sys
+    import types
+
+    if "typer.rich_utils" in sys.modules:
+        return
+    stand_ins = {
+        mod: name
+        for mod, name in (("rich.markdown", "Markdown"), ("rich.traceback", "Traceback"))
+        if mod not in sys.modules
+    }
+    for mod, name in stand_ins.items():
+        shim = types.ModuleType(mod)
+        setattr(shim, name, _Deferred(name, (), {"_where": (mod, name)}))
+        sys.modules[mod] = shim
+    try:
+        importlib.import_module("typer.rich_utils")
+    except Exception:
+        sys.modules.pop("typer.rich_utils", None)
+    finally:
+        for mod in stand_ins:
+            sys.modules.pop(mod, None)
+
+
 def main() -> None:
     """Console-script entry point."""
+    import sys
+
     from imuslam.threads import configure_process
 
     configure_process()  # before any command imports numpy or numba
     from imuslam.cli.common import install_signal_handlers
 
     install_signal_handlers()
+    if len(sys.argv) < 2 or "--help" in sys.argv:
+        _import_typer_help_lightly()
     app()
