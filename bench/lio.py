@@ -43,8 +43,8 @@ from numpy.typing import NDArray  # noqa: E402
 from imuslam.eval.metrics import KITTI_LENGTHS, evaluate  # noqa: E402
 from imuslam.imu.model import ImuCalibration, TriadModel  # noqa: E402
 from imuslam.interfaces import Trajectory  # noqa: E402
+from imuslam.io.lidarsets import MemoryDataset  # noqa: E402
 from imuslam.lio.config import ExtrinsicConfig, FilterConfig, FrontEndConfig, LioConfig, MapConfig  # noqa: E402
-from imuslam.lio.datasets import MemoryDataset  # noqa: E402
 from imuslam.lio.pipeline import LioPipeline, LioResult  # noqa: E402
 from imuslam.sim.drive import LidarDrive, simulate_lidar_drive  # noqa: E402
 from imuslam.sim.imu import ImuErrorSpec  # noqa: E402

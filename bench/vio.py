@@ -138,9 +138,9 @@ def ekf_speed() -> list[tuple[str, ...]]:
     """EKF IMU samples per second, compiled frame step against the Python reference, on a simulated
     120 s ground-robot run (IMU 200 Hz, VO from the truth + noise at 20 Hz: no rendering) and on the
     EuRoC excerpt (real VO, 95 pairs: short, so call overhead counts)."""
+    from imuslam.io.stereosets import EurocStereo
     from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
     from imuslam.vio.config import VioConfig
-    from imuslam.vio.dataset import EurocStereo
     from imuslam.vio.frontend import VoConfig
     from imuslam.vio.pipeline import compute_vo, run_vio
     from imuslam.vio.simvo import truth_vo_run
@@ -155,7 +155,7 @@ def ekf_speed() -> list[tuple[str, ...]]:
         run_vio(data, VioConfig(g=g, nhc=True), vo_run=vo_run)  # compile
         res = run_vio(data, VioConfig(g=g), vo_run=vo_run)
         n = int(
-            np.sum((data.imu.t_ns >= res.fused.t_ns[0]) & (data.imu.t_ns <= res.fused.t_ns[-1]))
+            np.sum((data.imu().t_ns >= res.fused.t_ns[0]) & (data.imu().t_ns <= res.fused.t_ns[-1]))
         )
         for nhc in (False, True):
             for compiled in (True, False):
@@ -216,7 +216,7 @@ def _filter_share(data, cfg, vo_run, repeat: int = 5):  # type: ignore[no-untype
 def speed(only: str) -> None:
     import os
 
-    from imuslam.vio.dataset import EurocStereo
+    from imuslam.io.stereosets import EurocStereo
     from imuslam.vio.frontend import StereoVO, VoConfig
 
     rows = []
@@ -718,7 +718,7 @@ def nhc_sweep(duration: float, rate: float, seed: int, calib_duration: float) ->
         res = run_vio(run, VioConfig(**{**base, **kw}), vo_run=vo_run)  # type: ignore[arg-type]
         return compare_tracks(truth, {"f": res.fused}, run.t_frames_ns)["f"].ape_trans.rmse, res
 
-    vb, _ = run.velocity_b(run.imu.t_ns)
+    vb, _ = run.velocity_b(run.imu().t_ns)
     print(f"seed {seed}: true body velocity RMS lateral {np.sqrt(np.mean(vb[:, 1] ** 2)):.1e} m/s, "
           f"vertical {np.sqrt(np.mean(vb[:, 2] ** 2)):.1e} m/s (the constraint's true violation)")  # fmt: skip
     rows = []

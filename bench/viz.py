@@ -28,8 +28,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
+from imuslam.io.lidarsets import MemoryDataset  # noqa: E402
 from imuslam.lio.config import ExtrinsicConfig, FrontEndConfig, LioConfig, MapConfig  # noqa: E402
-from imuslam.lio.datasets import MemoryDataset  # noqa: E402
 from imuslam.lio.pipeline import LioPipeline  # noqa: E402
 from imuslam.threads import configure_process  # noqa: E402
 from lio import drive, true_calibration  # noqa: E402

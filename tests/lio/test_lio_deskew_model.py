@@ -14,8 +14,8 @@ import pytest
 import imuslam.lio.estimator as lio_estimator
 from imuslam.geometry.interp import interpolate_poses
 from imuslam.imu.model import ImuCalibration, TriadModel
+from imuslam.io.lidarsets import MemoryDataset
 from imuslam.lio.config import ExtrinsicConfig, LioConfig
-from imuslam.lio.datasets import MemoryDataset
 from imuslam.lio.pipeline import LioPipeline
 from imuslam.sim.drive import LidarDrive, simulate_lidar_drive
 from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO

@@ -136,7 +136,7 @@ def test_lio_with_the_recovered_extrinsic_drifts_as_with_the_truth(
 ) -> None:
     """``lio`` on the rig with the calibrated extrinsic and offset: ATE within 10 % of its ATE with the
     true values (and far below the ATE with the start's 2 deg / 10 cm / 20 ms error)."""
-    from imuslam.lio.datasets import MemoryDataset
+    from imuslam.io.lidarsets import MemoryDataset
     from imuslam.lio.pipeline import LioPipeline
 
     d, c = excited

@@ -17,8 +17,8 @@ from imuslam.eval.metrics import evaluate
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.ins.core import ErrorLayout
 from imuslam.interfaces import ImuLog, Trajectory
+from imuslam.io.lidarsets import MemoryDataset
 from imuslam.lio.config import ExtrinsicConfig, FilterConfig, FrontEndConfig, LioConfig
-from imuslam.lio.datasets import MemoryDataset
 from imuslam.lio.guards import DegeneracyGuard, detect_range, repair_imu
 from imuslam.lio.pipeline import LioPipeline, LioResult
 from imuslam.sim import faults as F

@@ -110,7 +110,7 @@ def _online(cfg: LioConfig, **kw: object) -> LioConfig:
 
 
 def _run(d: object, cfg: LioConfig) -> tuple[float, dict | None]:  # type: ignore[type-arg]
-    from imuslam.lio.datasets import MemoryDataset
+    from imuslam.io.lidarsets import MemoryDataset
     from imuslam.lio.pipeline import LioPipeline
 
     res = LioPipeline(MemoryDataset(d.scans, calibrated(d), "rig"), cfg, progress=False).run()  # type: ignore[attr-defined]

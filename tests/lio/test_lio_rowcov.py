@@ -12,8 +12,8 @@ from imuslam.eval.metrics import evaluate
 from imuslam.geometry import log as so3_log
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.interfaces import Trajectory
+from imuslam.io.lidarsets import MemoryDataset
 from imuslam.lio.config import ExtrinsicConfig, FilterConfig, FrontEndConfig, LioConfig
-from imuslam.lio.datasets import MemoryDataset
 from imuslam.lio.frontend import select_points
 from imuslam.lio.matcher import LocalMap, MatchParams
 from imuslam.lio.pipeline import LioPipeline

@@ -10,8 +10,8 @@ from imuslam.errors import FilterDivergence, InputError
 from imuslam.eval.metrics import evaluate
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.interfaces import ImuLog, Trajectory
+from imuslam.io.lidarsets import MemoryDataset
 from imuslam.lio.config import ExtrinsicConfig, FilterConfig, FrontEndConfig, LioConfig
-from imuslam.lio.datasets import MemoryDataset
 from imuslam.lio.pipeline import LioPipeline
 from imuslam.lio.report import write_results
 from imuslam.sim.drive import LidarDrive, simulate_lidar_drive

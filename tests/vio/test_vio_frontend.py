@@ -12,10 +12,10 @@ import yaml
 
 from imuslam.errors import InputError
 from imuslam.io.camcalib import read_calibration, read_kalibr_camchain
+from imuslam.io.stereosets import EurocStereo
 from imuslam.sim.render import CameraRig, render_stereo
 from imuslam.sim.stereo_run import SimRectification, SimStereoRun, StereoRunConfig
 from imuslam.sim.world import room_8x8
-from imuslam.vio.dataset import EurocStereo
 from imuslam.vio.frontend import StereoVO, VoConfig
 from imuslam.vio.zncc import (
     _zncc_pair,
@@ -343,7 +343,7 @@ def test_bag_stereo_equals_the_euroc_folder(shared_data: Path, tmp_path: Path) -
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     from imuslam.io import rosmsg
-    from imuslam.vio.dataset import BagStereo
+    from imuslam.io.stereosets import BagStereo
 
     ds = EurocStereo(shared_data / EUROC)
     pairs = list(ds.frames())[:12]
@@ -353,14 +353,14 @@ def test_bag_stereo_equals_the_euroc_folder(shared_data: Path, tmp_path: Path) -
         cl = w.add_connection("/cam0/image_raw", rosmsg.IMAGE, typestore=ts)
         cr = w.add_connection("/cam1/image_raw/compressed", rosmsg.COMPRESSED_IMAGE, typestore=ts)
         ci = w.add_connection("/imu0", rosmsg.IMU, typestore=ts)
-        sel = (ds.imu.t_ns >= pairs[0][0] - 10**8) & (ds.imu.t_ns <= pairs[-1][0] + 10**8)
+        sel = (ds.imu().t_ns >= pairs[0][0] - 10**8) & (ds.imu().t_ns <= pairs[-1][0] + 10**8)
         events = [
-            (int(t), "imu", i) for i, t in zip(np.flatnonzero(sel), ds.imu.t_ns[sel], strict=True)
+            (int(t), "imu", i) for i, t in zip(np.flatnonzero(sel), ds.imu().t_ns[sel], strict=True)
         ]
         events += [(t, "img", k) for k, (t, _, _) in enumerate(pairs)]
         for t, kind, k in sorted(events):
             if kind == "imu":
-                m = rosmsg.imu_message(t, ds.imu.accel[k], ds.imu.gyro[k])
+                m = rosmsg.imu_message(t, ds.imu().accel[k], ds.imu().gyro[k])
                 w.write(ci, t, ts.serialize_cdr(m, rosmsg.IMU))
                 continue
             _, a, b = pairs[k]
@@ -381,7 +381,7 @@ def test_bag_stereo_equals_the_euroc_folder(shared_data: Path, tmp_path: Path) -
     want = [p for k, p in enumerate(pairs) if k != 7]
     for (t, a, b), (tw, aw, bw) in zip(got, want, strict=True):
         assert t == tw and np.array_equal(a, aw) and np.array_equal(b, bw)
-    assert len(bs.imu) == int(sel.sum())
+    assert len(bs.imu()) == int(sel.sum())
 
 
 def test_fit_drops_tracks_that_ransac_let_through() -> None:

@@ -88,9 +88,10 @@ def _recording(
     import numpy as np
 
     from imuslam.errors import InputError
-    from imuslam.lio.datasets import BagLidarDataset, open_lidar_dataset
+    from imuslam.io.datasets import open_dataset
+    from imuslam.io.lidarsets import BagLidarDataset
 
-    data = open_lidar_dataset(bag, points_topic, imu_topic, use_imu=True)  # the readers of lio
+    data = open_dataset(bag, "lidar", points_topic=points_topic, imu_topic=imu_topic)
     if not isinstance(data, BagLidarDataset):
         raise InputError(f"{bag}: a folder of scans has no IMU; expected a bag with an Imu topic")
     imu = data.imu()

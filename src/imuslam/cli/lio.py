@@ -69,14 +69,14 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """LiDAR-inertial odometry (iterated ESKF) with a voxel map; LiDAR-only without an IMU."""
         os.environ.setdefault("OMP_NUM_THREADS", "1")  # before pykdtree loads its OpenMP pool
-        from imuslam.lio.datasets import open_lidar_dataset
+        from imuslam.io.datasets import open_dataset
+        from imuslam.io.lidarsets import BagLidarDataset
         from imuslam.lio.pipeline import LioPipeline
         from imuslam.lio.report import write_results
 
         cfg = _config(config, state, mode, align, no_imu)
-        data = open_lidar_dataset(source, points_topic, imu_topic, use_imu=cfg.use_imu)
-        from imuslam.lio.datasets import BagLidarDataset
-
+        data = open_dataset(source, "lidar", points_topic=points_topic, imu_topic=imu_topic,
+                            use_imu=cfg.use_imu)  # fmt: skip
         bag = isinstance(data, BagLidarDataset)
         truth = _reference(gt, source, bag) if gt is not None else None
         raw = data.imu()

@@ -20,6 +20,10 @@ from imuslam.cli.common import (
 )
 
 if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
+    from imuslam.interfaces import StereoSource, Trajectory
     from imuslam.vio.config import VioConfig
 
 
@@ -88,33 +92,25 @@ def register(app: typer.Typer) -> None:
         """Stereo VO + IMU EKF: trajectory.tum (fused), vo.tum, imu.tum, metrics.json, plots."""
         from tqdm import tqdm
 
-        from imuslam.errors import InputError
-        from imuslam.sim.stereo_run import StereoRunConfig
-        from imuslam.vio.dataset import open_stereo
         from imuslam.vio.pipeline import VioPipeline
 
-        if dataset == "sim" and sim_duration * sim_rate < 3:
-            raise InputError(
-                f"--sim-duration {sim_duration:g} s at --sim-rate {sim_rate:g} Hz renders "
-                f"{int(sim_duration * sim_rate)} frame(s); the VO needs at least 3"
-            )
         cfg = _config(config, nhc, g, outliers, detector)
-        sim = StereoRunConfig(duration_s=sim_duration, image_hz=sim_rate, seed=seed)
-        src = open_stereo(dataset, camchain, left_topic, right_topic, imu_topic, sim)
-        data, truth = src.data, src.truth
+        data, truth, times = _open(dataset, camchain, left_topic, right_topic, imu_topic,
+                                   (sim_duration, sim_rate, seed))  # fmt: skip
+        imu = data.imu()
         if calib is not None:
             from imuslam.imu.model import ImuCalibration
 
-            data.imu = ImuCalibration.load_yaml(calib).correct(data.imu.to_si())  # type: ignore[misc]
+            imu = ImuCalibration.load_yaml(calib).correct(imu.to_si())
         if dataset != "sim":
             from imuslam.io.plausible import check_units
 
-            check_units(data.imu, hint="EuRoC's imu0 and a sensor_msgs/Imu carry m/s^2 and rad/s")
+            check_units(imu, hint="EuRoC's imu0 and a sensor_msgs/Imu carry m/s^2 and rad/s")
         if gt is not None:
             from imuslam.io.trajectory import read_trajectory
 
             truth = read_trajectory(gt, gt_format)  # auto: TUM or EuRoC csv by content
-        pipeline = VioPipeline(data, cfg)  # type: ignore[arg-type]
+        pipeline = VioPipeline(data, cfg, imu=imu)
         from imuslam.viz.recording import open_recording
 
         with (
@@ -123,19 +119,46 @@ def register(app: typer.Typer) -> None:
                 total=len(data), unit="frame", desc="vio", disable=not show_progress(progress)
             ) as bar,
         ):
-            obs = _observer(rec, data.imu, calib is not None)
+            obs = _observer(rec, imu, calib is not None)
             res = pipeline.run(bar.update, obs)  # type: ignore[arg-type]  # tqdm's update returns a flag
             if obs is not None:
                 obs.finish(res, truth)
         ev = None
         if truth is not None:
-            ev = pipeline.evaluate(res, truth, src.times_ns, align)
+            ev = pipeline.evaluate(res, truth, times, align)
             _print_errors(ev, f"against {truth.source} ({align} aligned, at the frame times)")
         _print_summary(res.summary())
         pipeline.save(res, out, truth, ev)
         console.print(
             f"wrote {out}/trajectory.tum, vo.tum, imu.tum, metrics.json, config.yaml, plots"
         )
+
+
+def _open(
+    dataset: str, camchain: Path | None, left_topic: str | None, right_topic: str | None,
+    imu_topic: str | None, sim: tuple[float, float, int],
+) -> tuple[StereoSource, Trajectory | None, NDArray[np.int64] | None]:  # fmt: skip
+    """The dataset (``sim``: the rendered robot, for ``sim`` = (duration s, frame rate Hz, seed); else
+    the reader ``io.datasets.open_dataset`` picks), its ground truth when it has one, and the frame
+    times to score the tracks at (None: the VO's own times)."""
+    if dataset == "sim":
+        from imuslam.errors import InputError
+        from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
+
+        duration, rate, seed = sim
+        if duration * rate < 3:
+            raise InputError(
+                f"--sim-duration {duration:g} s at --sim-rate {rate:g} Hz renders "
+                f"{int(duration * rate)} frame(s); the VO needs at least 3"
+            )
+        run = SimStereoRun(StereoRunConfig(duration_s=duration, image_hz=rate, seed=seed))
+        return run, run.truth(), run.t_frames_ns
+    from imuslam.io.datasets import open_dataset
+    from imuslam.io.stereosets import EurocStereo
+
+    data = open_dataset(dataset, "stereo", imu_topic=imu_topic, camchain=camchain,
+                        left_topic=left_topic, right_topic=right_topic)  # fmt: skip
+    return data, None, data.t_ns if isinstance(data, EurocStereo) else None
 
 
 def _observer(rec: Any, imu: Any, calibrated: bool) -> Any:

@@ -9,7 +9,7 @@ from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
 from imuslam.interfaces.lidar import Scan2d, Scan3d
 from imuslam.interfaces.nav import ImuBias, NavState
 from imuslam.interfaces.odometry import WheelOdometry
-from imuslam.interfaces.sources import ImuSource, LidarSource
+from imuslam.interfaces.sources import ImuSource, LidarSource, StereoRectification, StereoSource
 from imuslam.interfaces.trajectory import Trajectory
 
 __all__ = [
@@ -23,6 +23,8 @@ __all__ = [
     "Scan2d",
     "Scan3d",
     "StereoFrame",
+    "StereoRectification",
+    "StereoSource",
     "Trajectory",
     "WheelOdometry",
 ]

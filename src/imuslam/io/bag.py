@@ -3,7 +3,7 @@ imuslam records, through rosbags (no ROS install).
 
 :class:`Bag` lists topics and iterates the messages of chosen topics in time order, converted by
 :mod:`imuslam.io.rosmsg` (IMU, LiDAR, 2D scans, odometry, poses); the estimators' readers
-(``lio.datasets.BagLidarDataset``, ``vio.dataset.BagStereo``) build on it. Every rosbags
+(``io.lidarsets.BagLidarDataset``, ``io.stereosets.BagStereo``) build on it. Every rosbags
 error is an :class:`~imuslam.errors.InputError` naming the bag; a missing topic lists the topics present.
 """
 

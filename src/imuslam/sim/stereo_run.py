@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.trajectory import Trajectory
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.imu_errors import BWT901CL_ACCEL_DENSITY, BWT901CL_GYRO_DENSITY, TriadErrors
@@ -157,10 +158,10 @@ class SimStereoRun:
             gyro_density=c.gyro_density,
         )
         # TriadErrors' bias is the correction (x_O = x_S + b): the raw output carries +bias
-        self.imu, self._imu_truth = simulate_imu(
+        self._imu, self._imu_truth = simulate_imu(
             self.traj, c.duration_s, rng, errors, rate_hz=c.imu_hz, t0_ns=c.t0_ns
         )
-        self.imu.source = self.source
+        self._imu.source = self.source
         th = np.deg2rad(c.pitch_down_deg)
         pitch = np.array([[1.0, 0, 0], [0, np.cos(th), np.sin(th)], [0, -np.sin(th), np.cos(th)]])
         self.R_b_c = R_B_C_FORWARD @ pitch
@@ -171,6 +172,10 @@ class SimStereoRun:
     def __len__(self) -> int:
         return len(self.t_frames_ns)
 
+    def imu(self) -> ImuLog:
+        """The simulated IMU's raw output (biased, noisy), m/s^2 and rad/s."""
+        return self._imu
+
     def rectification(self) -> SimRectification:
         r = self.cfg.rig
         return SimRectification(r.K, r.baseline, r.width, r.height, self.R_b_c, self.p_b_c)
@@ -180,7 +185,7 @@ class SimStereoRun:
 
     def truth(self, t_ns: NDArray[np.int64] | None = None) -> Trajectory:
         """Body poses at ``t_ns`` (default: the IMU times)."""
-        t = self.imu.t_ns if t_ns is None else np.asarray(t_ns, dtype=np.int64)
+        t = self._imu.t_ns if t_ns is None else np.asarray(t_ns, dtype=np.int64)
         st = self.traj.state((t - self.cfg.t0_ns) * 1e-9)
         return Trajectory(t, st.p_w, st.R_w_b, "simulated truth")
 

@@ -283,8 +283,7 @@ def run_vio_cell(inp: CellInput) -> Estimate:
          "outlier_fraction": o.outlier_fraction, "outlier_seed": inp.cell.world_seed() % (2**31)}
     )  # fmt: skip
     data = _vio_scene(inp.cell, o.image_hz)
-    data.imu = inp.imu
-    res = run_vio(data, cfg, vo_run=inp.shared)
+    res = run_vio(data, cfg, vo_run=inp.shared, imu=inp.imu)
     track = {"fused": res.fused, "vo": res.vo, "imu": res.imu}[o.track]
     extra: dict[str, float] = {}
     for kind, st in res.gating.items():

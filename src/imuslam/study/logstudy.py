@@ -179,27 +179,31 @@ def prepare_log(spec: LogSpec, where: str) -> PreparedLog:
             raise InputError(f"{where} (map2d needs a 2D laser scan topic): {exc}") from None
         base, times = data.imu, data.t_ns
     elif spec.estimator == "lio":
+        from imuslam.io.datasets import open_dataset
         from imuslam.lio.config import LioConfig
-        from imuslam.lio.datasets import open_lidar_dataset
 
         cfg = _config(LioConfig, spec, where)
         try:
-            data = open_lidar_dataset(Path(spec.path), spec.points_topic, spec.imu_topic)
+            data = open_dataset(spec.path, "lidar", points_topic=spec.points_topic,
+                                imu_topic=spec.imu_topic)  # fmt: skip
             base = data.imu()
         except InputError as exc:
             raise InputError(f"{where} (lio needs a 3D point cloud topic): {exc}") from None
         times = None
     else:
+        from imuslam.io.datasets import open_dataset
+        from imuslam.io.stereosets import EurocStereo
         from imuslam.vio.config import VioConfig
-        from imuslam.vio.dataset import open_stereo
 
         cfg = _config(VioConfig, spec, where)
         try:
-            src = open_stereo(spec.path, None if spec.camchain is None else Path(spec.camchain),
-                              spec.left_topic, spec.right_topic, spec.imu_topic)  # fmt: skip
+            data = open_dataset(spec.path, "stereo", imu_topic=spec.imu_topic,
+                                camchain=None if spec.camchain is None else Path(spec.camchain),
+                                left_topic=spec.left_topic, right_topic=spec.right_topic)  # fmt: skip
         except InputError as exc:
             raise InputError(f"{where} (vio needs stereo images and an IMU): {exc}") from None
-        data, base, times = src.data, getattr(src.data, "imu", None), src.times_ns
+        base = data.imu()
+        times = data.t_ns if isinstance(data, EurocStereo) else None  # a bag: the VO's own times
     if base is None and spec.estimator != "map2d":
         raise InputError(f"{where}: the log has no IMU ({spec.estimator} fuses one)")
     imus = {
@@ -270,9 +274,7 @@ def _run_vio(
 
     if imu is None:
         raise ValueError(f"{pl.where}: vio needs the log's IMU")
-    data = pl.data
-    data.imu = imu
-    res = run_vio(data, pl.cfg, vo_run=vo)
+    res = run_vio(pl.data, pl.cfg, vo_run=vo, imu=imu)
     return res.fused, {}, res.imu
 
 

@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from imuslam.geometry.so3_nb import exp_nb, log_nb
-from imuslam.io.camcalib import Rectification
+from imuslam.interfaces.sources import StereoRectification
 from imuslam.vio.motion_nb import huber_terms, normal_terms, snooped_q
 from imuslam.vio.zncc import disparity_slopes, slanted_disparity, stereo_match, track
 
@@ -183,7 +183,7 @@ def _inv(T: FloatArray) -> FloatArray:
 class StereoVO:
     """Frame-to-frame stereo VO. Feed rectified pairs in time order with :meth:`process`."""
 
-    def __init__(self, rect: Rectification, cfg: VoConfig | None = None) -> None:
+    def __init__(self, rect: StereoRectification, cfg: VoConfig | None = None) -> None:
         import cv2
 
         self.rect = rect

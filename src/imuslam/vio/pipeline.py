@@ -7,10 +7,10 @@ poses chained) and the IMU alone (the core's strapdown from the same initial sta
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,10 +24,11 @@ from imuslam.ins.core import (
     integrate_nominal,
 )
 from imuslam.interfaces.imu import ImuLog
+from imuslam.interfaces.sources import StereoSource
 from imuslam.io.trajectory import Trajectory
 from imuslam.vio.config import VioConfig
 from imuslam.vio.covcal import apply_vo_cov_correction
-from imuslam.vio.filter import CompiledVioFilter, GateStats, VioFilter
+from imuslam.vio.filter import GateStats, VioFilter, VoFrame
 from imuslam.vio.frontend import StereoVO, VoConfig, VoMeasurement, VoStats
 from imuslam.vio.measurements import (
     twist_velocity,
@@ -36,21 +37,6 @@ from imuslam.vio.measurements import (
 FloatArray = NDArray[np.float64]
 U8Image = NDArray[np.uint8]
 log_ = logging.getLogger(__name__)
-
-
-class StereoImuDataset(Protocol):
-    """What :func:`run_vio` reads: an EuRoC folder, a bag, the simulator."""
-
-    imu: ImuLog
-    source: str
-
-    def __len__(self) -> int: ...
-
-    def rectification(self) -> Any: ...
-
-    def skipped_frames(self) -> dict[str, int]: ...
-
-    def frames(self) -> Iterator[tuple[int, U8Image | None, U8Image | None]]: ...
 
 
 @dataclass
@@ -176,7 +162,7 @@ class VoRun:
 
 
 def compute_vo(
-    data: StereoImuDataset,
+    data: StereoSource,
     cfg: VoConfig,
     progress: Callable[[int], None] | None = None,
     observer: Callable[[VioFrame], None] | None = None,
@@ -218,16 +204,18 @@ def _corrupt(
 
 
 def run_vio(
-    data: StereoImuDataset,
+    data: StereoSource,
     cfg: VioConfig | None = None,
     progress: Callable[[int], None] | None = None,
     vo_run: VoRun | None = None,
     observer: Callable[[VioFrame], None] | None = None,
+    imu: ImuLog | None = None,
 ) -> VioResult:
-    """VO on every stereo pair (or the given ``vo_run``) and the EKF over the IMU; ``progress(n)`` is
-    called per frame, ``observer`` sees each pair the front end reads (:class:`VioFrame`)."""
+    """VO on every stereo pair (or the given ``vo_run``) and the EKF over the IMU (``imu``, e.g. after
+    calibration, else the dataset's); ``progress(n)`` is called per frame, ``observer`` sees each pair
+    the front end reads (:class:`VioFrame`)."""
     cfg = cfg or VioConfig()
-    imu = data.imu.to_si()
+    imu = (imu if imu is not None else data.imu()).to_si()
     if vo_run is None:
         vo_run = compute_vo(data, cfg.vo, progress, observer)
     rng = np.random.default_rng(cfg.outlier_seed)
@@ -241,8 +229,7 @@ def run_vio(
     vo_T: list[FloatArray] = []
     meas_all: list[VoMeasurement] = []
     corrupted: list[bool] = []
-    vel_acc: list[bool] = []
-    batch: list[FloatArray] = []
+    batch: list[VoFrame] = []
     frames_seen = vo_run.seen
     unreadable = vo_run.unreadable
     if vo_run.frames:
@@ -295,8 +282,7 @@ def run_vio(
             P0[lay.BG, lay.BG] = m.cov[:3, :3] + np.eye(3) * (
                 cfg.init_std_bg**2 + cfg.noise.gyro**2 / max(m.dt, 1e-3)
             )
-            compiled = cfg.compiled and cfg.vo_model == "rate" and np.max(cfg.vo_error_std) == 0
-            filt = (CompiledVioFilter if compiled else VioFilter)(imu, t_ref, x0, P0, t_mid, cfg)
+            filt = VioFilter(imu, t_ref, x0, P0, t_mid, cfg)
             filt.mark()
             # the IMU alone from the same state
             sel = (t_imu > t_mid) & (imu.t_ns <= vo_run.frames[-1][0] + 50_000_000)
@@ -313,17 +299,13 @@ def run_vio(
         vel_b = m.vel_b
         if cfg.vo_model == "rate" and cfg.vo_velocity_model == "twist":
             vel_b, cov = twist_velocity(m.omega_b, m.vel_b, cov, m.dt)
-        args = (
+        batch.append(VoFrame(
             (m.t_mid_ns - t_ref) * 1e-9,
             vel_b if cfg.vo_velocity else None, cov[3:, 3:],
             m.omega_b if cfg.vo_rate else None, cov[:3, :3],
             (m.t0_ns - t_ref) * 1e-9, (m.t1_ns - t_ref) * 1e-9,
             cov[:3, 3:] if cfg.vo_joint else None,
-        )  # fmt: skip
-        if isinstance(filt, CompiledVioFilter):  # the whole run in one compiled call, below
-            batch.append(filt.pack(*args))
-        else:
-            vel_acc.append(filt.frame(*args))
+        ))  # fmt: skip
         meas_all.append(m)
         corrupted.append(bad)
 
@@ -333,10 +315,9 @@ def run_vio(
             f"({unreadable} unreadable, {vo_run.stats.skipped_few_features} with too few features); "
             "nothing to fuse"
         )
-    if isinstance(filt, CompiledVioFilter):
-        vel_acc = filt.frames(np.asarray(batch).reshape(-1, len(filt.pack(0.0)))).tolist()
+    vel_acc = filt.frames(batch).tolist()  # the whole run in one compiled call
     # to the last frame
-    filt.frame((vo_t[-1] - t_ref) * 1e-9)
+    filt.frame(VoFrame((vo_t[-1] - t_ref) * 1e-9))
     fused = filt.trajectory("fused")
     # VO alone, expressed from the same initial state as the others (pose of the first mid-time)
     vo_arr = np.asarray(vo_T)
@@ -364,9 +345,13 @@ class VioPipeline:
     config.yaml, metrics.json (the run's summary: frames, VO, gating, biases; and the errors against
     the reference when one is given) and the plots (tracks.png, nis.png, biases.png)."""
 
-    def __init__(self, data: StereoImuDataset, cfg: VioConfig | None = None) -> None:
+    def __init__(
+        self, data: StereoSource, cfg: VioConfig | None = None, imu: ImuLog | None = None
+    ) -> None:
+        """``imu`` overrides the dataset's IMU (e.g. after calibration)."""
         self.data = data
         self.cfg = cfg or VioConfig()
+        self.imu = imu
 
     def run(
         self,
@@ -375,7 +360,7 @@ class VioPipeline:
     ) -> VioResult:
         """VO on every stereo pair and the filter over the IMU; ``progress(n)`` per frame,
         ``observer`` per pair the front end reads (:class:`VioFrame`)."""
-        return run_vio(self.data, self.cfg, progress, observer=observer)
+        return run_vio(self.data, self.cfg, progress, observer=observer, imu=self.imu)
 
     @staticmethod
     def tracks(result: VioResult) -> dict[str, Trajectory]:

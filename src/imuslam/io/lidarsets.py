@@ -1,6 +1,7 @@
-"""Datasets the LiDAR(-inertial) pipeline reads: in-memory records, a folder of PCD scans, a KITTI-style
-folder of ``.bin`` scans with times, and (through ``io``) ROS bags. Each yields :class:`Scan3d` in time
-order and, when it has one, the IMU log.
+"""The LiDAR datasets: scans already in memory, a folder of PCD scans, a KITTI-style folder of ``.bin``
+scans with times, and a ROS 1 / ROS 2 / MCAP bag. Each yields :class:`Scan3d` in time order
+(``interfaces.LidarSource``) and gives its IMU log by ``imu()`` (None when it has none);
+:func:`imuslam.io.datasets.open_dataset` picks one for a path.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from numpy.typing import NDArray
 from imuslam.errors import InputError
 from imuslam.interfaces import Scan3d
 from imuslam.interfaces.imu import ImuLog
-from imuslam.io.kinds import SourceKind, source_kind
+from imuslam.io import rosmsg
+from imuslam.io.bag import Bag
 from imuslam.io.pointcloud import read_kitti_bin, read_pcd
 
 log = logging.getLogger(__name__)
@@ -28,14 +30,6 @@ def azimuth_times(points_l: FloatArray, scan_period_s: float) -> NDArray[np.floa
     counter-clockwise sweep from the -x axis over ``scan_period_s``."""
     az = np.arctan2(points_l[:, 1], points_l[:, 0]) + np.pi  # [0, 2 pi)
     return (az / (2 * np.pi) * scan_period_s).astype(np.float32)
-
-
-def elevation_rings(points_l: FloatArray, n_rings: int) -> NDArray[np.uint16]:
-    """A ring index (N,) from each point's elevation, binned into ``n_rings`` equal bins."""
-    el = np.arctan2(points_l[:, 2], np.linalg.norm(points_l[:, :2], axis=1))
-    lo, hi = float(el.min()), float(el.max())
-    b = np.floor((el - lo) / max(hi - lo, 1e-9) * n_rings).clip(0, n_rings - 1)
-    return b.astype(np.uint16)
 
 
 class MemoryDataset:
@@ -164,8 +158,6 @@ class BagLidarDataset:
 
     def __init__(self, path: str | Path, points_topic: str | None = None, imu_topic: str | None = None,
                  use_imu: bool = True) -> None:  # fmt: skip
-        from imuslam.io.bag import Bag, rosmsg
-
         self.path = Path(path)
         self.name = str(self.path)
         with Bag(self.path) as b:
@@ -188,20 +180,15 @@ class BagLidarDataset:
         if self.imu_topic is None:
             return None
         if self._imu is None:
-            from imuslam.io.bag import Bag
-
             with Bag(self.path) as b:
                 self._imu = b.imu(self.imu_topic)
         return self._imu
 
     def lidar_scans(self) -> Iterator[Scan3d]:
-        from imuslam.io.bag import Bag
-        from imuslam.io.rosmsg import scan3d_from_msg
-
         prev_stamp: int | None = None
         with Bag(self.path) as b:
             for k, (_, _, msg) in enumerate(b.messages([self.points_topic])):
-                s = scan3d_from_msg(msg)
+                s = rosmsg.scan3d_from_msg(msg)
                 self.n_nan_dropped += int(msg.width) * int(msg.height) - len(s)
                 period = (
                     (s.t_ns - prev_stamp) * 1e-9
@@ -228,21 +215,3 @@ class BagLidarDataset:
                     if len(s.ring) and not np.any(s.ring):
                         s.ring = np.zeros(0, np.uint16)
                 yield s
-
-
-def open_lidar_dataset(
-    source: Path,
-    points_topic: str | None = None,
-    imu_topic: str | None = None,
-    use_imu: bool = True,
-) -> PcdFolder | KittiFolder | BagLidarDataset:
-    """The reader for ``source``, picked in one place (KISS-ICP's dataset factory): a folder of .pcd
-    scans, a KITTI folder (.bin scans, or a velodyne/ folder), else a ROS 1 / ROS 2 / MCAP bag."""
-    kind = source_kind(source)
-    if kind is SourceKind.MISSING:
-        raise InputError(f"{source}: no such bag or folder")
-    if kind is SourceKind.PCD_FOLDER:
-        return PcdFolder(source)
-    if kind is SourceKind.KITTI_FOLDER:
-        return KittiFolder(source)
-    return BagLidarDataset(source, points_topic, imu_topic, use_imu=use_imu)

@@ -1,8 +1,9 @@
-"""Stereo + IMU datasets for the VO pipeline: EuRoC folders (and anything giving the same protocol).
+"""The stereo + IMU datasets: an EuRoC folder and a ROS 1 / ROS 2 / MCAP bag with two image topics.
 
-A dataset lists its stereo pairs (time, and how to load both images), holds the IMU log and the stereo
-calibration. Pairs listed but absent on disk are dropped at listing and counted; pairs that cannot be
-decoded are counted when loaded; an image whose size disagrees with the calibration is an input error.
+A dataset lists its stereo pairs (time, and how to load both images), gives the IMU log by ``imu()`` and
+the rectification of its stereo calibration (``interfaces.StereoSource``). Pairs listed but absent are
+counted as missing; pairs that cannot be decoded as unreadable; an image whose size disagrees with the
+calibration is an input error. :func:`imuslam.io.datasets.open_dataset` picks one for a path.
 """
 
 from __future__ import annotations
@@ -11,19 +12,15 @@ import csv
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import InputError
 from imuslam.interfaces.imu import ImuLog
+from imuslam.io.bag import Bag
 from imuslam.io.camcalib import Rectification, StereoCalibration, read_calibration
-from imuslam.io.kinds import is_bag
-
-if TYPE_CHECKING:
-    from imuslam.interfaces import Trajectory
-    from imuslam.sim.stereo_run import StereoRunConfig
+from imuslam.io.rosmsg import image_from_msg, stamp_ns
 
 U8Image = NDArray[np.uint8]
 
@@ -38,19 +35,34 @@ class FrameCounts:
     missing_names: list[str] = field(default_factory=list)
 
 
-class StereoDataset(Protocol):
-    """What the VIO pipeline reads."""
+class _Stereo:
+    """What both readers share: the calibration, the IMU log, the counts of skipped pairs, the check of
+    an image's size against the calibration."""
 
     calibration: StereoCalibration
-    imu: ImuLog
     counts: FrameCounts
     source: str
+    _imu: ImuLog
 
-    def __len__(self) -> int: ...
+    def imu(self) -> ImuLog:
+        return self._imu
 
-    def frames(self) -> Iterator[tuple[int, U8Image | None, U8Image | None]]:
-        """(t_ns, left, right) in time order; None images for a pair that could not be decoded."""
-        ...
+    def rectification(self) -> Rectification:
+        return self.calibration.rectification()
+
+    def skipped_frames(self) -> dict[str, int]:
+        return {"missing": self.counts.missing, "unreadable": self.counts.unreadable}
+
+    def _check_size(self, left: U8Image, right: U8Image, where: tuple[str, str]) -> None:
+        """An image of another size than its camera's calibration is an InputError naming it
+        (``where``: how to name the left and the right image)."""
+        cal = self.calibration
+        for img, cam, name in ((left, cal.left, where[0]), (right, cal.right, where[1])):
+            if img.shape != (cam.height, cam.width):
+                raise InputError(
+                    f"{name} is {img.shape[1]}x{img.shape[0]}; the calibration "
+                    f"({cal.source}) says {cam.width}x{cam.height}"
+                )
 
 
 def _read_list(csv_path: Path) -> dict[int, str]:
@@ -82,16 +94,11 @@ def load_gray(path: Path) -> U8Image | None:
     return None if img is None else np.asarray(img, dtype=np.uint8)
 
 
-class EurocStereo:
+class EurocStereo(_Stereo):
     """An EuRoC ``mav0`` folder: ``cam0``, ``cam1`` (``data.csv`` + ``data/*.png``), ``imu0/data.csv``,
     ``cam*/sensor.yaml``. A Kalibr camchain can replace the ``sensor.yaml`` calibration."""
 
-    def __init__(
-        self,
-        path: str | Path,
-        calibration: StereoCalibration | None = None,
-        imu: ImuLog | None = None,
-    ) -> None:
+    def __init__(self, path: str | Path, calibration: StereoCalibration | None = None) -> None:
         from imuslam.io.readers import read_euroc
 
         p = Path(path)
@@ -102,7 +109,7 @@ class EurocStereo:
             raise InputError(f"{p}: no cam1 folder; stereo VO needs the second camera")
         self.source = str(root)
         self.calibration = calibration or read_calibration(root)
-        self.imu = imu if imu is not None else read_euroc(root / "imu0" / "data.csv")
+        self._imu = read_euroc(root / "imu0" / "data.csv")
         left = _read_list(root / "cam0" / "data.csv")
         right = _read_list(root / "cam1" / "data.csv")
         self.counts = FrameCounts()
@@ -127,34 +134,23 @@ class EurocStereo:
     def __len__(self) -> int:
         return len(self._pairs)
 
-    def rectification(self) -> Rectification:
-        return self.calibration.rectification()
-
-    def skipped_frames(self) -> dict[str, int]:
-        return {"missing": self.counts.missing, "unreadable": self.counts.unreadable}
-
     @property
     def t_ns(self) -> NDArray[np.int64]:
+        """The listed pairs' times (the tracks are scored at them)."""
         return np.array([t for t, _, _ in self._pairs], dtype=np.int64)
 
     def frames(self) -> Iterator[tuple[int, U8Image | None, U8Image | None]]:
-        cal = self.calibration
         for t, pl, pr in self._pairs:
             a, b = load_gray(pl), load_gray(pr)
             if a is None or b is None:
                 self.counts.unreadable += 1
                 yield t, None, None
                 continue
-            for img, cam, path in ((a, cal.left, pl), (b, cal.right, pr)):
-                if img.shape != (cam.height, cam.width):
-                    raise InputError(
-                        f"{path}: image is {img.shape[1]}x{img.shape[0]}; the calibration "
-                        f"({cal.source}) says {cam.width}x{cam.height}"
-                    )
+            self._check_size(a, b, (f"{pl}: image", f"{pr}: image"))
             yield t, a, b
 
 
-class BagStereo:
+class BagStereo(_Stereo):
     """A ROS 1 / ROS 2 / MCAP bag with two image topics (``sensor_msgs/Image`` mono8 / bgr8, or
     ``CompressedImage``) and an IMU topic, calibrated by a Kalibr camchain. Left and right images pair by
     equal header stamps (within ``max_dt_ns``); an image without its partner is counted as missing, one
@@ -167,11 +163,8 @@ class BagStereo:
         left_topic: str,
         right_topic: str,
         imu_topic: str | None = None,
-        imu: ImuLog | None = None,
         max_dt_ns: int = 1_000_000,
     ) -> None:
-        from imuslam.io.bag import Bag
-
         self.path = Path(path)
         self.source = str(path)
         self.calibration = calibration
@@ -179,7 +172,7 @@ class BagStereo:
         types = ["sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage"]
         with Bag(self.path) as b:
             b.connections_of([left_topic, right_topic], types)
-            self.imu = imu if imu is not None else b.imu(imu_topic)
+            self._imu = b.imu(imu_topic)
             self._n = min(b.count(left_topic), b.count(right_topic))
             listed = b.count(left_topic) + b.count(right_topic)
         self.counts = FrameCounts(listed=listed)
@@ -187,16 +180,9 @@ class BagStereo:
     def __len__(self) -> int:
         return self._n
 
-    def rectification(self) -> Rectification:
-        return self.calibration.rectification()
-
-    def skipped_frames(self) -> dict[str, int]:
-        return {"missing": self.counts.missing, "unreadable": self.counts.unreadable}
-
-    def _gray(self, msg: object, t_ns: int) -> U8Image | None:
+    @staticmethod
+    def _gray(msg: object) -> U8Image | None:
         import cv2
-
-        from imuslam.io.rosmsg import image_from_msg
 
         try:
             _, img = image_from_msg(msg)
@@ -209,10 +195,6 @@ class BagStereo:
         return np.ascontiguousarray(img)
 
     def frames(self) -> Iterator[tuple[int, U8Image | None, U8Image | None]]:
-        from imuslam.io.bag import Bag
-        from imuslam.io.rosmsg import stamp_ns
-
-        cal = self.calibration
         pending: dict[str, dict[int, object]] = {self.left_topic: {}, self.right_topic: {}}
         with Bag(self.path) as b:
             for topic, _, msg in b.messages([self.left_topic, self.right_topic]):
@@ -229,59 +211,16 @@ class BagStereo:
                     for k in [k for k in pending[tp] if k < t - 10 * self.max_dt_ns]:
                         del pending[tp][k]
                         self.counts.missing += 1
-                a, c = self._gray(lm, t), self._gray(rm, t)
+                a, c = self._gray(lm), self._gray(rm)
                 if a is None or c is None:
                     self.counts.unreadable += 1
                     yield t, None, None
                     continue
-                for img, cam, tp in (
-                    (a, cal.left, self.left_topic),
-                    (c, cal.right, self.right_topic),
-                ):
-                    if img.shape != (cam.height, cam.width):
-                        raise InputError(
-                            f"{self.path}: {tp} image at {t} ns is {img.shape[1]}x{img.shape[0]}; the "
-                            f"calibration ({cal.source}) says {cam.width}x{cam.height}"
-                        )
+                at = f"image at {t} ns"
+                names = (
+                    f"{self.path}: {self.left_topic} {at}",
+                    f"{self.path}: {self.right_topic} {at}",
+                )
+                self._check_size(a, c, names)
                 yield t, a, c
         self.counts.missing += sum(len(v) for v in pending.values())
-
-
-@dataclass
-class OpenedStereo:
-    """What :func:`open_stereo` opened: the dataset, its ground truth when it has one (the simulator),
-    and the frame times to score the tracks at (None: the VO's own times)."""
-
-    data: StereoDataset
-    truth: Trajectory | None = None
-    times_ns: NDArray[np.int64] | None = None
-
-
-def open_stereo(
-    dataset: str,
-    camchain: Path | None = None,
-    left_topic: str | None = None,
-    right_topic: str | None = None,
-    imu_topic: str | None = None,
-    sim: StereoRunConfig | None = None,
-) -> OpenedStereo:
-    """The reader for ``dataset``, picked in one place: ``sim`` (the rendered robot of ``sim``), a bag
-    (.bag, .mcap, .db3 or a ROS 2 folder: needs ``camchain`` and both image topics), else an EuRoC
-    folder (its own sensor.yaml files, or ``camchain``)."""
-    if dataset == "sim":
-        from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
-
-        run = SimStereoRun(sim or StereoRunConfig())
-        return OpenedStereo(run, run.truth(), run.t_frames_ns)  # type: ignore[arg-type]
-    from imuslam.io.camcalib import read_kalibr_camchain
-
-    cal = read_kalibr_camchain(camchain) if camchain is not None else None
-    p = Path(dataset)
-    if is_bag(p):
-        if cal is None or left_topic is None or right_topic is None:
-            raise InputError(
-                f"{p}: a bag needs --camchain, --left-topic and --right-topic (image topics)"
-            )
-        return OpenedStereo(BagStereo(p, cal, left_topic, right_topic, imu_topic))
-    euroc = EurocStereo(p, cal)
-    return OpenedStereo(euroc, None, euroc.t_ns)
