@@ -70,7 +70,9 @@ def register(app: typer.Typer) -> None:
 
             from imuslam.io.atomic import write_atomic
 
-            text = yaml.safe_dump(lio_cfg.model_dump(mode="json"), sort_keys=False)
+            text = res.yaml_header() + yaml.safe_dump(
+                lio_cfg.model_dump(mode="json"), sort_keys=False
+            )
             write_atomic(folder / "lio_config.yaml", text)
 
         write_results(out, config=settings, metrics=res.to_dict(), extra=extra)
@@ -121,23 +123,21 @@ def _recording(
 
 
 def _print_result(res: Any, bag: Path) -> None:
-    """The estimate with its 1-sigma and whether the motion excited each direction; a warning per
-    direction it did not."""
+    """The estimate with its 1-sigma and whether the motion excited each direction (yes; weak: 1-sigma
+    above the accuracy target; NO: unobservable, held at the start); a warning per weak or unexcited
+    direction."""
     from imuslam.lio.extrinsic import AXES
 
-    def obs(ok: bool) -> str:
-        return "yes" if ok else "NO"
-
     rows = [[f"lever arm p_i_l {a}", f"{res.p_i_l[k]:.4f}", f"{res.sigma_p_m[k]:.4f}", "m",
-             obs(bool(res.observable_p[k]))] for k, a in enumerate(AXES)]  # fmt: skip
+             res.verdict("p", k)] for k, a in enumerate(AXES)]  # fmt: skip
     rpy = res.rpy_deg_i_l
     rows += [[f"R_i_l {n} (Z-Y-X Euler)", f"{rpy[k]:.3f}", "", "deg", ""]
              for k, n in enumerate(("roll", "pitch", "yaw"))]  # fmt: skip
     rows += [[f"R_i_l rotation about IMU {a}", "", f"{res.sigma_rot_deg[k]:.3f}", "deg",
-              obs(bool(res.observable_rot[k]))] for k, a in enumerate(AXES)]  # fmt: skip
+              res.verdict("rot", k)] for k, a in enumerate(AXES)]  # fmt: skip
     rows += [
         ["clock offset t_imu - t_lidar", f"{res.time_offset_s * 1e3:.2f}",
-         f"{res.sigma_time_offset_s * 1e3:.2f}", "ms", obs(res.observable_time)],
+         f"{res.sigma_time_offset_s * 1e3:.2f}", "ms", res.verdict("time")],
         ["gyro residual RMS", f"{res.rms_gyro:.4f}", "", "rad/s", ""],
         ["accelerometer residual RMS", f"{res.rms_accel:.4f}", "", "m/s^2", ""],
         ["scans used", f"{res.n_scans}", "", "", ""],
@@ -152,6 +152,9 @@ def _print_result(res: Any, bag: Path) -> None:
             highlight=False,
             soft_wrap=True,
         )
+    for w in res.weakly_observed:
+        console.print(f"warning: weakly observed (the value is the data's, its accuracy is not "
+                      f"promised): {w}", markup=False, highlight=False, soft_wrap=True)  # fmt: skip
     if not res.observable:
         console.print("warning: the parameters marked NO keep (about) their starting values; record a "
                       "motion that turns about all three axes", markup=False, highlight=False, soft_wrap=True)  # fmt: skip
