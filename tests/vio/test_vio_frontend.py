@@ -11,10 +11,10 @@ import pytest
 import yaml
 
 from imuslam.errors import InputError
-from imuslam.io.camcalib import read_calibration, read_kalibr_camchain
+from imuslam.io.camcalib import Rectification, read_calibration, read_kalibr_camchain
 from imuslam.io.stereosets import EurocStereo
 from imuslam.sim.render import CameraRig, render_stereo
-from imuslam.sim.stereo_run import SimRectification, SimStereoRun, StereoRunConfig
+from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
 from imuslam.sim.world import room_8x8
 from imuslam.vio.frontend import StereoVO, VoConfig
 from imuslam.vio.zncc import (
@@ -120,7 +120,7 @@ def test_affine_map_is_the_planes_homography_jacobian() -> None:
     neighbouring points of the surface, carried through 3D by hand (back-project onto the plane,
     move, project)."""
     rig = CameraRig()
-    rect = SimRectification(rig.K, rig.baseline, rig.width, rig.height, np.eye(3), np.zeros(3))
+    rect = Rectification(rig.K, rig.baseline, rig.width, rig.height, np.eye(3), np.zeros(3))
     vo = StereoVO(rect, VoConfig())
     th = 0.05
     R = np.array([[np.cos(th), 0, np.sin(th)], [0, 1, 0], [-np.sin(th), 0, np.cos(th)]])
@@ -390,7 +390,7 @@ def test_fit_drops_tracks_that_ransac_let_through() -> None:
     off) is pulled away; the refit drops exactly those 10 and lands within a few standard deviations
     of its own covariance, a fraction of the plain fit's error."""
     rig = CameraRig()
-    rect = SimRectification(rig.K, rig.baseline, rig.width, rig.height, np.eye(3), np.zeros(3))
+    rect = Rectification(rig.K, rig.baseline, rig.width, rig.height, np.eye(3), np.zeros(3))
     rng = np.random.default_rng(8)
     X = np.stack([rng.uniform(-3, 3, 200), rng.uniform(-1.5, 1.5, 200), rng.uniform(2, 8, 200)], 1)
     th = 0.03
@@ -425,7 +425,7 @@ def test_refit_tests_each_residual_against_what_the_fit_leaves_of_it() -> None:
     from scipy.stats import chi2
 
     rig = CameraRig()
-    rect = SimRectification(rig.K, rig.baseline, rig.width, rig.height, np.eye(3), np.zeros(3))
+    rect = Rectification(rig.K, rig.baseline, rig.width, rig.height, np.eye(3), np.zeros(3))
     rng = np.random.default_rng(3)
     Xf = np.stack([rng.uniform(-4, 4, 150), rng.uniform(-2, 1, 150), rng.uniform(5, 9, 150)], 1)
     X = np.r_[Xf, [[-0.3, 0.45, 0.9], [0.2, 0.5, 1.0]]]
@@ -575,7 +575,7 @@ def test_huber_fit_covariance_is_right_on_gaussian_tracks() -> None:
     from imuslam.geometry import log
 
     rig = CameraRig()
-    rect = SimRectification(rig.K, rig.baseline, rig.width, rig.height, np.eye(3), np.zeros(3))
+    rect = Rectification(rig.K, rig.baseline, rig.width, rig.height, np.eye(3), np.zeros(3))
     vo = StereoVO(rect, VoConfig(refit=False, refit_huber_k=2.0))
     rng = np.random.default_rng(11)
     trials = 200
@@ -602,7 +602,7 @@ def test_huber_fit_beats_the_plain_fit_on_tracks_of_mixed_quality() -> None:
     mean square, and smaller on more trials than a coin would give (binomial(300, 1/2): more than 60 %
     has a chance below 0.03 % if neither fit were better)."""
     rig = CameraRig()
-    rect = SimRectification(rig.K, rig.baseline, rig.width, rig.height, np.eye(3), np.zeros(3))
+    rect = Rectification(rig.K, rig.baseline, rig.width, rig.height, np.eye(3), np.zeros(3))
     fits = {k: StereoVO(rect, VoConfig(refit_huber_k=k)) for k in (0.0, 2.0)}
     rng = np.random.default_rng(12)
     se: dict[float, list[float]] = {0.0: [], 2.0: []}

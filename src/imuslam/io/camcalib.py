@@ -58,11 +58,12 @@ class Rectification:
         return float(self.K[0, 0])
 
     def rectify(self, left: NDArray[np.uint8], right: NDArray[np.uint8]) -> tuple[Any, Any]:
-        """Both images remapped into the rectified pair (identity when no maps: already rectified)."""
-        import cv2
-
+        """Both images remapped into the rectified pair (identity when no maps: already rectified, as
+        the simulator renders them)."""
         if self.maps_left is None or self.maps_right is None:
             return left, right
+        import cv2
+
         ml, mr = self.maps_left, self.maps_right
         return (
             cv2.remap(left, ml[0], ml[1], cv2.INTER_LINEAR),

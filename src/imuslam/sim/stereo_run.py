@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.interfaces.imu import ImuLog
+from imuslam.io.camcalib import Rectification
 from imuslam.io.trajectory import Trajectory
 from imuslam.sim.imu import ImuErrorSpec, simulate_imu
 from imuslam.sim.imu_errors import BWT901CL_ACCEL_DENSITY, BWT901CL_GYRO_DENSITY, TriadErrors
@@ -115,25 +116,6 @@ class StereoRunConfig:
     rig: CameraRig = field(default_factory=CameraRig)
 
 
-@dataclass
-class SimRectification:
-    """The rendered pair is rectified by construction: rectification is the identity."""
-
-    K: FloatArray
-    baseline: float
-    width: int
-    height: int
-    R_b_r: FloatArray
-    p_b_r: FloatArray
-
-    @property
-    def f(self) -> float:
-        return float(self.K[0, 0])
-
-    def rectify(self, left: U8Image, right: U8Image) -> tuple[U8Image, U8Image]:
-        return left, right
-
-
 class SimStereoRun:
     """IMU log, ground truth and lazily rendered stereo frames of one simulated run."""
 
@@ -176,9 +158,10 @@ class SimStereoRun:
         """The simulated IMU's raw output (biased, noisy), m/s^2 and rad/s."""
         return self._imu
 
-    def rectification(self) -> SimRectification:
+    def rectification(self) -> Rectification:
+        """The rendered pair is rectified by construction: no remap (the identity)."""
         r = self.cfg.rig
-        return SimRectification(r.K, r.baseline, r.width, r.height, self.R_b_c, self.p_b_c)
+        return Rectification(r.K, r.baseline, r.width, r.height, self.R_b_c, self.p_b_c)
 
     def skipped_frames(self) -> dict[str, int]:
         return {"missing": 0, "unreadable": 0}
