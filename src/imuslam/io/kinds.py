@@ -1,6 +1,6 @@
-"""What a path holds, decided in one place: every reader factory (the IMU loader, the 2D laser loader,
-the LiDAR and the stereo datasets) asks :func:`source_kind` and maps the answer to its reader, as
-KISS-ICP's dataset factory does with a file's kind."""
+"""What a path holds, decided in one place: :func:`imuslam.io.datasets.open_dataset` (the LiDAR and
+stereo datasets), the IMU loader and the 2D laser loader ask :func:`source_kind` and map the answer to
+their reader, as KISS-ICP's dataset factory does with a file's kind."""
 
 from __future__ import annotations
 
