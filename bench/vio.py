@@ -135,9 +135,15 @@ def _rate(fn, n: int, repeat: int = 3) -> tuple[float, float]:  # type: ignore[n
 
 
 def ekf_speed() -> list[tuple[str, ...]]:
-    """EKF IMU samples per second, compiled frame step against the Python reference, on a simulated
-    120 s ground-robot run (IMU 200 Hz, VO from the truth + noise at 20 Hz: no rendering) and on the
-    EuRoC excerpt (real VO, 95 pairs: short, so call overhead counts)."""
+    """EKF IMU samples per second, the compiled frame step (the product) against the Python reference
+    filter of the tests (``tests/vio/vio_reference.py``), on a simulated 120 s ground-robot run (IMU
+    200 Hz, VO from the truth + noise at 20 Hz: no rendering) and on the EuRoC excerpt (real VO, 95
+    pairs: short, so call overhead counts)."""
+    import contextlib
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "vio"))
+    from vio_reference import reference_filter
+
     from imuslam.io.stereosets import EurocStereo
     from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
     from imuslam.vio.config import VioConfig
@@ -159,9 +165,13 @@ def ekf_speed() -> list[tuple[str, ...]]:
         )
         for nhc in (False, True):
             for compiled in (True, False):
-                cfg = VioConfig(g=g, nhc=nhc, compiled=compiled)
-                w, c = _rate(lambda cfg=cfg, d=data, v=vo_run: run_vio(d, cfg, vo_run=v), n,
-                             repeat=10 if compiled else 1)  # fmt: skip
+                cfg = VioConfig(g=g, nhc=nhc)
+
+                def go(cfg: VioConfig = cfg, d=data, v=vo_run, ref: bool = not compiled) -> None:  # type: ignore[no-untyped-def]
+                    with reference_filter() if ref else contextlib.nullcontext():
+                        run_vio(d, cfg, vo_run=v)
+
+                w, c = _rate(go, n, repeat=10 if compiled else 1)
                 name = (
                     f"EKF {'compiled' if compiled else 'Python reference'}, {label}: VO velocity"
                     f" + rate at 20 Hz{', NHC at 20 Hz' if nhc else ''}"
@@ -188,7 +198,7 @@ def _filter_share(data, cfg, vo_run, repeat: int = 5):  # type: ignore[no-untype
     """Best-of-``repeat`` wall and CPU seconds of a whole ``run_vio`` and of its filter frame steps."""
     from imuslam.vio import pipeline
 
-    orig = pipeline.CompiledVioFilter.frames
+    orig = pipeline.VioFilter.frames
     acc = [0.0, 0.0]
 
     def timed(self, *a, **k):  # type: ignore[no-untyped-def]
@@ -199,7 +209,7 @@ def _filter_share(data, cfg, vo_run, repeat: int = 5):  # type: ignore[no-untype
         return r
 
     best = (np.inf, np.inf, np.inf, np.inf)
-    pipeline.CompiledVioFilter.frames = timed  # type: ignore[method-assign]
+    pipeline.VioFilter.frames = timed  # type: ignore[method-assign]
     try:
         for _ in range(repeat):
             acc[:] = [0.0, 0.0]
@@ -209,7 +219,7 @@ def _filter_share(data, cfg, vo_run, repeat: int = 5):  # type: ignore[no-untype
             if ct < best[3]:
                 best = (acc[0], acc[1], wt, ct)
     finally:
-        pipeline.CompiledVioFilter.frames = orig  # type: ignore[method-assign]
+        pipeline.VioFilter.frames = orig  # type: ignore[method-assign]
     return best
 
 
@@ -1512,7 +1522,7 @@ def main(argv: list[str]) -> None:
                     "each filter's scales calibrated with its own NHC setting")  # fmt: skip
     ap.add_argument("--vo-error", choices=["off", "fit"], default="off",
                     help="sim, nhc: the VO velocity error's slow part as a Gauss-Markov state fitted "
-                    "on the calibration seed (VioConfig.vo_error_std / vo_error_tau_s; Python filter)")  # fmt: skip
+                    "on the calibration seed (VioConfig.vo_error_std / vo_error_tau_s)")  # fmt: skip
     ap.add_argument("--adapt", type=int, default=0,
                     help="sim, nhc: the filters learn the VO covariance scales online from their NIS "
                     "over about this many updates (VioConfig.vo_cov_adapt_n); 0: off")  # fmt: skip

@@ -1,17 +1,18 @@
 """The VO covariance's learnt shape (vio/covcal.py) and the VO velocity conditioned on the VO rate
-(measurements.VoVelocityGivenRate): against known covariances and the joint 6-dof update."""
+(VoVelocityGivenRate of the filter's Python reference, vio_reference.py): against known covariances
+and the joint 6-dof update."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from vio_reference import VoRate, VoVelocity, VoVelocityGivenRate
 
 from imuslam.errors import EstimatorError, InputError
 from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise
 from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
 from imuslam.vio.config import VioConfig
 from imuslam.vio.covcal import apply_vo_cov_correction, learn_vo_cov_correction, vo_errors
-from imuslam.vio.measurements import VoRate, VoVelocity, VoVelocityGivenRate
 from imuslam.vio.pipeline import run_vio
 from imuslam.vio.simvo import truth_vo_run
 

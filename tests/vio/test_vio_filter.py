@@ -1,5 +1,6 @@
-"""The compiled VIO filter (one numba call per VO frame, vio/kernels.py) against the Python reference
-(VioFilter: one call per IMU block and per update, measurements from vio/measurements.py).
+"""The VIO filter (one numba call per VO frame, vio/kernels.py) against its Python reference
+(vio_reference.ReferenceVioFilter: one core call per IMU block and per update, each measurement an
+object that linearises itself), on every VO model and option.
 
 VO measurements are made from the simulator's truth plus seeded noise (no rendering), so the filters see
 realistic motion, IMU biases and noise, skipped frames, NHC updates and gated outliers."""
@@ -8,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from vio_reference import reference_filter
 
 from imuslam.eval.vio_compare import compare_tracks
 from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
@@ -53,6 +55,17 @@ def _correlated(vo_run: VoRun, seed: int) -> VoRun:
          "vehicle_rpy_deg": (1.0, -2.0, 3.0)},
         {"nhc": True, "outlier_fraction": 0.1, "outlier_seed": 3, "correlated": True,
          "vo_cov_adapt_n": 10, "vo_cov_adapt_s": 6.0},
+        {"vo_velocity_model": "mean", "vo_rate": False},
+        # the slowly varying VO velocity error as three extra states
+        {"nhc": True, "vo_error_std": (1e-3, 3e-3, 5e-4), "vo_error_tau_s": 0.4, "correlated": True,
+         "outlier_fraction": 0.1, "outlier_seed": 3},
+        {"vo_error_std": 2e-3, "vo_joint": False, "vo_cov_adapt_n": 10},
+        # the VO pair against a clone of the pose at its start
+        {"vo_model": "relative"},
+        {"vo_model": "relative", "nhc": True, "outlier_fraction": 0.2, "outlier_seed": 4,
+         "correlated": True, "vo_cov_adapt_n": 10, "vo_cov_adapt_s": 6.0},
+        {"vo_model": "relative", "nhc": True, "vo_joint": False, "correlated": True, "gate_prob": None},
+        {"vo_model": "relative", "vo_rate": False},
     ],
 )  # fmt: skip
 def test_compiled_filter_equals_reference(sim_case, kw) -> None:  # type: ignore[no-untyped-def]
@@ -60,8 +73,9 @@ def test_compiled_filter_equals_reference(sim_case, kw) -> None:  # type: ignore
     kw = dict(kw)
     if kw.pop("correlated", False):
         vo_run = _correlated(vo_run, 8)
-    fast = run_vio(run, VioConfig(compiled=True, **kw), vo_run=vo_run)
-    ref = run_vio(run, VioConfig(compiled=False, **kw), vo_run=vo_run)
+    fast = run_vio(run, VioConfig(**kw), vo_run=vo_run)
+    with reference_filter():
+        ref = run_vio(run, VioConfig(**kw), vo_run=vo_run)
     # same records at the same times (IMU samples, NHC times, frame mid-times)
     assert len(fast.fused) == len(ref.fused) > 12 * 200 * 0.9
     np.testing.assert_array_equal(fast.fused.t_ns, ref.fused.t_ns)
@@ -154,8 +168,8 @@ def test_nhc_vertical_sigma_and_jacobian() -> None:
 def test_vo_bias_is_removed_from_every_measurement(sim_case) -> None:  # type: ignore[no-untyped-def]
     """A known steady VO error (lateral velocity and yaw rate, the sign and ratio of the rendered
     front end's, 20x larger) added to every measurement: with ``vo_bias`` set to it the filter gives
-    the track of the unbiased VO (to rounding), compiled and reference alike; without it the NHC-on
-    track moves away from that by more than rounding."""
+    the track of the unbiased VO (to rounding), with either VO model; without it the NHC-on track
+    moves away from that by more than rounding."""
     from dataclasses import replace
 
     run, vo_run = sim_case
@@ -163,11 +177,11 @@ def test_vo_bias_is_removed_from_every_measurement(sim_case) -> None:  # type: i
     frames = [(t, m if m is None else replace(m, omega_b=m.omega_b + bias[:3], vel_b=m.vel_b + bias[3:]))
               for t, m in vo_run.frames]  # fmt: skip
     biased = VoRun(frames, vo_run.stats, vo_run.seen, vo_run.unreadable)
-    for compiled in (True, False):
-        ref = run_vio(run, VioConfig(nhc=True, compiled=compiled), vo_run=vo_run).fused
-        fixed = run_vio(run, VioConfig(nhc=True, compiled=compiled, vo_bias=tuple(bias)),
+    for model in ("rate", "relative"):
+        ref = run_vio(run, VioConfig(nhc=True, vo_model=model), vo_run=vo_run).fused
+        fixed = run_vio(run, VioConfig(nhc=True, vo_model=model, vo_bias=tuple(bias)),
                         vo_run=biased).fused  # fmt: skip
-        raw = run_vio(run, VioConfig(nhc=True, compiled=compiled), vo_run=biased).fused
+        raw = run_vio(run, VioConfig(nhc=True, vo_model=model), vo_run=biased).fused
         np.testing.assert_allclose(fixed.p_w, ref.p_w, atol=1e-9)
         np.testing.assert_allclose(fixed.R_w_b, ref.R_w_b, atol=1e-9)
         assert np.abs(raw.p_w - ref.p_w).max() > 1e-4

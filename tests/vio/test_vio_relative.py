@@ -1,6 +1,7 @@
 """``vo_model: relative``: each VO pair read against a clone of the pose at its start (stochastic
 cloning). The measurements' Jacobians against finite differences over the current and the cloned
-error states, and the filter on VO made from the simulator's truth plus white noise of a known
+error states (the Python reference's, vio_reference.py, and the compiled models of vio/kernels.py
+against them), and the filter on VO made from the simulator's truth plus white noise of a known
 covariance: consistent (NIS) and better than the VO alone."""
 
 from __future__ import annotations
@@ -8,18 +9,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.stats import chi2
+from vio_reference import (
+    VoClone,
+    VoRelativeRotation,
+    VoRelativeTranslation,
+    VoRelativeTranslationGivenRotation,
+)
 
 from imuslam.eval.vio_compare import compare_tracks
 from imuslam.geometry import exp, log
 from imuslam.ins.core import ErrorLayout, InsState
 from imuslam.sim.stereo_run import SimStereoRun, StereoRunConfig
 from imuslam.vio.config import VioConfig
-from imuslam.vio.measurements import (
-    VoClone,
-    VoRelativeRotation,
-    VoRelativeTranslation,
-    VoRelativeTranslationGivenRotation,
-)
+from imuslam.vio.kernels import relative_rotation, relative_translation
 from imuslam.vio.pipeline import run_vio
 from imuslam.vio.simvo import truth_vo_run
 
@@ -68,6 +70,19 @@ def test_relative_measurement_jacobians() -> None:
             np.testing.assert_allclose(
                 (r - r2) / eps, H[:, j], atol=2e-3, err_msg=f"{m.kind} col {j}"
             )
+    # the compiled models: the same residuals and Jacobian blocks
+    r_w, H_w, Rm_w = meas[0].linearize(x, lay)
+    r_v, H_v, _ = meas[1].linearize(x, lay)
+    r, H_th, H_cth, Jr = relative_rotation(w, dt, clone.R_n_b, np.ascontiguousarray(x.R_n_b))
+    np.testing.assert_allclose(r, r_w, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(H_th, H_w[:, lay.TH], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(H_cth, H_w[:, 15:18], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(Jr @ C[:3, :3] @ Jr.T, Rm_w, rtol=1e-12, atol=0)
+    r, H_p, H_cth = relative_translation(v, w, dt, clone.R_n_b, clone.p_n, x.p_n)
+    np.testing.assert_allclose(r, r_v, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(H_p, H_v[:, lay.P], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(-H_p, H_v[:, 18:21], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(H_cth, H_v[:, 15:18], rtol=0, atol=1e-12)
 
 
 @pytest.fixture(scope="module")

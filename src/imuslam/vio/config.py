@@ -129,7 +129,7 @@ class VioConfig(BaseModel):
     vo_joint: bool = Field(
         True,
         description="VO rate and velocity of a frame pair as one measurement with their cross-covariance "
-        "(the rate update, then the velocity conditioned on the rate; measurements.VoVelocityGivenRate); "
+        "(the rate update, then the velocity conditioned on the rate; vio.kernels); "
         "False: two independent updates, the cross-covariance dropped",
     )
     vo_model: Literal["rate", "relative"] = Field(
@@ -137,8 +137,8 @@ class VioConfig(BaseModel):
         description="how the filter reads a frame pair's VO: 'rate', the mean body rate against the mean "
         "gyro (it observes the gyro bias) and the body velocity at the pair's mid-time (seed 004); "
         "'relative', the pair's rotation and translation against the pose cloned at the pair's start "
-        "(stochastic cloning, measurements.VoRelativeRotation): the VO then corrects the attitude and "
-        "position themselves. 'relative' runs the Python filter (compiled is ignored)",
+        "(stochastic cloning, vio.kernels.relative_rotation): the VO then corrects the attitude and "
+        "position themselves",
     )
     vo_velocity_model: Literal["twist", "mean"] = Field(
         "twist",
@@ -152,16 +152,12 @@ class VioConfig(BaseModel):
             0.0,
             description="with vo_model 'rate': 1-sigma of a slowly varying VO velocity error, m/s, body "
             "frame, one value or one per body axis (a first-order Gauss-Markov process with time constant "
-            "vo_error_tau_s, three extra states; measurements.WithVoError; vio.covcal.fit_vo_error learns "
-            "it against a truth); 0: off. Runs the Python filter (compiled is ignored)",
+            "vo_error_tau_s, three extra states; vio.kernels; vio.covcal.fit_vo_error learns "
+            "it against a truth); 0: off",
         )
     )
     vo_error_tau_s: float = Field(
         0.6, gt=0, description="time constant of the slowly varying VO velocity error, s"
-    )
-    compiled: bool = Field(
-        True,
-        description="the compiled frame step (vio/kernels.py); False: the Python reference filter",
     )
     vo_velocity: bool = True
     vo_rate: bool = True

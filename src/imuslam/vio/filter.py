@@ -1,23 +1,26 @@
 """The stereo VO + IMU filter for a ground robot (the fusion method of source 004, see the references).
 
-:class:`VioFilter` wraps the shared inertial core's :class:`~imuslam.ins.core.Eskf` (error state
-``[dtheta, dp, dv, db_a, db_g]``): it propagates with the core's kernel to any time (IMU samples
-interpolated at block ends), applies the measurements of :mod:`imuslam.vio.measurements` through the
-core's gated ``update`` (chi-square test per measurement kind, ``gate_prob``), counts accepted and rejected
-updates and keeps their NIS, and records the trajectory. :class:`CompiledVioFilter` runs the same
-measurement sequence in one compiled kernel per frame (``vio.kernels``).
+:class:`VioFilter` is the product path of every VO model: per VO frame (:class:`VoFrame`) one compiled
+call (:mod:`imuslam.vio.kernels`) runs the non-holonomic updates due before it, the core's prediction
+over the IMU samples, the gated VO updates and the records, on the state arrays of the shared inertial
+core's :class:`~imuslam.ins.core.Eskf` (error state ``[dtheta, dp, dv, db_a, db_g]``, plus the VO
+error or the pose clone as extra states). :class:`EventFilter` drives the same core by one Python call
+per event (predict to a time, gated update of any :class:`~imuslam.ins.core.Measurement`, record): the
+wheel-odometry filter (:mod:`imuslam.vio.wheel`) runs on it, and ``tests/vio`` builds the VIO's Python
+reference filter on it. Both count accepted and rejected updates per measurement kind, keep their NIS
+and record the trajectory (:class:`InertialFilter`).
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.geometry import exp
 from imuslam.geometry.euler import euler_to_matrix
 from imuslam.ins.core import (
     ErrorLayout,
@@ -30,18 +33,8 @@ from imuslam.ins.core import (
 )
 from imuslam.interfaces.imu import ImuLog
 from imuslam.io.trajectory import Trajectory
+from imuslam.vio import kernels
 from imuslam.vio.config import VioConfig
-from imuslam.vio.measurements import (
-    NonHolonomic,
-    VoClone,
-    VoRate,
-    VoRelativeRotation,
-    VoRelativeTranslation,
-    VoRelativeTranslationGivenRotation,
-    VoVelocity,
-    VoVelocityGivenRate,
-    WithVoError,
-)
 
 FloatArray = NDArray[np.float64]
 U8Image = NDArray[np.uint8]
@@ -81,16 +74,49 @@ class GateStats:
         return out
 
 
-# the row of VioFilter.vo_scale that a measurement kind's NIS adapts
-_ADAPT_ROW = {"vo_rate": 0, "vo_velocity": 1}
+@dataclass(frozen=True)
+class VoFrame:
+    """What the filter reads of one VO frame pair: its mid-time ``t_s`` and interval [``t0_s``,
+    ``t1_s``] (s since the filter's reference time), the body velocity ``vel_b`` (3,) m/s with its
+    covariance ``cov_vel`` (3, 3), the body rate ``omega_b`` (3,) rad/s with ``cov_omega`` (3, 3), and
+    their cross-covariance ``cov_wv`` (3, 3) (None: the velocity is applied alone). A frame without a
+    velocity and a rate only moves the filter to ``t_s`` and records the state there."""
+
+    t_s: float
+    vel_b: FloatArray | None = None
+    cov_vel: FloatArray | None = None
+    omega_b: FloatArray | None = None
+    cov_omega: FloatArray | None = None
+    t0_s: float = 0.0
+    t1_s: float = 0.0
+    cov_wv: FloatArray | None = None
 
 
-class VioFilter:
-    """The core's ESKF driven to arbitrary times, with per-kind gating statistics and a recorded track.
+def augmented_covariance(P0: FloatArray, cfg: VioConfig) -> tuple[ErrorLayout, FloatArray]:
+    """The error layout and initial covariance of the VIO filter for ``cfg``: the core's 15 states, plus
+    the slowly varying VO velocity error (3, at its stationary variance ``vo_error_std^2``) with
+    ``vo_model: rate`` and ``vo_error_std`` > 0, or the pose clone (6, zero until the first clone)
+    with ``vo_model: relative``."""
+    var = np.broadcast_to(np.asarray(cfg.vo_error_std, float) ** 2, (3,))
+    extra = (
+        3 if cfg.vo_model == "rate" and var.max() > 0 else 6 if cfg.vo_model == "relative" else 0
+    )
+    if extra == 0:
+        return ErrorLayout.full(), P0
+    lay = ErrorLayout(True, True, False, extra=extra)
+    Pa = np.zeros((lay.dim, lay.dim))
+    Pa[: lay.base_dim, : lay.base_dim] = P0
+    if extra == 3:
+        Pa[lay.base_dim :, lay.base_dim :] = np.diag(var)
+    return lay, Pa
+
+
+class InertialFilter:
+    """The core's ESKF over an IMU log, with per-kind gating statistics and a recorded track.
 
     Times are float seconds since ``t_ref_ns``. IMU samples (SI, body frame) are interpolated linearly at
-    the ends of each prediction block, so an update happens exactly at its measurement's time.
-    """
+    the ends of each prediction block, so an update happens exactly at its measurement's time. ``P0``
+    may carry extra states after the core's 15 (:func:`augmented_covariance`)."""
 
     def __init__(
         self, imu: ImuLog, t_ref_ns: int, x0: InsState, P0: FloatArray, t0_s: float, cfg: VioConfig
@@ -106,25 +132,13 @@ class VioFilter:
             if sel.sum() > 10:
                 noise = KfNoise.from_log(self.acc[sel], self.gyr[sel], imu.rate_hz, floor=noise)
         self.noise = noise
-        self.clone: VoClone | None = None
-        self.vo_error: FloatArray | None = None  # the slowly varying VO velocity error (nominal)
-        self.vo_error_var = np.broadcast_to(np.asarray(cfg.vo_error_std, float) ** 2, (3,)).copy()
-        if cfg.vo_model == "rate" and self.vo_error_var.max() > 0:
-            lay = ErrorLayout(True, True, False, extra=3)
-            Pa = np.zeros((lay.dim, lay.dim))
-            Pa[: lay.base_dim, : lay.base_dim] = P0
-            Pa[lay.base_dim :, lay.base_dim :] = np.diag(self.vo_error_var)
-            self.kf = Eskf(x0, P=Pa, noise=noise, layout=lay)
-            self.vo_error = np.zeros(3)
-        elif cfg.vo_model == "relative":
-            # the pose at the pair's start, cloned into the error state
-            lay = ErrorLayout(True, True, False, extra=6)
-            Pa = np.zeros((lay.dim, lay.dim))
-            Pa[: lay.base_dim, : lay.base_dim] = P0
-            self.kf = Eskf(x0, P=Pa, noise=noise, layout=lay)
-            self._clone()
-        else:
-            self.kf = Eskf(x0, P=P0, noise=noise, layout=ErrorLayout.full())
+        base = ErrorLayout.full()
+        lay = (
+            base
+            if len(P0) == base.dim
+            else ErrorLayout(True, True, False, extra=len(P0) - base.dim)
+        )
+        self.kf = Eskf(x0, P=P0, noise=noise, layout=lay)
         self.t = t0_s
         self.stats: dict[str, GateStats] = {}
         self._t: list[FloatArray] = [np.array([t0_s])]
@@ -139,18 +153,6 @@ class VioFilter:
         self.adapt_until = np.inf if cfg.vo_cov_adapt_s is None else t0_s + cfg.vo_cov_adapt_s
         self.R_b_v = euler_to_matrix(np.deg2rad(cfg.vehicle_rpy_deg))
         self.p_b_v = np.asarray(cfg.vehicle_p_b, float)
-
-    def _clone(self) -> None:
-        """Clone the current attitude and position (their error rows and columns of P, and their nominal
-        values) into the extra states, replacing the former clone."""
-        lay = self.kf.layout
-        o = lay.base_dim
-        idx = np.r_[np.arange(lay.TH.start, lay.TH.stop), np.arange(lay.P.start, lay.P.stop)]
-        P = self.kf.P
-        P[o : o + 6, :] = P[idx, :]
-        P[:, o : o + 6] = P[:, idx]
-        x = self.kf.x
-        self.clone = VoClone(x.R_n_b.copy(), x.p_n.copy(), o)
 
     def sample_at(self, t: float) -> tuple[FloatArray, FloatArray]:
         """Interpolated (accel, gyro) at time t."""
@@ -168,187 +170,6 @@ class VioFilter:
         gs = np.concatenate([g0[None], self.gyr[i0:i1], g1[None]])
         dt = np.diff(ts)
         return (0.5 * (gs[1:] + gs[:-1]) * dt[:, None]).sum(axis=0) / max(t1 - t0, 1e-12)
-
-    def advance(self, t: float) -> None:
-        """Predict from the current time to ``t`` (no-op when ``t`` is not later)."""
-        if t <= self.t:
-            return
-        i0, i1 = np.searchsorted(self.t_imu, [self.t, t], side="right")
-        a0, g0 = self.sample_at(self.t)
-        a1, g1 = self.sample_at(t)
-        ts = np.concatenate([[self.t], self.t_imu[i0:i1], [t]])
-        keep = np.concatenate([[True], np.diff(ts) > 1e-9])
-        acc = np.concatenate([a0[None], self.acc[i0:i1], a1[None]])[keep]
-        gyr = np.concatenate([g0[None], self.gyr[i0:i1], g1[None]])[keep]
-        ts = ts[keep]
-        if len(ts) < 2:
-            return
-        Ps, _, Rs = self.kf.predict(acc, gyr, ts)
-        if self.vo_error is not None:
-            # the Gauss-Markov error's own transition (the core's is identity)
-            o = self.kf.layout.base_dim
-            phi = float(np.exp(-(ts[-1] - ts[0]) / self.cfg.vo_error_tau_s))
-            P = self.kf.P
-            P[o:, :] *= phi
-            P[:, o:] *= phi
-            P[o:, o:] += np.diag(self.vo_error_var) * (1.0 - phi**2)
-            self.vo_error = self.vo_error * phi
-        self._t.append(ts[1:-1])
-        self._p.append(Ps[1:-1])
-        self._R.append(Rs[1:-1])
-        self.t = t
-
-    def mark(self) -> None:
-        """Record the current (posterior) state at the current time."""
-        x = self.kf.x
-        self._t.append(np.array([self.t]))
-        self._p.append(x.p_n[None].copy())
-        self._R.append(x.R_n_b[None].copy())
-        d = np.sqrt(np.diag(self.kf.P))
-        lay = self.kf.layout
-        self._bias_t.append(self.t)
-        self._bias.append(np.concatenate([x.accel_bias, x.gyro_bias]))
-        self._bias_std.append(np.concatenate([d[lay.BA], d[lay.BG]]))
-
-    def update(self, meas: Measurement, dof: int) -> bool:
-        """Gated update through the core; returns whether it was accepted."""
-        if self.vo_error is not None and isinstance(meas, VoVelocity | VoVelocityGivenRate):
-            meas = WithVoError(meas, self.vo_error, self.kf.layout.base_dim)
-        st = self.stats.setdefault(meas.kind, GateStats(dof))
-        if self.cfg.gate_prob is None:  # no gate: the NIS for the statistics, then the update
-            r, H, Rm = meas.linearize(self.kf.x, self.kf.layout)
-            nis = gate(r, H, Rm, self.kf.P, 0.5)[1]
-            res = self.kf.update(meas, None)
-        else:
-            res = self.kf.update(meas, self.cfg.gate_prob)
-            nis = res.nis
-        st.nis.append(nis)
-        st.accepted_mask.append(res.accepted)
-        if res.accepted and self.vo_error is not None:  # the VO error's share of the correction
-            o = self.kf.layout.base_dim
-            self.vo_error = self.vo_error + res.dx[o : o + 3]
-        if res.accepted and self.clone is not None:  # the clone's share of the correction
-            c = self.clone
-            c.R_n_b = c.R_n_b @ exp(res.dx[c.TH])
-            c.p_n = c.p_n + res.dx[c.P]
-        if res.accepted:
-            st.accepted += 1
-            row = _ADAPT_ROW.get(meas.kind)
-            if self.cfg.vo_cov_adapt_n and row is not None and self.t < self.adapt_until:
-                from imuslam.vio.kernels import adapt_scale
-
-                self.vo_scale[row] = adapt_scale(
-                    self.vo_scale[row], nis, 3.0, self.cfg.vo_cov_adapt_n
-                )
-        else:
-            st.rejected += 1
-        return res.accepted
-
-    def frame(
-        self,
-        t_s: float,
-        vel_b: FloatArray | None = None,
-        cov_vel: FloatArray | None = None,
-        omega_b: FloatArray | None = None,
-        cov_omega: FloatArray | None = None,
-        t0_s: float = 0.0,
-        t1_s: float = 0.0,
-        cov_wv: FloatArray | None = None,
-    ) -> bool:
-        """Everything up to one VO frame's mid-time ``t_s``: the non-holonomic updates due before it
-        (when ``cfg.nhc``), the prediction to ``t_s``, the VO rate update (``omega_b`` (3,) rad/s over
-        [t0_s, t1_s], covariance (3, 3)) and the VO velocity update (``vel_b`` (3,) m/s, body, covariance
-        (3, 3)) when given, and a record. With ``cov_wv`` (3, 3), the rate-velocity cross-covariance,
-        and an accepted rate update, the velocity is conditioned on the rate
-        (:class:`~imuslam.vio.measurements.VoVelocityGivenRate`); otherwise it is applied alone. Returns
-        whether the velocity update was accepted (True without one). This is the reference (one Python
-        call per event); :class:`CompiledVioFilter` does the same in one compiled call."""
-        if self.cfg.vo_cov_adapt_n:  # the online scales in force now
-            s_w, s_v = self.vo_scale
-            cov_omega = None if cov_omega is None else cov_omega * s_w
-            cov_vel = None if cov_vel is None else cov_vel * s_v
-            cov_wv = None if cov_wv is None else cov_wv * np.sqrt(s_w * s_v)
-        if self.clone is not None:
-            return self._frame_relative(t_s, vel_b, cov_vel, omega_b, cov_omega, t0_s, t1_s, cov_wv)
-        self._nhc_until(t_s)
-        self.advance(t_s)
-        ok_v = ok_w = True
-        rate = None
-        if omega_b is not None and cov_omega is not None:
-            g_mean = self.gyro_mean(t0_s, t1_s)
-            gv = self.noise.gyro**2 / (t1_s - t0_s)
-            rate = VoRate(omega_b, cov_omega, g_mean, gv)
-            ok_w = self.update(rate, 3)
-        if vel_b is not None and cov_vel is not None:
-            if rate is not None and ok_w and cov_wv is not None:
-                ok_v = self.update(
-                    VoVelocityGivenRate.from_joint(
-                        vel_b, rate.omega_b, rate.gyro_mean, rate.cov + np.eye(3) * rate.gyro_var,
-                        cov_wv, cov_vel,
-                    ), 3,
-                )  # fmt: skip
-            else:
-                ok_v = self.update(VoVelocity(vel_b, cov_vel), 3)
-        self.mark()
-        return ok_v
-
-    def _nhc_until(self, t_s: float) -> None:
-        """The non-holonomic updates due before ``t_s`` (when ``cfg.nhc``), each with a record."""
-        cfg = self.cfg
-        while cfg.nhc and self.next_nhc < t_s:
-            self.advance(self.next_nhc)
-            gyro = self.sample_at(self.next_nhc)[1]
-            self.update(
-                NonHolonomic(cfg.nhc_std, gyro, self.R_b_v, self.p_b_v, cfg.nhc_std_vertical), 2
-            )
-            self.mark()
-            self.next_nhc += 1.0 / cfg.nhc_rate_hz
-
-    def _frame_relative(
-        self,
-        t_s: float,
-        vel_b: FloatArray | None,
-        cov_vel: FloatArray | None,
-        omega_b: FloatArray | None,
-        cov_omega: FloatArray | None,
-        t0_s: float,
-        t1_s: float,
-        cov_wv: FloatArray | None,
-    ) -> bool:
-        """:meth:`frame` with ``vo_model: relative``: to the pair's start ``t0_s`` (clone there), to its
-        end ``t1_s``, then the VO rotation and translation against the clone (the translation
-        conditioned on the rotation when ``cov_wv`` is given). A pair that starts before the filter's
-        current time (the first, whose mid-time starts the filter) only moves the filter to its end.
-        Without a measurement: to ``t_s``."""
-        if omega_b is None and vel_b is None:
-            self._nhc_until(t_s)
-            self.advance(t_s)
-            self.mark()
-            return True
-        usable = self.t <= t0_s + 1e-9
-        if usable:
-            self._nhc_until(t0_s)
-            self.advance(t0_s)
-            self._clone()
-        self._nhc_until(t1_s)
-        self.advance(t1_s)
-        ok_v = ok_w = True
-        if usable:
-            assert self.clone is not None
-            dt = t1_s - t0_s
-            w = omega_b if omega_b is not None else np.zeros(3)
-            if omega_b is not None and cov_omega is not None:
-                ok_w = self.update(VoRelativeRotation(omega_b, cov_omega, dt, self.clone), 3)
-            if vel_b is not None and cov_vel is not None:
-                if omega_b is not None and cov_omega is not None and ok_w and cov_wv is not None:
-                    meas: Measurement = VoRelativeTranslationGivenRotation(
-                        vel_b, omega_b, cov_omega, cov_wv, cov_vel, dt, self.clone
-                    )
-                else:
-                    meas = VoRelativeTranslation(vel_b, cov_vel, w, dt, self.clone)
-                ok_v = self.update(meas, 3)
-        self.mark()
-        return ok_v
 
     def trajectory(self, source: str) -> Trajectory:
         t = np.concatenate(self._t)
@@ -372,18 +193,78 @@ class VioFilter:
         return np.asarray(self._bias_t), np.asarray(self._bias), np.asarray(self._bias_std)
 
 
-class CompiledVioFilter(VioFilter):
-    """:class:`VioFilter` whose :meth:`frame` is one compiled call (:func:`imuslam.vio.kernels.frame_step`)
-    per VO frame: the NHC updates, the prediction over the IMU samples and the VO updates run in numba
-    on the core's kernels, updating the core filter's state arrays in place; records go to growing
-    buffers. Results equal the reference's to rounding (``tests/vio/test_vio_filter.py``)."""
+class EventFilter(InertialFilter):
+    """:class:`InertialFilter` driven by one Python call per event: :meth:`advance` (the core's
+    prediction to a time), :meth:`update` (the core's gated update of a measurement object that
+    linearises itself) and :meth:`mark` (a record)."""
+
+    def advance(self, t: float) -> FloatArray | None:
+        """Predict from the current time to ``t`` (no-op when ``t`` is not later); returns the block's
+        sample times (None when nothing was predicted)."""
+        if t <= self.t:
+            return None
+        i0, i1 = np.searchsorted(self.t_imu, [self.t, t], side="right")
+        a0, g0 = self.sample_at(self.t)
+        a1, g1 = self.sample_at(t)
+        ts = np.concatenate([[self.t], self.t_imu[i0:i1], [t]])
+        keep = np.concatenate([[True], np.diff(ts) > 1e-9])
+        acc = np.concatenate([a0[None], self.acc[i0:i1], a1[None]])[keep]
+        gyr = np.concatenate([g0[None], self.gyr[i0:i1], g1[None]])[keep]
+        ts = ts[keep]
+        if len(ts) < 2:
+            return None
+        Ps, _, Rs = self.kf.predict(acc, gyr, ts)
+        self._t.append(ts[1:-1])
+        self._p.append(Ps[1:-1])
+        self._R.append(Rs[1:-1])
+        self.t = t
+        return ts
+
+    def mark(self) -> None:
+        """Record the current (posterior) state at the current time."""
+        x = self.kf.x
+        self._t.append(np.array([self.t]))
+        self._p.append(x.p_n[None].copy())
+        self._R.append(x.R_n_b[None].copy())
+        d = np.sqrt(np.diag(self.kf.P))
+        lay = self.kf.layout
+        self._bias_t.append(self.t)
+        self._bias.append(np.concatenate([x.accel_bias, x.gyro_bias]))
+        self._bias_std.append(np.concatenate([d[lay.BA], d[lay.BG]]))
+
+    def update(self, meas: Measurement, dof: int) -> tuple[bool, float, FloatArray]:
+        """Gated update through the core; returns whether it was accepted, its NIS and the correction
+        (zeros when rejected)."""
+        st = self.stats.setdefault(meas.kind, GateStats(dof))
+        if self.cfg.gate_prob is None:  # no gate: the NIS for the statistics, then the update
+            r, H, Rm = meas.linearize(self.kf.x, self.kf.layout)
+            nis = gate(r, H, Rm, self.kf.P, 0.5)[1]
+            res = self.kf.update(meas, None)
+        else:
+            res = self.kf.update(meas, self.cfg.gate_prob)
+            nis = res.nis
+        st.nis.append(nis)
+        st.accepted_mask.append(res.accepted)
+        if res.accepted:
+            st.accepted += 1
+        else:
+            st.rejected += 1
+        return res.accepted, nis, res.dx
+
+
+class VioFilter(InertialFilter):
+    """The VIO filter: each VO frame (:class:`VoFrame`) in the compiled frame step of
+    :mod:`imuslam.vio.kernels` (:meth:`frames` runs a batch in one call), updating the core filter's
+    state arrays in place; records go to growing buffers. Every VO model and option runs here
+    (``vo_model`` rate or relative, ``vo_error_std``, ``vo_joint``, ``vo_cov_adapt_n``, the NHC)."""
 
     _KINDS = (("nhc", 2), ("vo_velocity", 3), ("vo_rate", 3))
 
     def __init__(
         self, imu: ImuLog, t_ref_ns: int, x0: InsState, P0: FloatArray, t0_s: float, cfg: VioConfig
     ) -> None:
-        super().__init__(imu, t_ref_ns, x0, P0, t0_s, cfg)
+        lay, Pa = augmented_covariance(P0, cfg)
+        super().__init__(imu, t_ref_ns, x0, Pa, t0_s, cfg)
         x = self.kf.x
         for name in ("p_n", "v_n", "R_n_b", "accel_bias", "gyro_bias", "g_n"):
             setattr(x, name, np.ascontiguousarray(getattr(x, name), dtype=np.float64).copy())
@@ -402,25 +283,36 @@ class CompiledVioFilter(VioFilter):
         self._nis = np.zeros((3, 0))
         self._acc = np.zeros((3, 0), bool)
         self._reserve(1024, 256)
-        # the reference's first record (the initial state)
+        # the first record (the initial state)
         self._tr_t[0], self._tr_p[0], self._tr_R[0] = t0_s, x0.p_n, x0.R_n_b
         self._cnt[0] = 1
-        self._gate = cfg.gate_prob is not None
-        self._thr2 = chi2_threshold(cfg.gate_prob, 2) if cfg.gate_prob is not None else np.inf
-        self._thr3 = chi2_threshold(cfg.gate_prob, 3) if cfg.gate_prob is not None else np.inf
-        self._q = self.noise.q
+        gate_on = cfg.gate_prob is not None
+        thr2 = chi2_threshold(cfg.gate_prob, 2) if cfg.gate_prob is not None else np.inf
+        thr3 = chi2_threshold(cfg.gate_prob, 3) if cfg.gate_prob is not None else np.inf
         self._off = self.kf.layout.offsets
-        import imuslam.vio.kernels as kern
-        from imuslam.vio.kernels import C_LEN
-
-        self._kern = kern
-        self._const = np.zeros(C_LEN)
+        K = kernels
+        mode = {0: K.MODE_RATE, 3: K.MODE_VO_ERROR, 6: K.MODE_RELATIVE}[lay.dim - lay.base_dim]
         std_z = cfg.nhc_std if cfg.nhc_std_vertical is None else cfg.nhc_std_vertical
-        self._const[:] = (float(cfg.nhc), cfg.nhc_std, 1.0 / cfg.nhc_rate_hz, self.noise.gyro**2,
-                          float(self._gate), self._thr2, self._thr3, std_z,
-                          float(cfg.vo_cov_adapt_n), self.adapt_until)  # fmt: skip
+        var = np.broadcast_to(np.asarray(cfg.vo_error_std, float) ** 2, (3,))
+        self._const = np.array(
+            [float(cfg.nhc), cfg.nhc_std, 1.0 / cfg.nhc_rate_hz, self.noise.gyro**2,
+             float(gate_on), thr2, thr3, std_z, float(cfg.vo_cov_adapt_n), self.adapt_until,
+             float(mode), float(lay.base_dim), cfg.vo_error_tau_s, *var],
+            dtype=np.float64,
+        )  # fmt: skip
+        assert len(self._const) == K.C_LEN
+        # the extra states' nominal values: the VO error (3,), or the clone's R_c (9,) and p_c (3,)
+        self._xe = np.zeros(12)
+        if mode == K.MODE_RELATIVE:  # the pose at the start, cloned
+            K.clone_pose(self.kf.P, x.R_n_b, x.p_n, self._xe, self._off, lay.base_dim)
         self.R_b_v = np.ascontiguousarray(self.R_b_v, dtype=np.float64)
         self.p_b_v = np.ascontiguousarray(self.p_b_v, dtype=np.float64)
+
+    @property
+    def vo_error(self) -> FloatArray:
+        """The slowly varying VO velocity error's current estimate (3,) m/s, body frame (zeros unless
+        ``vo_error_std`` is set)."""
+        return self._xe[:3].copy()
 
     def _reserve(self, n_track: int, n_events: int) -> None:
         """Grow the buffers (doubling) so that ``n_track`` more track rows and ``n_events`` more marks
@@ -449,54 +341,44 @@ class CompiledVioFilter(VioFilter):
         self._nis = grow(self._nis, need, 1)
         self._acc = grow(self._acc, need, 1)
 
-    def pack(
-        self,
-        t_s: float,
-        vel_b: FloatArray | None = None,
-        cov_vel: FloatArray | None = None,
-        omega_b: FloatArray | None = None,
-        cov_omega: FloatArray | None = None,
-        t0_s: float = 0.0,
-        t1_s: float = 0.0,
-        cov_wv: FloatArray | None = None,
-    ) -> FloatArray:
-        """One frame's arguments of :meth:`frame` as the kernel's packed row (M_LEN,)."""
-        K = self._kern
+    @staticmethod
+    def pack(f: VoFrame) -> FloatArray:
+        """One frame as the kernel's packed row (M_LEN,)."""
+        K = kernels
         meas = np.zeros(K.M_LEN)
-        meas[K.M_T] = t_s
-        if vel_b is not None and cov_vel is not None:
-            meas[K.M_VEL : K.M_VEL + 3] = vel_b
-            meas[K.M_COV_V : K.M_COV_V + 9] = cov_vel.reshape(9)
+        meas[K.M_T], meas[K.M_T0], meas[K.M_T1] = f.t_s, f.t0_s, f.t1_s
+        if f.vel_b is not None and f.cov_vel is not None:
+            meas[K.M_VEL : K.M_VEL + 3] = f.vel_b
+            meas[K.M_COV_V : K.M_COV_V + 9] = f.cov_vel.reshape(9)
             meas[K.M_VEL_ON] = 1.0
-        if omega_b is not None and cov_omega is not None:
-            meas[K.M_OMEGA : K.M_OMEGA + 3] = omega_b
-            meas[K.M_COV_W : K.M_COV_W + 9] = cov_omega.reshape(9)
-            meas[K.M_T0], meas[K.M_T1], meas[K.M_RATE_ON] = t0_s, t1_s, 1.0
-            if cov_wv is not None:
-                meas[K.M_COV_WV : K.M_COV_WV + 9] = cov_wv.reshape(9)
+        if f.omega_b is not None and f.cov_omega is not None:
+            meas[K.M_OMEGA : K.M_OMEGA + 3] = f.omega_b
+            meas[K.M_COV_W : K.M_COV_W + 9] = f.cov_omega.reshape(9)
+            meas[K.M_RATE_ON] = 1.0
+            if f.cov_wv is not None:
+                meas[K.M_COV_WV : K.M_COV_WV + 9] = f.cov_wv.reshape(9)
                 meas[K.M_JOINT] = 1.0
         return meas
 
-    def frames(self, meas: FloatArray) -> NDArray[np.bool_]:
-        """Several frames at once, their packed rows ``meas`` (n, M_LEN) from :meth:`pack` in time
-        order, in one compiled call (:func:`imuslam.vio.kernels.run_frames`). Returns per frame whether
-        its velocity update was accepted (True without one)."""
-        K = self._kern
+    def frames(self, frames: Sequence[VoFrame]) -> NDArray[np.bool_]:
+        """The frames, in time order, in one compiled call (:func:`imuslam.vio.kernels.run_frames`).
+        Returns per frame whether its velocity update was accepted (True without one)."""
+        K = kernels
         cfg = self.cfg
-        meas = np.ascontiguousarray(meas, dtype=np.float64).reshape(-1, K.M_LEN)
-        n = len(meas)
+        n = len(frames)
         if n == 0:
             return np.zeros(0, bool)
+        meas = np.stack([self.pack(f) for f in frames])
         t_now, t_nhc = float(self._clock[0]), float(self._clock[1])
-        t_last = float(meas[:, K.M_T].max())
+        t_last = float(max(meas[:, K.M_T].max(), meas[:, K.M_T1].max()))
         n_nhc = (
             int(np.ceil((t_last - t_nhc) * cfg.nhc_rate_hz)) + 2
             if cfg.nhc and t_last > t_nhc
             else 0
         )
         i0, i1 = self.t_imu.searchsorted((t_now, t_last), side="right")
-        # per frame at most: its IMU samples, two interpolated block ends per NHC and per frame
-        n_track = max(int(i1 - i0), 0) + 2 * n_nhc + 4 * n
+        # per frame at most: its IMU samples, two interpolated block ends per NHC and per advance
+        n_track = max(int(i1 - i0), 0) + 2 * n_nhc + 6 * n
         c = self._cnt
         n_events = n_nhc + 2 * n
         if (c[0] + n_track > len(self._tr_t) or c[1] + n_events > len(self._b_t)
@@ -506,9 +388,9 @@ class CompiledVioFilter(VioFilter):
         vel_ok = np.ones(n, bool)
         bad = K.run_frames(
             self.t_imu, self.acc, self.gyr, x.p_n, x.v_n, x.R_n_b, x.accel_bias, x.gyro_bias, x.g_n,
-            self.kf.P, self._clock, self.vo_scale, meas, self._const, self.R_b_v, self.p_b_v, self._q, self._off,
-            self._tr_t, self._tr_p, self._tr_R, self._b_t, self._b, self._b_s,
-            self._nis, self._acc, self._cnt, vel_ok,
+            self.kf.P, self._clock, self.vo_scale, self._xe, meas, self._const, self.R_b_v,
+            self.p_b_v, self.noise.q, self._off, self._tr_t, self._tr_p, self._tr_R, self._b_t,
+            self._b, self._b_s, self._nis, self._acc, self._cnt, vel_ok,
         )  # fmt: skip
         self.t = float(self._clock[0])
         self.next_nhc = float(self._clock[1])
@@ -522,27 +404,17 @@ class CompiledVioFilter(VioFilter):
             )
         return vel_ok
 
-    def frame(
-        self,
-        t_s: float,
-        vel_b: FloatArray | None = None,
-        cov_vel: FloatArray | None = None,
-        omega_b: FloatArray | None = None,
-        cov_omega: FloatArray | None = None,
-        t0_s: float = 0.0,
-        t1_s: float = 0.0,
-        cov_wv: FloatArray | None = None,
-    ) -> bool:
-        row = self.pack(t_s, vel_b, cov_vel, omega_b, cov_omega, t0_s, t1_s, cov_wv)
-        return bool(self.frames(row[None])[0])
+    def frame(self, f: VoFrame) -> bool:
+        """One frame (:meth:`frames`); whether its velocity update was accepted."""
+        return bool(self.frames([f])[0])
 
     def mark(self) -> None:
-        from imuslam.vio.kernels import mark_state
-
+        """Record the current (posterior) state at the current time."""
         self._reserve(1, 1)
         x = self.kf.x
-        mark_state(self.t, x.p_n, x.R_n_b, x.accel_bias, x.gyro_bias, self.kf.P, self._off,
-                   self._tr_t, self._tr_p, self._tr_R, self._b_t, self._b, self._b_s, self._cnt)  # fmt: skip
+        kernels.mark_state(self.t, x.p_n, x.R_n_b, x.accel_bias, x.gyro_bias, self.kf.P, self._off,
+                           self._tr_t, self._tr_p, self._tr_R, self._b_t, self._b, self._b_s,
+                           self._cnt)  # fmt: skip
 
     def gate_stats(self) -> dict[str, GateStats]:
         out: dict[str, GateStats] = {}

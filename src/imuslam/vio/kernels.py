@@ -1,21 +1,28 @@
-"""The VIO filter's compiled frame step: everything the EKF does between two VO frames in one numba call.
+"""The VIO filter: everything the EKF does between two VO frames in one numba call (the product path of
+every VO model; :class:`imuslam.vio.filter.VioFilter` drives it).
 
-:func:`frame_step` runs, for one VO frame, what :class:`imuslam.vio.filter.VioFilter` does in Python
-per event: the non-holonomic pseudo-measurements due before the frame's mid-time (predict to each, gated
-update, record), the prediction to the mid-time, the gated VO rate and VO velocity updates (the velocity
-conditioned on the rate), and the record. The prediction is the inertial core's (:func:`imuslam.ins.core.propagate`: its strapdown step, its
+:func:`frame_step` runs, for one VO frame: the non-holonomic pseudo-measurements due before it (predict
+to each, gated update, record), the prediction, the gated VO updates (``vo_model: rate``: the VO rate
+against the mean gyro and the body velocity at the pair's mid-time, the velocity conditioned on the
+rate, optionally against a slowly varying VO error kept as three extra states; ``relative``: the pair's
+rotation and translation against a clone of the pose at its start, six extra states), and the record.
+The prediction is the inertial core's (:func:`imuslam.ins.core.propagate`: its strapdown step, its
 transition matrix) with the covariance product taken block by block (:func:`propagate_sparse`); the
-update (:func:`update_sparse`) works on the 3 or 9 error states a measurement touches, in the standard
+update (:func:`update_sparse`) works on the 3 to 12 error states a measurement touches, in the standard
 form where the core's :func:`~imuslam.ins.core.kalman_update` uses the Joseph form (equal for the
-optimal gain), with the core's attitude perturbation :func:`~imuslam.ins.core.boxplus_attitude`; only the three measurement models are written again here, as
-compiled twins of :mod:`imuslam.vio.measurements` (which stay the reference: ``tests/vio`` runs both
-filters and compares them to 1e-9).
+optimal gain), with the core's attitude perturbation :func:`~imuslam.ins.core.boxplus_attitude`. The
+measurement models' equations are derived in the docstrings of :func:`_vo_rate_velocity`,
+:func:`relative_rotation`, :func:`relative_translation` and :func:`_nhc_until`; ``tests/vio`` holds a
+Python reference filter (one core ``Eskf`` call per event, each measurement an object that linearises
+itself) and compares the two on every model.
 
 State arrays are updated in place: ``p, v (3,)``, ``R (3, 3)``, ``ba, bg, g_n (3,)``, ``P (m, m)``,
 ``clock = [t, next_nhc]`` (s since the filter's reference time), ``vo_scale = [rate, velocity]`` (the
-online VO covariance scales, ones when ``const[C_ADAPT_N]`` is 0). Records go to preallocated buffers with
-counters ``cnt = [track, marks, nhc, vo_velocity, vo_rate]``; measurement kinds are rows 0 (nhc),
-1 (vo_velocity), 2 (vo_rate) of ``nis`` and ``accepted``.
+online VO covariance scales, ones when ``const[C_ADAPT_N]`` is 0), ``xe`` (12,) the extra states'
+nominal values (the VO error ``e`` (3,) m/s body frame, or the clone's ``R_c`` (9, row-major) and
+``p_c`` (3,)). Records go to preallocated buffers with counters ``cnt = [track, marks, nhc,
+vo_velocity, vo_rate]``; measurement kinds are rows 0 (nhc), 1 (vo_velocity), 2 (vo_rate) of ``nis``
+and ``accepted``.
 """
 
 from __future__ import annotations
@@ -24,14 +31,26 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.geometry.so3_nb import exp_nb, hat_nb
+from imuslam.geometry.so3_nb import exp_nb, hat_nb, log_nb, right_jacobian_nb
 from imuslam.ins.core import boxplus_attitude, integrate_corrected, is_pd
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 KIND_NHC, KIND_VEL, KIND_RATE = 0, 1, 2
-OK, DIVERGED = 0, 1
+# layout of frame_step's packed inputs (one array each: fewer arguments to type-check per call)
+M_T, M_VEL, M_COV_V, M_OMEGA, M_COV_W, M_T0, M_T1, M_VEL_ON, M_RATE_ON, M_COV_WV, M_JOINT, M_LEN = (
+    0, 1, 4, 13, 16, 25, 26, 27, 28, 29, 38, 39)  # fmt: skip
+(C_NHC_ON, C_NHC_STD, C_NHC_DT, C_GYRO_Q, C_GATE_ON, C_THR2, C_THR3, C_NHC_STD_Z, C_ADAPT_N,
+ C_ADAPT_UNTIL, C_MODE, C_X_OFF, C_ERR_TAU, C_ERR_VAR, C_LEN) = (
+    0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 16)  # fmt: skip
+# const[C_MODE]: how a frame pair's VO is read (VioConfig.vo_model and vo_error_std); the extra error
+# states start at const[C_X_OFF], their nominal values are ``xe`` (12,)
+MODE_RATE, MODE_VO_ERROR, MODE_RELATIVE = 0, 1, 2
+# the online VO covariance scale stays within this factor of its start (VioConfig.vo_cov_adapt_n)
+ADAPT_LIMIT = 20.0
+# frame_step's verdicts
+OK, DIVERGED, VEL_REJECTED = 0, 1, 2
 
 
 @numba.njit(cache=True)
@@ -167,9 +186,13 @@ def _advance(
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
     P: FloatArray, clock: FloatArray, t: float, q: FloatArray, off: IntArray,
     tr_t: FloatArray, tr_p: FloatArray, tr_R: FloatArray, cnt: IntArray,
+    xe: FloatArray, const: FloatArray,
 ) -> bool:  # fmt: skip  # pragma: no cover - compiled
     """Predict from clock[0] to t with the core's kernel (IMU interpolated at both ends), recording the
-    interior samples; False when the filter diverged."""
+    interior samples; in MODE_VO_ERROR the VO error's own first-order Gauss-Markov transition over
+    the block (the core carries extra states with an identity transition): ``phi = exp(-T / tau)`` on
+    its rows and columns of P and on its nominal value, ``var (1 - phi^2)`` added. False when the
+    filter diverged."""
     t_now = clock[0]
     if t <= t_now:
         return True
@@ -217,7 +240,16 @@ def _advance(
         c += 1
     cnt[0] = c
     clock[0] = t
-    return _check(P, p, v, R)
+    ok = _check(P, p, v, R)
+    if int(const[C_MODE]) == MODE_VO_ERROR:
+        o = int(const[C_X_OFF])
+        phi = np.exp(-(ts[n - 1] - ts[0]) / const[C_ERR_TAU])
+        P[o:, :] *= phi
+        P[:, o:] *= phi
+        for i in range(3):
+            P[o + i, o + i] += const[C_ERR_VAR + i] * (1.0 - phi**2)
+        xe[0:3] *= phi
+    return ok
 
 
 @numba.njit(cache=True)
@@ -247,7 +279,7 @@ def update_sparse(
     r: FloatArray, Hc: FloatArray, cols: IntArray, Rm: FloatArray,
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
     P: FloatArray, off: IntArray, gate_on: bool, threshold: float,
-    kind: int, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
+    kind: int, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray, dx_out: FloatArray,
 ) -> int:  # fmt: skip  # pragma: no cover - compiled
     """Chi-square gate (nis = r^T (H P H^T + R)^-1 r) and the Kalman update, the attitude by the core's
     :func:`~imuslam.ins.core.boxplus_attitude`, for a Jacobian whose nonzero columns are ``cols`` (nc,), given there as ``Hc``
@@ -257,7 +289,7 @@ def update_sparse(
     the Joseph form's two dense (m, m) products; equal for the optimal gain, Maybeck, *Stochastic
     Models, Estimation and Control* vol. 1, eq. 5-50 against 5-47; the symmetrised result is checked
     positive definite by :func:`_check`). Records the nis and the verdict of this kind; returns 1
-    accepted, 0 rejected, -1 diverged."""
+    accepted, 0 rejected, -1 diverged; the correction (m,) goes to ``dx_out`` when accepted."""
     m = P.shape[0]
     k = r.shape[0]
     nc = cols.shape[0]
@@ -287,6 +319,7 @@ def update_sparse(
         return 0
     acc_buf[kind, j] = True
     dx = PHt @ Sr
+    dx_out[:] = dx
     K = PHt @ Si
     for i in range(m):
         for c in range(i, m):
@@ -308,15 +341,6 @@ def update_sparse(
     return 1 if _check(P, p, v, R) else -1
 
 
-# layout of frame_step's packed inputs (one array each: fewer arguments to type-check per call)
-M_T, M_VEL, M_COV_V, M_OMEGA, M_COV_W, M_T0, M_T1, M_VEL_ON, M_RATE_ON, M_COV_WV, M_JOINT, M_LEN = (
-    0, 1, 4, 13, 16, 25, 26, 27, 28, 29, 38, 39)  # fmt: skip
-(C_NHC_ON, C_NHC_STD, C_NHC_DT, C_GYRO_Q, C_GATE_ON, C_THR2, C_THR3, C_NHC_STD_Z, C_ADAPT_N,
- C_ADAPT_UNTIL, C_LEN) = (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10)  # fmt: skip
-# the online VO covariance scale stays within this factor of its start (VioConfig.vo_cov_adapt_n)
-ADAPT_LIMIT = 20.0
-
-
 @numba.njit(cache=True)
 def adapt_scale(scale: float, nis: float, dof: float, n: float) -> float:  # pragma: no cover
     """One step of the online covariance scale: ``scale * exp((nis / dof - 1) / n)``, a Robbins-Monro
@@ -327,65 +351,105 @@ def adapt_scale(scale: float, nis: float, dof: float, n: float) -> float:  # pra
 
 
 @numba.njit(cache=True)
-def frame_step(
-    t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
+def clone_pose(P: FloatArray, R: FloatArray, p: FloatArray, xe: FloatArray, off: IntArray,
+               o: int) -> None:  # fmt: skip  # pragma: no cover - compiled
+    """Stochastic cloning (Roumeliotis and Burdick, ICRA 2002): the attitude and position error rows
+    and columns of ``P`` copied into the extra states at ``o`` (replacing the former clone), their
+    nominal values ``R`` and ``p`` into ``xe = [R_c (9, row-major), p_c (3)]``."""
+    for i in range(6):
+        P[o + i, :] = P[(off[0] if i < 3 else off[1] - 3) + i, :]
+    for i in range(6):
+        P[:, o + i] = P[:, (off[0] if i < 3 else off[1] - 3) + i]
+    for i in range(3):
+        for j in range(3):
+            xe[3 * i + j] = R[i, j]
+        xe[9 + i] = p[i]
+
+
+@numba.njit(cache=True)
+def _update(
+    r: FloatArray, Hc: FloatArray, cols: IntArray, Rm: FloatArray,
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
-    P: FloatArray, clock: FloatArray, vo_scale: FloatArray, meas: FloatArray, const: FloatArray,
+    P: FloatArray, xe: FloatArray, const: FloatArray, off: IntArray, threshold: float,
+    kind: int, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
+) -> int:  # fmt: skip  # pragma: no cover - compiled
+    """:func:`update_sparse`, then the extra states' share of an accepted correction: the VO velocity
+    error adds it, the clone's attitude is perturbed on the right and its position adds it."""
+    dx = np.zeros(P.shape[0])
+    st = update_sparse(r, Hc, cols, Rm, p, v, R, ba, bg, g_n, P, off, const[C_GATE_ON] != 0.0,
+                       threshold, kind, nis_buf, acc_buf, cnt, dx)  # fmt: skip
+    if st != 1:
+        return st
+    mode = int(const[C_MODE])
+    o = int(const[C_X_OFF])
+    if mode == MODE_VO_ERROR:
+        xe[0:3] += dx[o : o + 3]
+    elif mode == MODE_RELATIVE:
+        Rc = np.ascontiguousarray(xe[0:9]).reshape((3, 3)) @ exp_nb(
+            np.ascontiguousarray(dx[o : o + 3])
+        )
+        xe[0:9] = Rc.reshape(9)
+        xe[9:12] += dx[o + 3 : o + 6]
+    return st
+
+
+@numba.njit(cache=True)
+def _nhc_until(
+    t_until: float, t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
+    p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
+    P: FloatArray, clock: FloatArray, xe: FloatArray, const: FloatArray,
     R_b_v: FloatArray, p_b_v: FloatArray, q: FloatArray, off: IntArray,
     tr_t: FloatArray, tr_p: FloatArray, tr_R: FloatArray,
     bias_t: FloatArray, bias: FloatArray, bias_std: FloatArray,
     nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
-) -> int:  # fmt: skip  # pragma: no cover - compiled
-    """One VO frame (see the module docstring): NHC updates due before the frame's mid-time (each at
-    its time, then recorded), prediction to it, the VO rate and velocity updates (when their flags are
-    set; with the joint flag and an accepted rate, the velocity conditioned on the rate as in
-    ``measurements.VoVelocityGivenRate``), and a record. ``meas`` (M_LEN,): mid-time, velocity (3,)
-    m/s, its covariance (9,), rate (3,) rad/s, its covariance (9,), the interval [t0, t1] s, the two
-    flags, the rate-velocity cross-covariance (9,), the joint flag; ``const`` (C_LEN,): NHC on,
-    its lateral sigma m/s and period s, gyro density^2, gate on, chi-square thresholds for 2 and 3
-    dof, its vertical sigma m/s, the online scales' n (0: off; ``vo_scale`` is then left at ones) and the time
-    after which they are held.
-    Returns OK or DIVERGED (the time is in clock[0])."""
-    t_target = meas[M_T]
-    nhc_on = const[C_NHC_ON] != 0.0
-    nhc_std = const[C_NHC_STD]
-    nhc_dt = const[C_NHC_DT]
-    gate_on = const[C_GATE_ON] != 0.0
-    thr2 = const[C_THR2]
-    thr3 = const[C_THR3]
+) -> bool:  # fmt: skip  # pragma: no cover - compiled
+    """The non-holonomic updates due before ``t_until`` (when on): predict to each, the gated update of
+    the vehicle-frame lateral and vertical velocity (``measurements.NonHolonomic``), a record.
+    False when the filter diverged."""
+    if const[C_NHC_ON] == 0.0:
+        return True
     R_v_b = np.ascontiguousarray(R_b_v.T)
-    cols_thvbg = np.empty(9, np.int64)
+    cols = np.empty(9, np.int64)  # [dtheta, dv, db_g]
     for i in range(3):
-        cols_thvbg[i] = off[0] + i
-        cols_thvbg[3 + i] = off[2] + i
-        cols_thvbg[6 + i] = off[4] + i
-    cols_bg = np.ascontiguousarray(cols_thvbg[6:])
-    Rm_nhc = np.zeros((2, 2))
-    Rm_nhc[0, 0] = nhc_std**2
-    Rm_nhc[1, 1] = const[C_NHC_STD_Z] ** 2
-    while nhc_on and clock[1] < t_target:
+        cols[i] = off[0] + i
+        cols[3 + i] = off[2] + i
+        cols[6 + i] = off[4] + i
+    Rm = np.zeros((2, 2))
+    Rm[0, 0] = const[C_NHC_STD] ** 2
+    Rm[1, 1] = const[C_NHC_STD_Z] ** 2
+    while clock[1] < t_until:
         tn = clock[1]
         if not _advance(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, tn, q, off,
-                        tr_t, tr_p, tr_R, cnt):  # fmt: skip
-            return DIVERGED
-        # non-holonomic constraint: vehicle-frame lateral and vertical velocity zero (measurements.py)
+                        tr_t, tr_p, tr_R, cnt, xe, const):  # fmt: skip
+            return False
         w = sample_at_nb(t_imu, acc, gyr, tn)[1] - bg
         vb = R.T @ v
         vv = R_v_b @ (vb + np.cross(w, p_b_v))
-        # Jacobian on [dtheta, dv, db_g] only (cols_thvbg)
         Hc = np.empty((2, 9))
         Hc[:, 0:3] = (R_v_b @ hat_nb(vb))[1:]
         Hc[:, 3:6] = (R_v_b @ R.T)[1:]
         Hc[:, 6:9] = (R_v_b @ hat_nb(p_b_v))[1:]
-        r = -vv[1:]
-        if update_sparse(r, Hc, cols_thvbg, Rm_nhc, p, v, R, ba, bg, g_n, P, off, gate_on, thr2,
-                         KIND_NHC, nis_buf, acc_buf, cnt) < 0:  # fmt: skip
-            return DIVERGED
+        if _update(-vv[1:], Hc, cols, Rm, p, v, R, ba, bg, g_n, P, xe, const, off,
+                   const[C_THR2], KIND_NHC, nis_buf, acc_buf, cnt) < 0:  # fmt: skip
+            return False
         mark_state(clock[0], p, R, ba, bg, P, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, cnt)
-        clock[1] = tn + nhc_dt
-    if not _advance(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, t_target, q, off,
-                    tr_t, tr_p, tr_R, cnt):  # fmt: skip
-        return DIVERGED
+        clock[1] = tn + const[C_NHC_DT]
+    return True
+
+
+@numba.njit(cache=True)
+def _vo_rate_velocity(
+    meas: FloatArray, t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
+    p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
+    P: FloatArray, clock: FloatArray, vo_scale: FloatArray, xe: FloatArray, const: FloatArray,
+    off: IntArray, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
+) -> int:  # fmt: skip  # pragma: no cover - compiled
+    """``vo_model: rate``: the VO rate against the mean gyro over the pair (``measurements.VoRate``:
+    it observes the gyro bias), then the VO body velocity (``VoVelocity``), conditioned on the rate
+    when the joint flag is set and the rate was accepted (``VoVelocityGivenRate``), against ``v_b + e``
+    with the slowly varying VO error ``e`` in MODE_VO_ERROR (``WithVoError``). Returns OK,
+    VEL_REJECTED or DIVERGED."""
+    thr3 = const[C_THR3]
     rate_ok = False
     r_w = np.zeros(3)
     Rm_w = np.eye(3)
@@ -398,50 +462,236 @@ def frame_step(
         t0 = meas[M_T0]
         t1 = meas[M_T1]
         g_mean = gyro_mean_nb(t_imu, acc, gyr, t0, t1)
-        Hc = -np.eye(3)  # on db_g (cols_bg)
+        cols_bg = np.arange(off[4], off[4] + 3)
         r = omega_b - (g_mean - bg)
         Rm_w = cov_w * s_w + np.eye(3) * (const[C_GYRO_Q] / (t1 - t0))
-        st = update_sparse(r, Hc, cols_bg, Rm_w, p, v, R, ba, bg, g_n, P, off, gate_on, thr3,
-                           KIND_RATE, nis_buf, acc_buf, cnt)  # fmt: skip
+        st = _update(r, -np.eye(3), cols_bg, Rm_w, p, v, R, ba, bg, g_n, P, xe, const, off, thr3,
+                     KIND_RATE, nis_buf, acc_buf, cnt)  # fmt: skip
         if st < 0:
             return DIVERGED
         rate_ok = st == 1
         if rate_ok and adapt_n > 0:
             vo_scale[0] = adapt_scale(s_w, nis_buf[KIND_RATE, cnt[2 + KIND_RATE] - 1], 3.0, adapt_n)
         r_w = omega_b - (g_mean - bg)  # at the updated gyro bias
-    if meas[M_VEL_ON] != 0.0:
-        vel_b = meas[M_VEL : M_VEL + 3]
-        cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3)) * s_v
-        vb = R.T @ v
-        Hc = np.zeros((3, 9))  # on [dtheta, dv, db_g] (cols_thvbg)
-        Hc[:, 0:3] = hat_nb(vb)
-        Hc[:, 3:6] = R.T
-        r = vel_b - vb
-        if rate_ok and meas[M_JOINT] != 0.0:  # conditioned on the rate (VoVelocityGivenRate)
-            C_wv = np.ascontiguousarray(meas[M_COV_WV : M_COV_WV + 9]).reshape((3, 3)) * np.sqrt(
-                s_w * s_v
-            )
-            G = np.linalg.solve(Rm_w, C_wv).T
-            r = r - G @ r_w
-            Hc[:, 6:9] += G
-            cov_v = cov_v - G @ C_wv
-            cov_v = 0.5 * (cov_v + cov_v.T)
-        st = update_sparse(r, Hc, cols_thvbg, cov_v, p, v, R, ba, bg, g_n, P, off, gate_on, thr3,
-                           KIND_VEL, nis_buf, acc_buf, cnt)  # fmt: skip
+    if meas[M_VEL_ON] == 0.0:
+        return OK
+    vel_b = meas[M_VEL : M_VEL + 3]
+    cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3)) * s_v
+    vb = R.T @ v
+    gm = int(const[C_MODE]) == MODE_VO_ERROR
+    nc = 12 if gm else 9
+    cols = np.empty(nc, np.int64)  # [dtheta, dv, db_g] (and e)
+    for i in range(3):
+        cols[i] = off[0] + i
+        cols[3 + i] = off[2] + i
+        cols[6 + i] = off[4] + i
+        if gm:
+            cols[9 + i] = int(const[C_X_OFF]) + i
+    Hc = np.zeros((3, nc))
+    Hc[:, 0:3] = hat_nb(vb)
+    Hc[:, 3:6] = R.T
+    r = vel_b - vb
+    if rate_ok and meas[M_JOINT] != 0.0:  # conditioned on the rate (VoVelocityGivenRate)
+        C_wv = np.ascontiguousarray(meas[M_COV_WV : M_COV_WV + 9]).reshape((3, 3)) * np.sqrt(
+            s_w * s_v
+        )
+        G = np.linalg.solve(Rm_w, C_wv).T
+        r = r - G @ r_w
+        Hc[:, 6:9] += G
+        cov_v = cov_v - G @ C_wv
+        cov_v = 0.5 * (cov_v + cov_v.T)
+    if gm:  # the residual against v_b + e
+        r = r - xe[0:3]
+        for i in range(3):
+            Hc[i, 9 + i] = 1.0
+    st = _update(r, Hc, cols, cov_v, p, v, R, ba, bg, g_n, P, xe, const, off, thr3,
+                 KIND_VEL, nis_buf, acc_buf, cnt)  # fmt: skip
+    if st < 0:
+        return DIVERGED
+    if st == 1 and adapt_n > 0:
+        vo_scale[1] = adapt_scale(s_v, nis_buf[KIND_VEL, cnt[2 + KIND_VEL] - 1], 3.0, adapt_n)
+    return OK if st == 1 else VEL_REJECTED
+
+
+@numba.njit(cache=True)
+def relative_rotation(
+    omega_b: FloatArray, dt: float, R_c: FloatArray, R: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """The VO rotation ``z = omega_b dt`` against the attitude change since the clone: residual
+    ``Log(dR^T Exp(z)) / dt`` (3,) with ``dR = R_c^T R``, its Jacobians on the attitude error (``I /
+    dt``) and on the clone's (``-dR^T / dt``), and the right Jacobian ``J_r(z)`` that carries the VO
+    noise (``Exp(z + e) ~ Exp(z) Exp(J_r e)``). With the right perturbation ``R = R_hat Exp(dtheta)``,
+    ``R_c^T R ~ dR Exp(dtheta - dR^T dtheta_c)``."""
+    dR = R_c.T @ R
+    z = omega_b * dt
+    r = log_nb(dR.T @ exp_nb(z)) / dt
+    return r, np.eye(3) / dt, -dR.T / dt, right_jacobian_nb(z)
+
+
+@numba.njit(cache=True)
+def relative_translation(
+    vel_b: FloatArray,
+    omega_b: FloatArray,
+    dt: float,
+    R_c: FloatArray,
+    p_c: FloatArray,
+    p: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """The VO mean velocity over the pair (body frame at mid-interval) against ``Exp(-z / 2) R_c^T
+    (p - p_c) / dt``, ``z = omega_b dt``: residual (3,), the Jacobian on the position error ``A / dt``
+    (``A = Exp(-z / 2) R_c^T``; on the clone's position its negative) and on the clone's attitude
+    ``Exp(-z / 2) [R_c^T (p - p_c)]x / dt`` (``Exp(-dtheta_c) R_c^T d ~ R_c^T d + [R_c^T d]x
+    dtheta_c``)."""
+    d = p - p_c
+    half = exp_nb(-0.5 * omega_b * dt)
+    A = half @ R_c.T
+    return vel_b - A @ d / dt, A / dt, half @ hat_nb(R_c.T @ d) / dt
+
+
+@numba.njit(cache=True)
+def _vo_relative(
+    meas: FloatArray, p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray,
+    g_n: FloatArray, P: FloatArray, clock: FloatArray, vo_scale: FloatArray, xe: FloatArray,
+    const: FloatArray, off: IntArray, nis_buf: FloatArray, acc_buf: NDArray[np.bool_],
+    cnt: IntArray,
+) -> int:  # fmt: skip  # pragma: no cover - compiled
+    """``vo_model: relative``, at the pair's end with the clone taken at its start: the VO rotation
+    (:func:`relative_rotation`), then the translation (:func:`relative_translation`), conditioned on
+    the rotation when the joint flag is set and the rotation was accepted: with the joint noise of
+    ``[J_r e_w, e_v]`` and ``G = C_vw J_r^T (J_r C_ww J_r^T)^-1``, residual ``r_v - G r_w``,
+    Jacobian ``H_v - G H_w``, covariance ``C_vv - G J_r C_wv``, both residuals at the current state.
+    Returns OK, VEL_REJECTED or DIVERGED."""
+    thr3 = const[C_THR3]
+    o = int(const[C_X_OFF])
+    dt = meas[M_T1] - meas[M_T0]
+    adapt_n = const[C_ADAPT_N] if clock[0] < const[C_ADAPT_UNTIL] else 0.0
+    s_w = vo_scale[0]
+    s_v = vo_scale[1]
+    has_w = meas[M_RATE_ON] != 0.0
+    omega_b = np.zeros(3)
+    cov_w = np.zeros((3, 3))
+    if has_w:
+        omega_b = np.ascontiguousarray(meas[M_OMEGA : M_OMEGA + 3])
+        cov_w = np.ascontiguousarray(meas[M_COV_W : M_COV_W + 9]).reshape((3, 3)) * s_w
+    # columns [dtheta, dp, dtheta_c, dp_c]
+    cols = np.empty(12, np.int64)
+    for i in range(3):
+        cols[i] = off[0] + i
+        cols[3 + i] = off[1] + i
+        cols[6 + i] = o + i
+        cols[9 + i] = o + 3 + i
+    cols_w = np.concatenate((cols[0:3], cols[6:9]))
+    rate_ok = False
+    if has_w:
+        R_c = np.ascontiguousarray(xe[0:9]).reshape((3, 3))
+        r, H_th, H_cth, Jr = relative_rotation(omega_b, dt, R_c, R)
+        Hc = np.concatenate((H_th, H_cth), axis=1)
+        st = _update(r, Hc, cols_w, Jr @ cov_w @ Jr.T, p, v, R, ba, bg, g_n, P, xe, const, off,
+                     thr3, KIND_RATE, nis_buf, acc_buf, cnt)  # fmt: skip
         if st < 0:
             return DIVERGED
-        if st == 1 and adapt_n > 0:
-            vo_scale[1] = adapt_scale(s_v, nis_buf[KIND_VEL, cnt[2 + KIND_VEL] - 1], 3.0, adapt_n)
+        rate_ok = st == 1
+        if rate_ok and adapt_n > 0:
+            vo_scale[0] = adapt_scale(s_w, nis_buf[KIND_RATE, cnt[2 + KIND_RATE] - 1], 3.0, adapt_n)
+    if meas[M_VEL_ON] == 0.0:
+        return OK
+    vel_b = np.ascontiguousarray(meas[M_VEL : M_VEL + 3])
+    cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3)) * s_v
+    R_c = np.ascontiguousarray(xe[0:9]).reshape((3, 3))
+    p_c = np.ascontiguousarray(xe[9:12])
+    r, H_p, H_cth = relative_translation(vel_b, omega_b, dt, R_c, p_c, p)
+    Hc = np.zeros((3, 12))
+    Hc[:, 3:6] = H_p
+    Hc[:, 6:9] = H_cth
+    Hc[:, 9:12] = -H_p
+    if rate_ok and meas[M_JOINT] != 0.0:
+        C_wv = np.ascontiguousarray(meas[M_COV_WV : M_COV_WV + 9]).reshape((3, 3)) * np.sqrt(
+            s_w * s_v
+        )
+        r_w, Hw_th, Hw_cth, Jr = relative_rotation(omega_b, dt, R_c, R)
+        c_wv = Jr @ C_wv
+        G = np.linalg.solve(Jr @ cov_w @ Jr.T, c_wv).T
+        r = r - G @ r_w
+        Hc[:, 0:3] -= G @ Hw_th
+        Hc[:, 6:9] -= G @ Hw_cth
+        cov_v = cov_v - G @ c_wv
+        cov_v = 0.5 * (cov_v + cov_v.T)
+    st = _update(r, Hc, cols, cov_v, p, v, R, ba, bg, g_n, P, xe, const, off, thr3,
+                 KIND_VEL, nis_buf, acc_buf, cnt)  # fmt: skip
+    if st < 0:
+        return DIVERGED
+    if st == 1 and adapt_n > 0:
+        vo_scale[1] = adapt_scale(s_v, nis_buf[KIND_VEL, cnt[2 + KIND_VEL] - 1], 3.0, adapt_n)
+    return OK if st == 1 else VEL_REJECTED
+
+
+@numba.njit(cache=True)
+def frame_step(
+    t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
+    p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
+    P: FloatArray, clock: FloatArray, vo_scale: FloatArray, xe: FloatArray, meas: FloatArray,
+    const: FloatArray, R_b_v: FloatArray, p_b_v: FloatArray, q: FloatArray, off: IntArray,
+    tr_t: FloatArray, tr_p: FloatArray, tr_R: FloatArray,
+    bias_t: FloatArray, bias: FloatArray, bias_std: FloatArray,
+    nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
+) -> int:  # fmt: skip  # pragma: no cover - compiled
+    """One VO frame (see the module docstring). ``meas`` (M_LEN,): mid-time, velocity (3,) m/s, its
+    covariance (9,), rate (3,) rad/s, its covariance (9,), the pair's interval [t0, t1] s, the two
+    flags, the rate-velocity cross-covariance (9,), the joint flag; ``const`` (C_LEN,): NHC on, its
+    lateral sigma m/s and period s, gyro density^2, gate on, chi-square thresholds for 2 and 3 dof,
+    its vertical sigma m/s, the online scales' n (0: off; ``vo_scale`` is then left at ones) and the
+    time after which they are held, the mode, the extra states' offset, the VO error's time constant
+    s and variances (3,) (m/s)^2.
+
+    MODE_RATE and MODE_VO_ERROR: NHC updates due before the mid-time, prediction to it, the VO rate
+    and velocity (:func:`_vo_rate_velocity`), a record. MODE_RELATIVE: a frame without a measurement
+    moves to its mid-time; else, when the pair starts at or after the filter's time, NHC updates and
+    prediction to its start and a clone there, then NHC updates and prediction to its end and the
+    VO updates against the clone (:func:`_vo_relative`); a pair that starts earlier (the first) only
+    moves the filter to its end. Then a record. Returns OK, VEL_REJECTED or DIVERGED (the time is
+    in clock[0])."""
+    relative = int(const[C_MODE]) == MODE_RELATIVE
+    has_meas = meas[M_RATE_ON] != 0.0 or meas[M_VEL_ON] != 0.0
+    usable = False
+    t_target = meas[M_T]
+    if relative and has_meas:
+        t_target = meas[M_T1]
+        usable = clock[0] <= meas[M_T0] + 1e-9
+        if usable:
+            if not _nhc_until(meas[M_T0], t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, xe, const,
+                              R_b_v, p_b_v, q, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std,
+                              nis_buf, acc_buf, cnt):  # fmt: skip
+                return DIVERGED
+            if not _advance(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, meas[M_T0], q, off,
+                            tr_t, tr_p, tr_R, cnt, xe, const):  # fmt: skip
+                return DIVERGED
+            clone_pose(P, R, p, xe, off, int(const[C_X_OFF]))
+    if not _nhc_until(t_target, t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, xe, const,
+                      R_b_v, p_b_v, q, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std,
+                      nis_buf, acc_buf, cnt):  # fmt: skip
+        return DIVERGED
+    if not _advance(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, t_target, q, off,
+                    tr_t, tr_p, tr_R, cnt, xe, const):  # fmt: skip
+        return DIVERGED
+    st = OK
+    if not relative:
+        st = _vo_rate_velocity(meas, t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, vo_scale, xe,
+                               const, off, nis_buf, acc_buf, cnt)  # fmt: skip
+    elif usable:
+        st = _vo_relative(meas, p, v, R, ba, bg, g_n, P, clock, vo_scale, xe, const, off, nis_buf,
+                          acc_buf, cnt)  # fmt: skip
+    if st == DIVERGED:
+        return DIVERGED
     mark_state(clock[0], p, R, ba, bg, P, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, cnt)
-    return OK
+    return st
 
 
 @numba.njit(cache=True)
 def run_frames(
     t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
-    P: FloatArray, clock: FloatArray, vo_scale: FloatArray, meas: FloatArray, const: FloatArray,
-    R_b_v: FloatArray, p_b_v: FloatArray, q: FloatArray, off: IntArray,
+    P: FloatArray, clock: FloatArray, vo_scale: FloatArray, xe: FloatArray, meas: FloatArray,
+    const: FloatArray, R_b_v: FloatArray, p_b_v: FloatArray, q: FloatArray, off: IntArray,
     tr_t: FloatArray, tr_p: FloatArray, tr_R: FloatArray,
     bias_t: FloatArray, bias: FloatArray, bias_std: FloatArray,
     nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray, vel_ok: NDArray[np.bool_],
@@ -451,9 +701,10 @@ def run_frames(
     (True without one). The buffers must hold the whole batch. Returns -1, or the index of the frame at
     which the filter diverged."""
     for i in range(meas.shape[0]):
-        if frame_step(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, vo_scale, meas[i], const, R_b_v, p_b_v,
-                      q, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, nis_buf, acc_buf,
-                      cnt) == DIVERGED:  # fmt: skip
+        st = frame_step(t_imu, acc, gyr, p, v, R, ba, bg, g_n, P, clock, vo_scale, xe, meas[i], const,
+                        R_b_v, p_b_v, q, off, tr_t, tr_p, tr_R, bias_t, bias, bias_std, nis_buf,
+                        acc_buf, cnt)  # fmt: skip
+        if st == DIVERGED:
             return i
-        vel_ok[i] = acc_buf[KIND_VEL, cnt[3] - 1] if meas[i, M_VEL_ON] != 0.0 else True
+        vel_ok[i] = st != VEL_REJECTED
     return -1

@@ -22,7 +22,7 @@ from imuslam.interfaces.imu import ImuLog
 from imuslam.interfaces.odometry import WheelOdometry
 from imuslam.io.trajectory import Trajectory
 from imuslam.vio.config import NoiseConfig, VioConfig
-from imuslam.vio.filter import GateStats, VioFilter
+from imuslam.vio.filter import EventFilter, GateStats
 from imuslam.vio.measurements import NonHolonomic, WheelSpeed, WheelYawRate
 
 FloatArray = NDArray[np.float64]
@@ -73,7 +73,7 @@ def run_wheel_ekf(
     P0 = np.diag(lay.diag(theta=cfg.init_std_theta**2, p=1e-6, v=0.05**2, ba=cfg.init_std_ba**2,
                           bg=0.01**2))  # fmt: skip
     P0[2, 2] = cfg.init_std_yaw**2
-    filt = VioFilter(imu_b, t_ref, x0, P0, 0.0, cfg)
+    filt = EventFilter(imu_b, t_ref, x0, P0, 0.0, cfg)
     filt.mark()
     t_prev = 0.0
     for k in np.flatnonzero((to > 0) & (to <= (t_end - t_ref) * 1e-9)):
