@@ -30,12 +30,12 @@ from numpy.typing import NDArray
 
 from imuslam.errors import FilterDivergence, InputError
 from imuslam.ins.coarse import level_rotation
-from imuslam.ins.core import ErrorLayout, Eskf, InsState, KfNoise, boxplus, propagate_covariance
+from imuslam.ins.core import ErrorLayout, InsState, KfNoise, boxplus, propagate_covariance
 from imuslam.interfaces.imu import ImuLog
 from imuslam.lio.config import LioConfig
 from imuslam.lio.deskew import deskew
 from imuslam.lio.frontend import select_indices, select_points
-from imuslam.lio.guards import DegeneracyGuard, inflate, repair_imu
+from imuslam.lio.guards import DegeneracyGuard, GuardedEskf, inflate, repair_imu
 from imuslam.lio.lidar_only import LidarOdometry
 from imuslam.lio.matcher import Correspondences, LocalMap, huber_weights
 
@@ -353,7 +353,7 @@ class LioEstimator:
         # the start's rotation-compensated scans (points, times, ring), for its second pass
         self._init_points: list[tuple[FloatArray, FloatArray, NDArray[np.integer] | None]] = []
         self._t_mean0 = 0.0  # the mean point time of the first scan, s
-        self.eskf: Eskf | None = None
+        self.eskf: GuardedEskf | None = None
         self.t_state = 0.0
         self.n_scans = 0
         self.last_iterations = 0
@@ -549,7 +549,7 @@ class LioEstimator:
         P0 = np.diag(lay.diag(theta=np.deg2rad(1.0) ** 2, p=0.05**2, v=0.2**2, ba=sb**2 * 100,
                               bg=sb**2, g=0.05**2))  # fmt: skip
         if self.calib is None:
-            self.eskf = Eskf(x, P=P0, noise=self.noise, layout=lay)
+            self.eskf = GuardedEskf(x, P=P0, noise=self.noise, layout=lay)
         else:  # the start's errors follow the prior extrinsic's (``OnlineCalibration.start``)
             self.eskf = self.calib.filter(
                 x, P0, self._samples(t_end - 0.02, t_end)[2][-1] - bg, self.noise
@@ -670,13 +670,13 @@ class LioEstimator:
         # first converge with the coarse gate, then go on from there with the tight one, whose rows
         # alone make the estimate (no wall foot matched to the ground)
         meas.set_tight(not coarse)
-        lin(eskf.x)
+        _, H0, R0 = lin(eskf.x)
         if meas.n_corr >= 3 * self.layout.dim:
             x_start = None
-            # tested on the prior's rows, remapped if degenerate
-            upd = self.degeneracy.wrap(
-                lin if self.calib is None else self.calib.wrap(lin, eskf.x, meas)
-            )
+            # tested on the prior's rows; if degenerate, both passes' Jacobians projected (the
+            # update's projector hook, as the in-filter extrinsic's)
+            eskf.projector = self.degeneracy.projector(H0, R0)
+            upd = lin if self.calib is None else self.calib.wrap(lin, eskf.x, meas)
             if coarse:
                 first = eskf.iterated_update(upd, fc.max_iterations, fc.converge, commit=False)
                 meas.set_tight(True)

@@ -20,18 +20,21 @@ log, a scan that constrains only some directions of the pose.
   scan alone exceeds ``filter.degenerate_std`` is degenerate. With ``filter.degeneracy_guard`` the
   update's Jacobian is projected onto the other directions (Zhang's solution remapping in the Kalman
   form), so the filter keeps the IMU's prediction there instead of following the scan's noise; the
-  degenerate scans and their directions are reported either way.
+  degenerate scans and their directions are reported either way. The projection goes through the
+  iterated update's one projector hook (``Eskf._update_prior``, :class:`GuardedEskf`), as the
+  in-filter extrinsic's consider states do; only H's columns are projected, the prior is kept whole
+  (a degenerate direction still moves with its prior correlation to the directions the scan fixes:
+  the IMU's prediction, conditioned on what the scan does measure).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.ins.core import ErrorLayout, InsState
+from imuslam.ins.core import ErrorLayout, Eskf
 from imuslam.interfaces.imu import ImuLog
 
 FloatArray = NDArray[np.float64]
@@ -157,19 +160,23 @@ class Degeneracy:
 
 
 class DegeneracyGuard:
-    """Wraps a linearisation ``x -> (r, H, R)`` (R a vector of variances, or ones after whitening):
-    tests the pose information at the first call of an update (the prior) and, when ``remap``,
-    projects every later H of the update onto the well-constrained directions."""
+    """Tests a scan's pose information on the rows of the update's prior (R a vector of variances, or
+    ones after whitening) and, when ``remap``, gives the projector of the update's Jacobian onto the
+    well-constrained directions."""
 
     def __init__(self, layout: ErrorLayout, limit_m: float, remap: bool) -> None:
         self.layout, self.limit, self.remap = layout, limit_m, remap
         self.last: Degeneracy | None = None
-        self._proj: FloatArray | None = None
+
+    @property
+    def _cols(self) -> NDArray[np.intp]:
+        lay = self.layout
+        return np.r_[np.arange(lay.P.start, lay.P.stop), np.arange(lay.TH.start, lay.TH.stop)]
 
     def test(self, H: FloatArray, R: FloatArray) -> tuple[Degeneracy, FloatArray | None]:
-        lay = self.layout
-        cols = np.r_[np.arange(lay.P.start, lay.P.stop), np.arange(lay.TH.start, lay.TH.stop)]
-        Hp = H[:, cols] * np.r_[np.ones(3), np.full(3, 1.0 / LEVER_M)]
+        """The test of rows (r, H, R) and the projector (6, 6) on [p, theta], or None if none is
+        degenerate."""
+        Hp = H[:, self._cols] * np.r_[np.ones(3), np.full(3, 1.0 / LEVER_M)]
         Rv = np.asarray(R, float)
         A = Hp.T @ (Hp / Rv[:, None]) if Rv.ndim == 1 else Hp.T @ np.linalg.solve(Rv, Hp)
         lam, V = np.linalg.eigh(A)
@@ -184,20 +191,24 @@ class DegeneracyGuard:
             proj = (good @ good.T) * S[None, :] / S[:, None]
         return Degeneracy(sig, names), proj
 
-    def wrap(self, lin: Callable[[InsState], tuple[FloatArray, FloatArray, FloatArray]]
-             ) -> Callable[[InsState], tuple[FloatArray, FloatArray, FloatArray]]:  # fmt: skip
-        """The linearisation for one update: the test at its first call, the projection after."""
-        self._proj, self.last = None, None
-        lay = self.layout
-        cols = np.r_[np.arange(lay.P.start, lay.P.stop), np.arange(lay.TH.start, lay.TH.stop)]
+    def projector(self, H: FloatArray, R: FloatArray) -> FloatArray | None:
+        """The test of the update's prior rows (kept in ``last``) and, when ``remap`` and a direction
+        is degenerate, the projector (dim, dim) of the error state's H columns (identity but on
+        [p, theta]) for :attr:`GuardedEskf.projector`; None otherwise."""
+        self.last, proj = self.test(H, R)
+        if not self.remap or proj is None:
+            return None
+        T = np.eye(H.shape[1])
+        T[np.ix_(self._cols, self._cols)] = proj
+        return T
 
-        def f(x: InsState) -> tuple[FloatArray, FloatArray, FloatArray]:
-            r, H, R = lin(x)
-            if self.last is None:
-                self.last, self._proj = self.test(H, R)
-            if self.remap and self._proj is not None and len(r):
-                H = H.copy()
-                H[:, cols] = H[:, cols] @ self._proj
-            return r, H, R
 
-        return f
+class GuardedEskf(Eskf):
+    """``Eskf`` whose iterated update projects the Jacobian's columns by ``projector`` (dim, dim) when
+    one is set (the degeneracy guard's, set before each scan's update): the update's projector hook
+    ``_update_prior``, with the prior covariance unchanged."""
+
+    projector: FloatArray | None = None
+
+    def _update_prior(self, P: FloatArray) -> tuple[FloatArray | None, FloatArray]:
+        return self.projector, P

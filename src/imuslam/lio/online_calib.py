@@ -41,6 +41,7 @@ from numpy.typing import NDArray
 from imuslam.geometry.so3 import exp, hat, log
 from imuslam.ins.core import ErrorLayout, Eskf, InsState, boxminus, boxplus
 from imuslam.lio.config import ObservabilityLimits
+from imuslam.lio.guards import GuardedEskf
 
 if TYPE_CHECKING:
     from imuslam.ins.noise import KfNoise
@@ -381,10 +382,12 @@ def _rpy_deg(R: FloatArray) -> FloatArray:
     return np.asarray(Rotation.from_matrix(R).as_euler("ZYX", degrees=True)[::-1])
 
 
-class CalibratingEskf(Eskf):
+class CalibratingEskf(GuardedEskf):
     """``Eskf`` whose iterated update carries the extra states' nominal values (``LioState``) and holds
     the guard's unexcited directions as consider states. ``ins.core``'s ``boxplus`` leaves the extra
-    states to their owner, so the iterate's extra part would be dropped there."""
+    states to their owner, so the iterate's extra part would be dropped there. The degeneracy guard's
+    ``projector`` (the pose's columns) is applied with the extra states' (their columns: the two
+    commute)."""
 
     def __init__(self, x: LioState, P: FloatArray, calib: OnlineCalibration, **kw: Any) -> None:
         super().__init__(x, P, layout=calib.layout, **kw)
@@ -408,10 +411,14 @@ class CalibratingEskf(Eskf):
         )
 
     def _update_prior(self, P: FloatArray) -> tuple[FloatArray | None, FloatArray]:
-        return self.calib.freeze(P)
+        proj, P0 = self.calib.freeze(P)
+        return (proj if self.projector is None else self.projector @ proj), P0
 
     def _committed(self, H: FloatArray, R: FloatArray) -> None:
-        """The scans-only covariance (the guard's evidence) takes the update unprojected."""
+        """The scans-only covariance (the guard's evidence) takes the update unprojected on the extra
+        states (the pose's columns as the degeneracy guard left them)."""
+        if self.projector is not None:
+            H = H @ self.projector
         c = self.calib
         c.n_updates += 1
         Rinv_H = H / R[:, None] if np.ndim(R) == 1 else np.linalg.solve(R, H)
