@@ -10,14 +10,15 @@ before/after in one run; ``--imutk EXE`` adds imu_tk's calibration program (``EX
 reads both files, calibrates once, prints), or ``--imutk-src DIR`` builds it first from an imu_tk
 checkout (https://github.com/Kyle-ak/imu_tk) with Debian's libceres-dev and cmake, as
 bench/calibrate_vs_imutk.py does, with its driver's five timed repetitions cut to one;
-``--all-commands`` adds ``imuslam <command> --help`` for every command (the time a command needs before
-its body starts working).
+``--all-commands`` adds ``imuslam <command> --help`` for every command, from both trees with ``--before``
+(the time a command needs before its body starts working).
 
 The calibrate cases: the default (joint fit and a 5-fold cross-validation, 6 fits in all), and the run
 that does what imu_tk's program does (``--method tedaldi --cv-folds 0 --no-plots``: imu_tk's method,
 one fit, the calibration files).
 
 Run: python bench/startup.py [--rounds N] [--before SRC] [--imutk EXE | --imutk-src DIR] [--all-commands]
+[--help-only]
 """
 
 from __future__ import annotations
@@ -94,10 +95,13 @@ def _cases(
             ),  # fmt: skip
             (f"{tag}imuslam eval KITTI 00 sim3", IMUSLAM + ["eval", *EVAL, "--out", "{out}"], src),
         ]
-    if all_commands:
+    if all_commands:  # every command's help, from each tree (a command new in this tree: only here)
         from imuslam.cli import COMMANDS
 
-        out += [(f"imuslam {c} --help", IMUSLAM + [c, "--help"], ROOT / "src") for c in COMMANDS]
+        for tag, src in trees:
+            old = {p.stem for p in (src / "imuslam" / "cli").glob("*.py")}
+            out += [(f"{tag}imuslam {c} --help", IMUSLAM + [c, "--help"], src)
+                    for c, (mod, _) in COMMANDS.items() if mod in old]  # fmt: skip
     evo = shutil.which("evo_ape") or str(Path(sys.executable).parent / "evo_ape")
     if Path(evo).exists():
         kitti = [str(KITTI / "KITTI_00_gt.txt"), str(KITTI / "KITTI_00_ORB.txt")]
@@ -153,6 +157,9 @@ def main() -> None:
         "--imutk-src", type=Path, default=None, help="an imu_tk checkout to build first"
     )
     ap.add_argument("--all-commands", action="store_true")
+    ap.add_argument(
+        "--help-only", action="store_true", help="every command's --help and nothing else"
+    )
     a = ap.parse_args()
     from rich.console import Console
     from rich.table import Table
@@ -162,7 +169,9 @@ def main() -> None:
         if a.imutk_src is not None:
             (Path(tmp) / "imutk").mkdir()
             imutk = str(build_imutk(a.imutk_src, Path(tmp) / "imutk"))
-        cases = _cases(a.before, imutk, a.all_commands)
+        cases = _cases(a.before, imutk, a.all_commands or a.help_only)
+        if a.help_only:
+            cases = [c for c in cases if c[0].endswith("--help")]
         times: dict[str, list[tuple[float, float]]] = {c[0]: [] for c in cases}
         with open("/proc/loadavg") as f:
             load_start = f.read().split()[0]
