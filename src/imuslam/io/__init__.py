@@ -1,4 +1,6 @@
-"""Readers and writers of logs: imu_tk text, EuRoC, generic CSV, ROS 1 / ROS 2 bags and MCAP, TUM, KITTI.
+"""Readers and writers of logs: imu_tk text, EuRoC, generic CSV, ROS 1 / ROS 2 bags and MCAP, TUM, KITTI;
+the estimators' datasets (PCD and KITTI folders, LiDAR and stereo bags, EuRoC stereo), one class per
+format, picked for a path by ``imuslam.io.datasets.open_dataset``.
 
 The package itself imports nothing heavy (``imuslam.io.results`` is used by every command's option
 checks before numpy is needed); ``ImuLog`` is re-exported lazily."""
