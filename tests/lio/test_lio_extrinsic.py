@@ -1,7 +1,7 @@
 """Target-free LiDAR-IMU calibration (``lio.extrinsic``, ``imuslam calibrate-lidar``) against the
 simulator's truth: a rig waved in all axes for 20 s in a calibration room (VLP-16 with 900 columns, 200 Hz IMU with
 seed 000's table-2 errors corrected by their true model, so noise and bias random walk stay), started
-2 deg / 10 cm / 20 ms away from the truth; and a car that only yaws (the street loop)."""
+2 deg / 10 cm / 20 ms away from the truth; and a car that only yaws (the street loop, 30 s, seeds 1-3)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
 from imuslam.cli import app
-from imuslam.eval.metrics import evaluate
+from imuslam.eval.metrics import KITTI_LENGTHS, evaluate
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.interfaces import ImuLog, Trajectory
 from imuslam.lio.config import ExtrinsicConfig, LioConfig
@@ -101,27 +101,6 @@ def test_no_starting_guess_is_needed(excited: tuple[LidarImuRig, LidarImuCalibra
 def test_excited_rig_on_more_seeds(seed: int) -> None:
     d = simulate_lidar_imu_rig("excited", 20.0, seed, true_T_i_l(), OFFSET_S, lidar=SMALL)
     _check_excited(d, calibrate_lidar_imu(d.scans, calibrated(d), start_config(d.T_i_l)))
-
-
-@pytest.mark.slow
-def test_yaw_only_drive_reports_the_vertical_lever_arm_unobservable() -> None:
-    """A car on the street loop turns about its z axis only (roll / pitch of 0.6 deg): the lever arm
-    along z changes no measurement (1-sigma from the data tens of centimetres, against centimetres
-    along x and y), so it is reported unobservable and held at its start (10 cm / sqrt(3) off)
-    instead of a confident wrong value; the rotation (the gyro and the car's accelerations) is still
-    observed, right within 4 sigma."""
-    d = simulate_lidar_imu_rig("street", 20.0, 4, true_T_i_l(), OFFSET_S, lidar=SMALL)
-    cfg = start_config(d.T_i_l)
-    c = calibrate_lidar_imu(d.scans, calibrated(d), cfg)
-    assert not c.observable_p[2]
-    assert c.sigma_p_m[2] > 0.1 and c.sigma_p_m[2] > 5 * c.sigma_p_m[:2].max()
-    assert any("lever arm along IMU" in u and "+1.00]" in u for u in c.unobservable)
-    assert abs(c.p_i_l[2] - cfg.extrinsic.p_i_l[2]) < 1e-3  # held at the start
-    rot, dp, dt = errors(c, d.T_i_l)
-    ok = c.observable_p
-    assert np.all(np.abs(dp[ok]) < 4 * c.sigma_p_m[ok] + 0.002)
-    assert c.observable_rot.all()
-    assert np.all(np.abs(rot) < 4 * c.sigma_rot_deg + 0.02)
 
 
 def _rig_bag(d: LidarImuRig, path: Path) -> Path:
@@ -228,3 +207,128 @@ def test_a_bag_without_motion_is_refused_naming_what_cannot_be_seen(tmp_path: Pa
     assert r.exit_code == 2, r.output
     assert "unobservable" in r.output and "rad/s RMS" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "o").exists()
+
+
+# The street drive: the car loop around the urban block (``sim.drive``'s street, the drive of
+# ``bench/lio.py robust``) for 30 s (240 m, three and a half corners) with the rig's LiDAR, started
+# 2 deg / 10 cm / 20 ms away. A car that only yaws shows the rotation about the IMU x and y axes (the
+# gyro about the vertical, and gravity), the rotation about z through its horizontal accelerations
+# alone (weakly), the clock offset, and hardly the lever arm (x and y through centripetal terms of
+# centimetres per second squared, z not at all).
+STREET_S = 30.0
+
+
+@pytest.fixture(scope="module", params=[1, 2, 3])
+def street(request: pytest.FixtureRequest) -> tuple[LidarImuRig, LidarImuCalibration]:
+    d = simulate_lidar_imu_rig(
+        "street", STREET_S, request.param, true_T_i_l(), OFFSET_S, lidar=SMALL
+    )
+    return d, calibrate_lidar_imu(d.scans, calibrated(d), start_config(d.T_i_l))
+
+
+@pytest.mark.slow
+def test_street_calibration_meets_the_goals_or_says_it_cannot(
+    street: tuple[LidarImuRig, LidarImuCalibration],
+) -> None:
+    """The goals (0.2 deg, 2 cm on the excited axes, 1 ms) on every parameter reported observed within
+    its target; one reported weakly observed (1-sigma above its target) is right within 3 of its
+    reported sigma; an unobservable one is held at the start. Never a confident wrong answer: every
+    rotation error above 0.2 deg and lever-arm error above 2 cm is on an axis reported weak or
+    unobservable."""
+    d, c = street
+    rot, dp, dt = errors(c, d.T_i_l)
+    start = np.asarray(start_config(d.T_i_l).extrinsic.p_i_l)
+    assert c.observable_rot.all() and c.observable_time
+    # a ground vehicle: the lever arm along z changes no measurement (1-sigma from the data tens of
+    # centimetres, against centimetres along x and y)
+    assert not c.observable_p[2] and c.sigma_p_m[2] > 0.1
+    assert c.sigma_p_m[2] > 5 * c.sigma_p_m[:2].max()
+    assert any("lever arm along IMU" in u and "+1.00]" in u for u in c.unobservable)
+    assert np.all(np.abs(rot[~c.weak_rot]) < 0.2), (rot, c.sigma_rot_deg)
+    assert np.all(np.abs(rot) < 3 * c.sigma_rot_deg), (rot, c.sigma_rot_deg)
+    assert abs(dt) < 1e-3 and abs(dt) < 3 * c.sigma_time_offset_s, (dt, c.sigma_time_offset_s)
+    sure_p = c.observable_p & ~c.weak_p
+    assert np.all(np.abs(dp[sure_p]) < 0.02), (dp, c.sigma_p_m)
+    held = ~c.observable_p
+    assert np.all(np.abs(c.p_i_l[held] - start[held]) < 2e-3)  # held along near-axis directions
+    assert np.all((np.abs(rot) < 0.2) | c.weak_rot)
+    assert np.all((np.abs(dp) < 0.02) | c.weak_p | held)
+    assert not c.confident and c.weakly_observed
+
+
+def _kitti(gt: Trajectory, est: Trajectory) -> float:
+    """KITTI drift, %, averaged over the segment lengths the drive holds (100 and 200 m)."""
+    res = evaluate(gt, est, "se3", 1.0, "frames", 0.02, KITTI_LENGTHS)
+    return float(np.mean([v[0] for v in res.kitti.values()]))
+
+
+def _lidar_frame(tr: Trajectory, ext: ExtrinsicConfig) -> Trajectory:
+    T = ext.T_i_l()
+    return Trajectory(tr.t_ns, tr.p_w + tr.R_w_b @ T[:3, 3], tr.R_w_b @ T[:3, :3], tr.source)
+
+
+@pytest.mark.slow
+def test_lio_on_the_street_with_the_recovered_values_drifts_as_with_the_truth(
+    street: tuple[LidarImuRig, LidarImuCalibration],
+) -> None:
+    """``lio`` with the calibrated extrinsic and offset: the LiDAR's trajectory (``lio``'s IMU poses
+    through the extrinsic it ran with, against the true LiDAR poses) drifts within 10 % of its drift
+    with the true values (KITTI drift over 100 and 200 m), and the IMU's trajectory drifts less than
+    with the start's 2 deg / 10 cm / 20 ms. The IMU's own drift is not held to 10 %: the values the
+    street cannot show (the lever arm, held 10 cm off; the rotation about z, 0.1-0.2 deg off) move
+    the IMU frame against the LiDAR's by exactly that error, which the KITTI drift of the IMU's
+    poses counts (0.1 deg of heading is 0.17 % of the path) against 0.03-0.04 % with the truth."""
+    from imuslam.io.lidarsets import MemoryDataset
+    from imuslam.lio.pipeline import LioPipeline
+
+    d, c = street
+    imu = calibrated(d)
+    gt = Trajectory(d.gt_t_ns, d.gt_p_w, d.gt_R_w_b, "truth")
+    x, y, z, w = Rotation.from_matrix(d.T_i_l[:3, :3]).as_quat()
+    truth = ExtrinsicConfig(
+        p_i_l=tuple(d.T_i_l[:3, 3]), quat_wxyz_i_l=(w, x, y, z), time_offset_s=OFFSET_S
+    )  # type: ignore[arg-type]
+    drift: dict[str, tuple[float, float]] = {}
+    for name, ext in (
+        ("truth", truth),
+        ("calibrated", c.extrinsic()),
+        ("start", start_config(d.T_i_l).extrinsic),
+    ):
+        data = MemoryDataset(d.scans, imu, "street")
+        est = LioPipeline(data, LioConfig(extrinsic=ext), progress=False).run().trajectory
+        drift[name] = (_kitti(gt, est), _kitti(_lidar_frame(gt, truth), _lidar_frame(est, ext)))
+    assert drift["calibrated"][1] <= 1.1 * drift["truth"][1], drift
+    assert drift["calibrated"][0] < drift["start"][0], drift
+
+
+def test_weakly_observed_parameters_are_marked_in_the_verdict_and_the_written_config() -> None:
+    """A parameter within its observability limit but with a 1-sigma above its accuracy target (0.2
+    deg, 2 cm, 1 ms) is 'weak' in the table, listed in metrics.json and commented in lio_config.yaml;
+    one above the limit is 'NO'; the estimate is then not confident."""
+    from dataclasses import replace
+
+    z = np.zeros(3)
+    base = LidarImuCalibration(
+        R_i_l=np.eye(3), p_i_l=z, time_offset_s=0.02, sigma_rot_deg=np.array([0.05, 0.05, 0.05]),
+        sigma_p_m=np.array([0.01, 0.01, 0.01]), sigma_time_offset_s=5e-4,
+        observable_rot=np.ones(3, bool), observable_p=np.ones(3, bool), observable_time=True,
+        unobservable=[], gyro_bias=z, accel_bias=z, g_w=np.array([0, 0, -9.8]), rms_gyro=0.0,
+        rms_accel=0.0, tau_gyro=1.0, tau_accel=1.0, coarse_time_offset_s=0.02, coarse_R_i_l=np.eye(3),
+        start=ExtrinsicConfig(), n_scans=300, duration_s=30.0,
+    )  # fmt: skip
+    assert base.confident and not base.weakly_observed and base.yaml_header() == ""
+    street_like = replace(
+        base, sigma_rot_deg=np.array([0.05, 0.05, 0.36]), sigma_p_m=np.array([0.01, 0.01, 0.4]),
+        observable_p=np.array([True, True, False]), sigma_time_offset_s=1.2e-3,
+        unobservable=["lever arm along IMU [+0.00, +0.00, +1.00]: 1-sigma 0.4 m (kept at the start)"],
+    )  # fmt: skip
+    c = street_like
+    assert [c.verdict("rot", k) for k in range(3)] == ["yes", "yes", "weak"]
+    assert [c.verdict("p", k) for k in range(3)] == ["yes", "yes", "NO"]
+    assert c.verdict("time") == "weak" and not c.confident
+    assert len(c.weakly_observed) == 2 and "IMU z" in c.weakly_observed[0]
+    m = c.to_dict()
+    assert m["weak_rot"] == {"x": False, "y": False, "z": True} and m["confident"] is False
+    head = c.yaml_header()
+    assert head.count("# weakly observed") == 2 and head.count("# unobservable") == 1
+    assert yaml.safe_load(head + "a: 1\n") == {"a": 1}
