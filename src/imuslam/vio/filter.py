@@ -74,7 +74,7 @@ class GateStats:
         return out
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class VoFrame:
     """What the filter reads of one VO frame pair: its mid-time ``t_s`` and interval [``t0_s``,
     ``t1_s``] (s since the filter's reference time), the body velocity ``vel_b`` (3,) m/s with its
