@@ -110,7 +110,7 @@ def _cases(
                                                        "--save_plot", "{out}/ape.png"], None))  # fmt: skip
     if imutk:
         out.append(("imu_tk calibration program", [imutk, *CALIBRATE[:2]], None))
-    return out
+    return list({c[0]: c for c in out}.values())  # a help listed twice is one case
 
 
 def _run(argv: list[str], src: Path | None, tmp: Path) -> tuple[float, float]:
@@ -194,7 +194,7 @@ def main() -> None:
         c = [x[1] for x in ts]
         table.add_row(label, f"{statistics.median(w):.2f}", f"{min(w):.2f}",
                       f"{statistics.median(c):.2f}", f"{min(c):.2f}")  # fmt: skip
-    Console().print(table)
+    Console(width=110).print(table)
 
 
 if __name__ == "__main__":
