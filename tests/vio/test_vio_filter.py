@@ -134,7 +134,8 @@ def test_sparse_propagation_equals_the_core_kernel(gravity: bool) -> None:
 
 
 def test_nhc_vertical_sigma_and_jacobian() -> None:
-    """The constraint's noise is diag(lateral^2, vertical^2), and its Jacobian matches a finite
+    """The constraint's noise is diag(lateral^2, vertical^2), and its Jacobian (the compiled
+    ``kernels.vehicle_velocity`` the VIO's frame step and the wheel filter share) matches a finite
     difference of the vehicle-frame velocity under the right attitude perturbation."""
     from imuslam.geometry import exp
     from imuslam.geometry.euler import euler_to_matrix

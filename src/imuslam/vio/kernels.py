@@ -394,6 +394,45 @@ def _update(
 
 
 @numba.njit(cache=True)
+def _vo_update(
+    r: FloatArray, Hc: FloatArray, cols: IntArray, Rm: FloatArray,
+    p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
+    P: FloatArray, xe: FloatArray, const: FloatArray, off: IntArray, kind: int,
+    vo_scale: FloatArray, adapt_n: float, nis_buf: FloatArray, acc_buf: NDArray[np.bool_],
+    cnt: IntArray,
+) -> int:  # fmt: skip  # pragma: no cover - compiled
+    """A VO update (3 dof, KIND_RATE or KIND_VEL) through :func:`_update`; when accepted and
+    ``adapt_n`` > 0, its online covariance scale (``vo_scale`` row 0 rate, 1 velocity) steps on its
+    NIS (:func:`adapt_scale`)."""
+    st = _update(r, Hc, cols, Rm, p, v, R, ba, bg, g_n, P, xe, const, off, const[C_THR3], kind,
+                 nis_buf, acc_buf, cnt)  # fmt: skip
+    if st == 1 and adapt_n > 0:
+        row = 0 if kind == KIND_RATE else 1
+        vo_scale[row] = adapt_scale(vo_scale[row], nis_buf[kind, cnt[2 + kind] - 1], 3.0, adapt_n)
+    return st
+
+
+@numba.njit(cache=True)
+def vehicle_velocity(
+    R: FloatArray, v: FloatArray, w: FloatArray, R_b_v: FloatArray, p_b_v: FloatArray
+) -> tuple[FloatArray, FloatArray]:  # pragma: no cover - compiled
+    """The vehicle frame's velocity ``v_v = R_b_v^T (R^T v + w x p_b_v)`` (3,) (``w`` the
+    bias-corrected gyro rate (3,) rad/s, the vehicle frame given in the body by ``R_b_v`` and its
+    origin ``p_b_v``) and its Jacobian (3, 9) on ``[dtheta, dv, db_g]``: with the right perturbation
+    ``R^T v ~ R_hat^T v + [R_hat^T v]x dtheta``, so ``R_b_v^T [R^T v]x``, ``R_b_v^T R^T`` and, as
+    ``w = gyro - b_g``, ``R_b_v^T [p_b_v]x``. The non-holonomic constraint reads rows 1-2 (lateral,
+    vertical: zero), the wheel speed row 0 (:mod:`imuslam.vio.measurements` uses it too)."""
+    R_v_b = np.ascontiguousarray(R_b_v.T)
+    vb = R.T @ v
+    vv = R_v_b @ (vb + np.cross(w, p_b_v))
+    Hc = np.empty((3, 9))
+    Hc[:, 0:3] = R_v_b @ hat_nb(vb)
+    Hc[:, 3:6] = R_v_b @ R.T
+    Hc[:, 6:9] = R_v_b @ hat_nb(p_b_v)
+    return vv, Hc
+
+
+@numba.njit(cache=True)
 def _nhc_until(
     t_until: float, t_imu: FloatArray, acc: FloatArray, gyr: FloatArray,
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
@@ -404,11 +443,10 @@ def _nhc_until(
     nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
 ) -> bool:  # fmt: skip  # pragma: no cover - compiled
     """The non-holonomic updates due before ``t_until`` (when on): predict to each, the gated update of
-    the vehicle-frame lateral and vertical velocity (``measurements.NonHolonomic``), a record.
+    the vehicle-frame lateral and vertical velocity (:func:`vehicle_velocity`), a record.
     False when the filter diverged."""
     if const[C_NHC_ON] == 0.0:
         return True
-    R_v_b = np.ascontiguousarray(R_b_v.T)
     cols = np.empty(9, np.int64)  # [dtheta, dv, db_g]
     for i in range(3):
         cols[i] = off[0] + i
@@ -423,12 +461,8 @@ def _nhc_until(
                         tr_t, tr_p, tr_R, cnt, xe, const):  # fmt: skip
             return False
         w = sample_at_nb(t_imu, acc, gyr, tn)[1] - bg
-        vb = R.T @ v
-        vv = R_v_b @ (vb + np.cross(w, p_b_v))
-        Hc = np.empty((2, 9))
-        Hc[:, 0:3] = (R_v_b @ hat_nb(vb))[1:]
-        Hc[:, 3:6] = (R_v_b @ R.T)[1:]
-        Hc[:, 6:9] = (R_v_b @ hat_nb(p_b_v))[1:]
+        vv, Hv = vehicle_velocity(R, v, w, R_b_v, p_b_v)
+        Hc = np.ascontiguousarray(Hv[1:])
         if _update(-vv[1:], Hc, cols, Rm, p, v, R, ba, bg, g_n, P, xe, const, off,
                    const[C_THR2], KIND_NHC, nis_buf, acc_buf, cnt) < 0:  # fmt: skip
             return False
@@ -449,7 +483,6 @@ def _vo_rate_velocity(
     when the joint flag is set and the rate was accepted (``VoVelocityGivenRate``), against ``v_b + e``
     with the slowly varying VO error ``e`` in MODE_VO_ERROR (``WithVoError``). Returns OK,
     VEL_REJECTED or DIVERGED."""
-    thr3 = const[C_THR3]
     rate_ok = False
     r_w = np.zeros(3)
     Rm_w = np.eye(3)
@@ -465,13 +498,11 @@ def _vo_rate_velocity(
         cols_bg = np.arange(off[4], off[4] + 3)
         r = omega_b - (g_mean - bg)
         Rm_w = cov_w * s_w + np.eye(3) * (const[C_GYRO_Q] / (t1 - t0))
-        st = _update(r, -np.eye(3), cols_bg, Rm_w, p, v, R, ba, bg, g_n, P, xe, const, off, thr3,
-                     KIND_RATE, nis_buf, acc_buf, cnt)  # fmt: skip
+        st = _vo_update(r, -np.eye(3), cols_bg, Rm_w, p, v, R, ba, bg, g_n, P, xe, const, off,
+                        KIND_RATE, vo_scale, adapt_n, nis_buf, acc_buf, cnt)  # fmt: skip
         if st < 0:
             return DIVERGED
         rate_ok = st == 1
-        if rate_ok and adapt_n > 0:
-            vo_scale[0] = adapt_scale(s_w, nis_buf[KIND_RATE, cnt[2 + KIND_RATE] - 1], 3.0, adapt_n)
         r_w = omega_b - (g_mean - bg)  # at the updated gyro bias
     if meas[M_VEL_ON] == 0.0:
         return OK
@@ -504,13 +535,9 @@ def _vo_rate_velocity(
         r = r - xe[0:3]
         for i in range(3):
             Hc[i, 9 + i] = 1.0
-    st = _update(r, Hc, cols, cov_v, p, v, R, ba, bg, g_n, P, xe, const, off, thr3,
-                 KIND_VEL, nis_buf, acc_buf, cnt)  # fmt: skip
-    if st < 0:
-        return DIVERGED
-    if st == 1 and adapt_n > 0:
-        vo_scale[1] = adapt_scale(s_v, nis_buf[KIND_VEL, cnt[2 + KIND_VEL] - 1], 3.0, adapt_n)
-    return OK if st == 1 else VEL_REJECTED
+    st = _vo_update(r, Hc, cols, cov_v, p, v, R, ba, bg, g_n, P, xe, const, off, KIND_VEL,
+                    vo_scale, adapt_n, nis_buf, acc_buf, cnt)  # fmt: skip
+    return DIVERGED if st < 0 else OK if st == 1 else VEL_REJECTED
 
 
 @numba.njit(cache=True)
@@ -561,7 +588,6 @@ def _vo_relative(
     ``[J_r e_w, e_v]`` and ``G = C_vw J_r^T (J_r C_ww J_r^T)^-1``, residual ``r_v - G r_w``,
     Jacobian ``H_v - G H_w``, covariance ``C_vv - G J_r C_wv``, both residuals at the current state.
     Returns OK, VEL_REJECTED or DIVERGED."""
-    thr3 = const[C_THR3]
     o = int(const[C_X_OFF])
     dt = meas[M_T1] - meas[M_T0]
     adapt_n = const[C_ADAPT_N] if clock[0] < const[C_ADAPT_UNTIL] else 0.0
@@ -586,13 +612,11 @@ def _vo_relative(
         R_c = np.ascontiguousarray(xe[0:9]).reshape((3, 3))
         r, H_th, H_cth, Jr = relative_rotation(omega_b, dt, R_c, R)
         Hc = np.concatenate((H_th, H_cth), axis=1)
-        st = _update(r, Hc, cols_w, Jr @ cov_w @ Jr.T, p, v, R, ba, bg, g_n, P, xe, const, off,
-                     thr3, KIND_RATE, nis_buf, acc_buf, cnt)  # fmt: skip
+        st = _vo_update(r, Hc, cols_w, Jr @ cov_w @ Jr.T, p, v, R, ba, bg, g_n, P, xe, const, off,
+                        KIND_RATE, vo_scale, adapt_n, nis_buf, acc_buf, cnt)  # fmt: skip
         if st < 0:
             return DIVERGED
         rate_ok = st == 1
-        if rate_ok and adapt_n > 0:
-            vo_scale[0] = adapt_scale(s_w, nis_buf[KIND_RATE, cnt[2 + KIND_RATE] - 1], 3.0, adapt_n)
     if meas[M_VEL_ON] == 0.0:
         return OK
     vel_b = np.ascontiguousarray(meas[M_VEL : M_VEL + 3])
@@ -616,13 +640,9 @@ def _vo_relative(
         Hc[:, 6:9] -= G @ Hw_cth
         cov_v = cov_v - G @ c_wv
         cov_v = 0.5 * (cov_v + cov_v.T)
-    st = _update(r, Hc, cols, cov_v, p, v, R, ba, bg, g_n, P, xe, const, off, thr3,
-                 KIND_VEL, nis_buf, acc_buf, cnt)  # fmt: skip
-    if st < 0:
-        return DIVERGED
-    if st == 1 and adapt_n > 0:
-        vo_scale[1] = adapt_scale(s_v, nis_buf[KIND_VEL, cnt[2 + KIND_VEL] - 1], 3.0, adapt_n)
-    return OK if st == 1 else VEL_REJECTED
+    st = _vo_update(r, Hc, cols, cov_v, p, v, R, ba, bg, g_n, P, xe, const, off, KIND_VEL,
+                    vo_scale, adapt_n, nis_buf, acc_buf, cnt)  # fmt: skip
+    return DIVERGED if st < 0 else OK if st == 1 else VEL_REJECTED
 
 
 @numba.njit(cache=True)

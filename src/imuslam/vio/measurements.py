@@ -20,8 +20,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from imuslam.geometry import hat
 from imuslam.ins.core import ErrorLayout, InsState
+from imuslam.vio.kernels import vehicle_velocity
 
 FloatArray = NDArray[np.float64]
 
@@ -93,14 +93,18 @@ def _twist_velocity_nb(
 def _vehicle_velocity(
     x: InsState, layout: ErrorLayout, gyro: FloatArray, R_b_v: FloatArray, p_b_v: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """Vehicle-frame velocity (3,) and its Jacobian (3, dim)."""
-    vb = x.R_n_b.T @ x.v_n
-    w = gyro - x.gyro_bias
-    vv = R_b_v.T @ (vb + np.cross(w, p_b_v))
+    """Vehicle-frame velocity (3,) and its Jacobian (3, dim) (:func:`imuslam.vio.kernels.vehicle_velocity`,
+    the VIO's constraint)."""
+    f64 = np.float64
+    vv, Hc = vehicle_velocity(
+        np.ascontiguousarray(x.R_n_b, f64), np.ascontiguousarray(x.v_n, f64),
+        np.ascontiguousarray(gyro - x.gyro_bias, f64), np.ascontiguousarray(R_b_v, f64),
+        np.ascontiguousarray(p_b_v, f64),
+    )  # fmt: skip
     H = np.zeros((3, layout.dim))
-    H[:, layout.V] = R_b_v.T @ x.R_n_b.T
-    H[:, layout.TH] = R_b_v.T @ hat(vb)
-    H[:, layout.BG] = R_b_v.T @ hat(p_b_v)  # d(w x p)/d(b_g) = -d(p x w)... = [p]x
+    H[:, layout.TH] = Hc[:, 0:3]
+    H[:, layout.V] = Hc[:, 3:6]
+    H[:, layout.BG] = Hc[:, 6:9]
     return vv, H
 
 
