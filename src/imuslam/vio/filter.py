@@ -308,12 +308,6 @@ class VioFilter(InertialFilter):
         self.R_b_v = np.ascontiguousarray(self.R_b_v, dtype=np.float64)
         self.p_b_v = np.ascontiguousarray(self.p_b_v, dtype=np.float64)
 
-    @property
-    def vo_error(self) -> FloatArray:
-        """The slowly varying VO velocity error's current estimate (3,) m/s, body frame (zeros unless
-        ``vo_error_std`` is set)."""
-        return self._xe[:3].copy()
-
     def _reserve(self, n_track: int, n_events: int) -> None:
         """Grow the buffers (doubling) so that ``n_track`` more track rows and ``n_events`` more marks
         and updates per kind fit."""
