@@ -279,8 +279,8 @@ def update_sparse(
     r: FloatArray, Hc: FloatArray, cols: IntArray, Rm: FloatArray,
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
     P: FloatArray, off: IntArray, gate_on: bool, threshold: float,
-    kind: int, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray, dx_out: FloatArray,
-) -> int:  # fmt: skip  # pragma: no cover - compiled
+    kind: int, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
+) -> tuple[int, FloatArray]:  # fmt: skip  # pragma: no cover - compiled
     """Chi-square gate (nis = r^T (H P H^T + R)^-1 r) and the Kalman update, the attitude by the core's
     :func:`~imuslam.ins.core.boxplus_attitude`, for a Jacobian whose nonzero columns are ``cols`` (nc,), given there as ``Hc``
     (k, nc): the VIO's measurements touch 3 (VO rate) or 9 (NHC, VO velocity) of the 15 error states.
@@ -289,7 +289,7 @@ def update_sparse(
     the Joseph form's two dense (m, m) products; equal for the optimal gain, Maybeck, *Stochastic
     Models, Estimation and Control* vol. 1, eq. 5-50 against 5-47; the symmetrised result is checked
     positive definite by :func:`_check`). Records the nis and the verdict of this kind; returns 1
-    accepted, 0 rejected, -1 diverged; the correction (m,) goes to ``dx_out`` when accepted."""
+    accepted, 0 rejected, -1 diverged, and the correction (m,) (meaningless unless accepted)."""
     m = P.shape[0]
     k = r.shape[0]
     nc = cols.shape[0]
@@ -316,10 +316,9 @@ def update_sparse(
     cnt[2 + kind] = j + 1
     if gate_on and not (nis <= threshold):
         acc_buf[kind, j] = False
-        return 0
+        return 0, Sr
     acc_buf[kind, j] = True
     dx = PHt @ Sr
-    dx_out[:] = dx
     K = PHt @ Si
     for i in range(m):
         for c in range(i, m):
@@ -338,7 +337,7 @@ def update_sparse(
         bg += dx[off[4] : off[4] + 3]
     if off[5] >= 0:
         g_n += dx[off[5] : off[5] + 3]
-    return 1 if _check(P, p, v, R) else -1
+    return (1 if _check(P, p, v, R) else -1), dx
 
 
 @numba.njit(cache=True)
@@ -375,9 +374,8 @@ def _update(
 ) -> int:  # fmt: skip  # pragma: no cover - compiled
     """:func:`update_sparse`, then the extra states' share of an accepted correction: the VO velocity
     error adds it, the clone's attitude is perturbed on the right and its position adds it."""
-    dx = np.zeros(P.shape[0])
-    st = update_sparse(r, Hc, cols, Rm, p, v, R, ba, bg, g_n, P, off, const[C_GATE_ON] != 0.0,
-                       threshold, kind, nis_buf, acc_buf, cnt, dx)  # fmt: skip
+    st, dx = update_sparse(r, Hc, cols, Rm, p, v, R, ba, bg, g_n, P, off, const[C_GATE_ON] != 0.0,
+                           threshold, kind, nis_buf, acc_buf, cnt)  # fmt: skip
     if st != 1:
         return st
     mode = int(const[C_MODE])
@@ -478,27 +476,38 @@ def _vo_rate_velocity(
     P: FloatArray, clock: FloatArray, vo_scale: FloatArray, xe: FloatArray, const: FloatArray,
     off: IntArray, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
 ) -> int:  # fmt: skip  # pragma: no cover - compiled
-    """``vo_model: rate``: the VO rate against the mean gyro over the pair (``measurements.VoRate``:
-    it observes the gyro bias), then the VO body velocity (``VoVelocity``), conditioned on the rate
-    when the joint flag is set and the rate was accepted (``VoVelocityGivenRate``), against ``v_b + e``
-    with the slowly varying VO error ``e`` in MODE_VO_ERROR (``WithVoError``). Returns OK,
-    VEL_REJECTED or DIVERGED."""
+    """``vo_model: rate``: the VO rate against the mean gyro over the pair (it observes the gyro bias),
+    then the VO body velocity (``H_v = R^T``, ``H_theta = [R^T v]x``), conditioned on the rate when
+    the joint flag is set and the rate was accepted (with ``G = C_vw C_ww^-1``: residual ``r_v - G
+    r_w``, Jacobian ``H_v - G H_w``, covariance ``C_vv - G C_wv``; the rate update followed by this
+    one equals the joint 6-dof update), against ``v_b + e`` with the slowly varying VO error ``e`` in
+    MODE_VO_ERROR. (The tests' reference, ``tests/vio/vio_reference.py``, writes them as ``VoRate``,
+    ``VoVelocity``, ``VoVelocityGivenRate`` and ``WithVoError``.) Returns OK, VEL_REJECTED or
+    DIVERGED."""
     rate_ok = False
     r_w = np.zeros(3)
     Rm_w = np.eye(3)
     adapt_n = const[C_ADAPT_N] if clock[0] < const[C_ADAPT_UNTIL] else 0.0
     s_w = vo_scale[0]  # the online scales in force for this frame (ones when off)
     s_v = vo_scale[1]
+    gm = int(const[C_MODE]) == MODE_VO_ERROR
+    nc = 12 if gm else 9
+    cols = np.empty(nc, np.int64)  # [dtheta, dv, db_g] (and e)
+    for i in range(3):
+        cols[i] = off[0] + i
+        cols[3 + i] = off[2] + i
+        cols[6 + i] = off[4] + i
+        if gm:
+            cols[9 + i] = int(const[C_X_OFF]) + i
     if meas[M_RATE_ON] != 0.0:
         omega_b = meas[M_OMEGA : M_OMEGA + 3]
         cov_w = np.ascontiguousarray(meas[M_COV_W : M_COV_W + 9]).reshape((3, 3))
         t0 = meas[M_T0]
         t1 = meas[M_T1]
         g_mean = gyro_mean_nb(t_imu, acc, gyr, t0, t1)
-        cols_bg = np.arange(off[4], off[4] + 3)
         r = omega_b - (g_mean - bg)
         Rm_w = cov_w * s_w + np.eye(3) * (const[C_GYRO_Q] / (t1 - t0))
-        st = _vo_update(r, -np.eye(3), cols_bg, Rm_w, p, v, R, ba, bg, g_n, P, xe, const, off,
+        st = _vo_update(r, -np.eye(3), cols[6:9], Rm_w, p, v, R, ba, bg, g_n, P, xe, const, off,
                         KIND_RATE, vo_scale, adapt_n, nis_buf, acc_buf, cnt)  # fmt: skip
         if st < 0:
             return DIVERGED
@@ -509,15 +518,6 @@ def _vo_rate_velocity(
     vel_b = meas[M_VEL : M_VEL + 3]
     cov_v = np.ascontiguousarray(meas[M_COV_V : M_COV_V + 9]).reshape((3, 3)) * s_v
     vb = R.T @ v
-    gm = int(const[C_MODE]) == MODE_VO_ERROR
-    nc = 12 if gm else 9
-    cols = np.empty(nc, np.int64)  # [dtheta, dv, db_g] (and e)
-    for i in range(3):
-        cols[i] = off[0] + i
-        cols[3 + i] = off[2] + i
-        cols[6 + i] = off[4] + i
-        if gm:
-            cols[9 + i] = int(const[C_X_OFF]) + i
     Hc = np.zeros((3, nc))
     Hc[:, 0:3] = hat_nb(vb)
     Hc[:, 3:6] = R.T
