@@ -46,7 +46,7 @@ def main() -> None:
     dur = traj.duration_s
     spec = ImuErrorSpec.bwt901cl()
     sim = simulate_robot2d(traj, dur, rng, spec)
-    raw = sim.log.imu
+    raw = sim.log.imu()
     assert raw is not None
     ideal_spec = ImuErrorSpec(accel_density=spec.accel_density, gyro_density=spec.gyro_density)
     ideal, _ = simulate_imu(

@@ -92,7 +92,7 @@ def test_no_imu_reads_no_imu(
     monkeypatch.setattr(Bag, "imu", no_read)
     with caplog.at_level(logging.WARNING):
         log_ = load_laser_log(shared_data / BAG, "auto", "horizontal_laser_2d", with_imu=False)
-    assert log_.imu is None
+    assert log_.imu() is None
     assert len(log_) == 345
     assert "gap" not in caplog.text  # the bag's IMU has one (1073th sample), never looked at
 

@@ -113,7 +113,7 @@ def test_tilted_scans_are_rejected_by_gravity() -> None:
     from imuslam.slam2d.pipeline import run_slam2d
 
     sim = simulate_robot2d(SquareLoopCcwCw(), 8.0, np.random.default_rng(7), ImuErrorSpec.ideal())
-    imu = sim.log.imu
+    imu = sim.log.imu()
     assert imu is not None
     t = (imu.t_ns - imu.t_ns[0]) * 1e-9
     tilt = (t > 3.0) & (t < 5.0)
@@ -122,7 +122,7 @@ def test_tilted_scans_are_rejected_by_gravity() -> None:
     imu.accel[tilt] = imu.accel[tilt] @ R.T
     cfg = Slam2dConfig()
     cfg.loop.enabled = False
-    res = run_slam2d(sim.log, cfg)
+    res = run_slam2d(sim.log, cfg, imu=imu)
     # 20 scans in the 2 s; the gravity direction is averaged over 1 s, which moves the edges by <= 0.5 s
     assert 10 <= res.rejected_tilt <= 30
     assert res.warnings["scans rejected by the IMU tilt (pose from the prior)"] == res.rejected_tilt

@@ -72,16 +72,16 @@ def test_laserscan_angle_fields_must_match_ranges() -> None:
 def test_backpack_bag_reads_multiecho_scans_and_imu(shared_data: Path) -> None:
     """Cartographer's 2D backpack bag: 10 s of MultiEchoLaserScan (1079 beams, +-134.75 deg) and a 200 Hz
     IMU; with two laser topics the reader asks for one by name."""
-    from imuslam.io.laserload import load_laser_log
+    from imuslam.io.datasets import open_dataset
 
     bag = shared_data / "cartographer_backpack_2d" / "b0-2014-07-21-12-42-53-short.bag"
     with pytest.raises(InputError, match="several .* topics; name one"):
-        load_laser_log(bag)
-    log_ = load_laser_log(bag, scan_topic="horizontal_laser_2d")
+        open_dataset(bag, "laser")
+    log_ = open_dataset(bag, "laser", scan_topic="horizontal_laser_2d")
     assert log_.n_beams == 1079
     assert np.rad2deg(log_.angle_min) == pytest.approx(-134.75, abs=0.05)
     assert 300 < len(log_) < 400  # ~35 Hz for 10 s
-    assert log_.imu is not None and 1800 < len(log_.imu) < 2100
+    assert (imu := log_.imu()) is not None and 1800 < len(imu) < 2100
     assert log_.odom_xy_yaw is None
 
 

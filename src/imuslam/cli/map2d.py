@@ -12,6 +12,7 @@ from imuslam.cli.common import console, friendly_errors, progress_option, show_p
 from imuslam.cli.lio import RRD_HELP, VIEWER_HELP
 
 if TYPE_CHECKING:
+    from imuslam.interfaces.imu import ImuLog
     from imuslam.io.laserlog import LaserLog
     from imuslam.slam2d.config import Slam2dConfig
 
@@ -88,10 +89,10 @@ def register(app: typer.Typer) -> None:
         from imuslam.slam2d.pipeline import Slam2dPipeline
 
         cfg = _config(config, no_odometry, no_imu, no_loop)
-        log_ = _load(log_path, fmt, scan_topic, imu_topic, odom_topic, calib, cfg)
+        log_, imu = _load(log_path, fmt, scan_topic, imu_topic, odom_topic, calib, cfg)
         if gt is not None:
             _check_reference(gt, log_)
-        pipeline = Slam2dPipeline(log_, cfg)
+        pipeline = Slam2dPipeline(log_, cfg, imu=imu)
         from imuslam.viz.recording import open_recording
 
         with (
@@ -105,7 +106,7 @@ def register(app: typer.Typer) -> None:
                 if k % 50 == 49:
                     bar.update(50)
 
-            obs = _observer(rec, log_, calib is not None)
+            obs = _observer(rec, pipeline.imu, calib is not None)
             run = pipeline.run_and_render(tick, obs)
             bar.update(len(log_) - bar.n)
             if obs is not None:
@@ -124,15 +125,15 @@ def register(app: typer.Typer) -> None:
         )
 
 
-def _observer(rec: Any, log_: LaserLog, calibrated: bool) -> Any:
-    """The recording's per-scan logger, the log's IMU logged first; None without a recording."""
+def _observer(rec: Any, imu: ImuLog | None, calibrated: bool) -> Any:
+    """The recording's per-scan logger, the run's IMU logged first; None without a recording."""
     if rec is None:
         return None
     from imuslam.viz.lio import log_imu
     from imuslam.viz.slam2d import Slam2dLogger
 
-    if log_.imu is not None:
-        log_imu(rec, log_.imu, "imu/corrected" if calibrated else "imu/raw")
+    if imu is not None:
+        log_imu(rec, imu, "imu/corrected" if calibrated else "imu/raw")
     return Slam2dLogger(rec)
 
 
@@ -160,27 +161,30 @@ def _config(config: Path | None, no_odometry: bool, no_imu: bool, no_loop: bool)
 def _load(
     log_path: Path, fmt: str, scan_topic: str | None, imu_topic: str | None,
     odom_topic: str | None, calib: Path | None, cfg: Slam2dConfig,
-) -> LaserLog:  # fmt: skip
-    """The log, its stamps and IMU units checked, its IMU corrected by ``calib``."""
+) -> tuple[LaserLog, ImuLog | None]:  # fmt: skip
+    """The log (its stamps checked) and the run's IMU: the log's, corrected by ``calib``, its units
+    checked."""
     from imuslam.errors import InputError
-    from imuslam.io.laserload import load_laser_log
+    from imuslam.io.datasets import open_dataset
     from imuslam.io.plausible import check_stamps, check_units
 
     if calib is not None and not cfg.use_imu:
         raise InputError(
             "--calib: it corrects the IMU, which --no-imu leaves out; give one of them"
         )
-    log_ = load_laser_log(log_path, fmt, scan_topic, imu_topic, odom_topic, cfg.use_imu)
+    log_ = open_dataset(log_path, "laser", fmt=fmt, scan_topic=scan_topic, imu_topic=imu_topic,
+                        odom_topic=odom_topic, use_imu=cfg.use_imu)  # fmt: skip
     check_stamps(log_.t_ns, "scans", str(log_path))
+    imu = log_.imu()
     if calib is not None:
-        if log_.imu is None:
+        if imu is None:
             raise InputError(f"--calib: {log_path} has no IMU to correct")
         from imuslam.imu.model import ImuCalibration
 
-        log_.imu = ImuCalibration.load_yaml(calib).correct(log_.imu)
-    if log_.imu is not None and cfg.use_imu:
-        check_units(log_.imu, hint="check the log's IMU units, or map without it (--no-imu)")
-    return log_
+        imu = ImuCalibration.load_yaml(calib).correct(imu)
+    if imu is not None and cfg.use_imu:
+        check_units(imu, hint="check the log's IMU units, or map without it (--no-imu)")
+    return log_, imu
 
 
 def _summary_rows(

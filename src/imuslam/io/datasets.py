@@ -8,8 +8,13 @@ says what the path holds; the pair names the reader:
     lidar    bag (or other)       lidarsets.BagLidarDataset (PointCloud2, optional Imu)
     stereo   bag                  stereosets.BagStereo (two image topics, Imu; a Kalibr camchain)
     stereo   EuRoC (or other)     stereosets.EurocStereo (its sensor.yaml files, or a camchain)
+    laser    bag                  laserload.read_bag_laser (LaserScan / MultiEchoLaserScan, Imu, Odometry)
+    laser    sim folder           laserload.read_sim_room (the output of ``imuslam simulate room``)
+    laser    file                 carmen.read_carmen / read_breezyslam (by the file's name)
 
-Every reader gives its IMU by ``imu()`` (``interfaces.sources``). The simulator's datasets are made by
+A 2D laser log is read whole into a :class:`~imuslam.io.laserlog.LaserLog` (``laserload.load_laser_log``).
+
+Every reader and the laser log give their IMU by ``imu()`` (``interfaces.sources``). The simulator's datasets are made by
 the simulator (``sim``), never here: ``io`` does not import it.
 """
 
@@ -21,10 +26,12 @@ from typing import Literal, overload
 from imuslam.errors import InputError
 from imuslam.io.camcalib import read_kalibr_camchain
 from imuslam.io.kinds import SourceKind, source_kind
+from imuslam.io.laserload import load_laser_log
+from imuslam.io.laserlog import LaserLog
 from imuslam.io.lidarsets import BagLidarDataset, KittiFolder, PcdFolder
 from imuslam.io.stereosets import BagStereo, EurocStereo
 
-Sensor = Literal["lidar", "stereo"]
+Sensor = Literal["lidar", "stereo", "laser"]
 LidarFile = PcdFolder | KittiFolder | BagLidarDataset
 StereoFile = EurocStereo | BagStereo
 
@@ -54,6 +61,19 @@ def open_dataset(
 ) -> StereoFile: ...
 
 
+@overload
+def open_dataset(
+    path: str | Path,
+    sensor: Literal["laser"],
+    *,
+    imu_topic: str | None = None,
+    use_imu: bool = True,
+    fmt: str = "auto",
+    scan_topic: str | None = None,
+    odom_topic: str | None = None,
+) -> LaserLog: ...
+
+
 def open_dataset(
     path: str | Path,
     sensor: Sensor,
@@ -64,11 +84,17 @@ def open_dataset(
     camchain: Path | None = None,
     left_topic: str | None = None,
     right_topic: str | None = None,
-) -> LidarFile | StereoFile:
+    fmt: str = "auto",
+    scan_topic: str | None = None,
+    odom_topic: str | None = None,
+) -> LidarFile | StereoFile | LaserLog:
     """The reader of ``path`` for ``sensor`` (table above). Topics name a bag's topics (None: the only
-    one of its type); ``use_imu=False`` leaves a LiDAR bag's IMU unread; ``camchain`` (Kalibr YAML)
-    calibrates the cameras (a stereo bag needs it, an EuRoC folder has its own sensor.yaml files)."""
+    one of its type); ``use_imu=False`` leaves a LiDAR bag's or a laser log's IMU unread; ``camchain``
+    (Kalibr YAML) calibrates the cameras (a stereo bag needs it, an EuRoC folder has its own
+    sensor.yaml files); ``fmt`` names a laser log's format (auto: from what the path holds)."""
     p = Path(path)
+    if sensor == "laser":
+        return load_laser_log(p, fmt, scan_topic, imu_topic, odom_topic, use_imu)
     if sensor == "lidar":
         kind = source_kind(p)
         if kind is SourceKind.MISSING:
@@ -87,4 +113,4 @@ def open_dataset(
                 )
             return BagStereo(p, cal, left_topic, right_topic, imu_topic)
         return EurocStereo(p, cal)
-    raise ValueError(f"sensor {sensor!r}: expected one of lidar, stereo")
+    raise ValueError(f"sensor {sensor!r}: expected one of lidar, stereo, laser")

@@ -1,7 +1,8 @@
 """A 2D laser log: consecutive planar scans with the wheel odometry at each scan, and optionally an IMU.
 
 Every 2D reader (CARMEN, BreezySLAM, bags, the simulator) returns a :class:`LaserLog`; the 2D SLAM
-consumes it. Readings that are no return (inf, NaN, outside [range_min, range_max]) are stored as NaN
+consumes it. It gives its IMU as every dataset does, by ``imu()`` (``interfaces.sources``); a pipeline's
+``imu=`` overrides it (e.g. after calibration), the log is never changed after reading. Readings that are no return (inf, NaN, outside [range_min, range_max]) are stored as NaN
 and counted in ``warnings``.
 """
 
@@ -28,7 +29,7 @@ class LaserLog:
     frame (x forward, y left).
     odom_xy_yaw: (N, 3) wheel-odometry pose [x m, y m, yaw rad] at each scan, or None (no odometry).
     T_b_l: (3,) the laser's pose in the body (odometry) frame [x, y, yaw].
-    imu: an IMU log over the same time (body frame = IMU frame), or None.
+    imu_log: an IMU log over the same time (body frame = IMU frame), or None; read it by :meth:`imu`.
     warnings: counted repairs, e.g. ``{"dropped readings (inf/NaN/out of range)": 1234}``.
     time_increment: s between beams (beam b fired at ``t_ns + b * time_increment``; 0 = all at once).
     odom_jumped: (N,) bool, True where the odometry step into the scan was a jump replaced by no motion
@@ -43,7 +44,7 @@ class LaserLog:
     range_max: float
     odom_xy_yaw: FloatArray | None = None
     T_b_l: FloatArray = field(default_factory=lambda: np.zeros(3))
-    imu: ImuLog | None = None
+    imu_log: ImuLog | None = None
     source: str = "<memory>"
     warnings: dict[str, int] = field(default_factory=dict)
     time_increment: float = 0.0
@@ -83,6 +84,10 @@ class LaserLog:
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
 
+    def imu(self) -> ImuLog | None:
+        """The log's IMU as recorded (None: the log has none, or it was not read)."""
+        return self.imu_log
+
     @property
     def n_beams(self) -> int:
         return int(self.ranges.shape[1])
@@ -104,7 +109,7 @@ class LaserLog:
         jumped = None if self.odom_jumped is None else self.odom_jumped[start:stop]
         return LaserLog(
             self.t_ns[start:stop], self.ranges[start:stop], self.angle_min, self.angle_increment,
-            self.range_min, self.range_max, odo, self.T_b_l, self.imu, self.source, dict(self.warnings),
+            self.range_min, self.range_max, odo, self.T_b_l, self.imu_log, self.source, dict(self.warnings),
             self.time_increment, jumped,
         )  # fmt: skip
 

@@ -4,7 +4,7 @@ the true pose of every scan."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -78,7 +78,6 @@ def simulate_robot2d(
 
 
 def with_imu(log: LaserLog, imu: ImuLog | None) -> LaserLog:
-    """The same log with another IMU (or none)."""
-    out = log.slice(0, len(log))
-    out.imu = imu
-    return out
+    """A new log with the same scans and another IMU (or none); to run the SLAM with another IMU, pass
+    it as the pipeline's ``imu=`` instead."""
+    return replace(log.slice(0, len(log)), imu_log=imu)

@@ -1,4 +1,5 @@
-"""The 2D SLAM over a laser log: ``Slam2dPipeline(log, config).run() -> Slam2dResult``, then ``save(out)``.
+"""The 2D SLAM over a laser log: ``Slam2dPipeline(log, config, imu=...).run() -> Slam2dResult``, then
+``save(out)``; the log gives its IMU by ``imu()``, which ``imu=`` overrides (e.g. after calibration).
 
 The pipeline turns the log into what the estimator (:class:`imuslam.slam2d.slam.Slam2d`) reads per scan:
 the scan's points in the body frame with their firing times, the motion prior from the wheel odometry and
@@ -18,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.errors import EstimatorError
+from imuslam.interfaces.imu import ImuLog
 from imuslam.io.laserlog import LaserLog
 from imuslam.slam2d import pose2
 from imuslam.slam2d.config import Slam2dConfig
@@ -54,10 +56,10 @@ def scan_points(log_: LaserLog, cfg: Slam2dConfig, with_time: bool = False) -> l
     return out
 
 
-def imu_yaw_and_tilt(log_: LaserLog) -> tuple[FloatArray, FloatArray] | None:
-    """Integrated yaw (rad) at each scan time about the gravity direction, and the tilt of the IMU's z
-    axis from gravity (deg) at each scan (the accelerometer averaged over 1 s); None without an IMU."""
-    imu = log_.imu
+def imu_yaw_and_tilt(log_: LaserLog, imu: ImuLog | None) -> tuple[FloatArray, FloatArray] | None:
+    """Integrated yaw (rad) of ``imu`` at each scan time of ``log_`` about the gravity direction, and the
+    tilt of the IMU's z axis from gravity (deg) at each scan (the accelerometer averaged over 1 s); None
+    without an IMU."""
     if imu is None or len(imu) < 2:
         return None
     t = (imu.t_ns - log_.t_ns[0]).astype(float) * 1e-9
@@ -118,11 +120,15 @@ class Slam2dRun:
 
 class Slam2dPipeline:
     """Drives :class:`Slam2d` over every scan of ``log_`` (``run``) and writes the results folder
-    (``save``: trajectory.tum, map.pgm / map.yaml, map.png, config.yaml, metrics.json)."""
+    (``save``: trajectory.tum, map.pgm / map.yaml, map.png, config.yaml, metrics.json); ``imu``
+    overrides the log's IMU (e.g. after calibration), as the LIO and VIO pipelines take it."""
 
-    def __init__(self, log_: LaserLog, cfg: Slam2dConfig | None = None) -> None:
+    def __init__(
+        self, log_: LaserLog, cfg: Slam2dConfig | None = None, imu: ImuLog | None = None
+    ) -> None:
         self.log = log_
         self.cfg = cfg or Slam2dConfig()
+        self.imu = imu if imu is not None else log_.imu()
 
     def run(
         self,
@@ -149,7 +155,7 @@ class Slam2dPipeline:
         pts_all = scan_points(log_, cfg, with_time=True)
         deskew = log_.time_increment > 0
         odo = log_.odom_xy_yaw if (cfg.use_odometry and log_.odom_xy_yaw is not None) else None
-        imu = imu_yaw_and_tilt(log_) if cfg.use_imu else None
+        imu = imu_yaw_and_tilt(log_, self.imu) if cfg.use_imu else None
         t_s = (log_.t_ns - log_.t_ns[0]).astype(float) * 1e-9
         slam.sensor_b = log_.T_b_l[None, :2].copy()
         wide_ok = _wide_search_scans(log_, cfg, odo is not None)
@@ -222,10 +228,13 @@ class Slam2dPipeline:
 
 
 def run_slam2d(
-    log_: LaserLog, cfg: Slam2dConfig | None = None, progress: Callable[[int], None] | None = None
+    log_: LaserLog,
+    cfg: Slam2dConfig | None = None,
+    progress: Callable[[int], None] | None = None,
+    imu: ImuLog | None = None,
 ) -> Slam2dResult:
-    """Run the 2D SLAM over every scan of ``log_`` (:class:`Slam2dPipeline`)."""
-    return Slam2dPipeline(log_, cfg).run(progress)
+    """Run the 2D SLAM over every scan of ``log_`` (:class:`Slam2dPipeline`; ``imu`` overrides the log's)."""
+    return Slam2dPipeline(log_, cfg, imu).run(progress)
 
 
 def render_map(

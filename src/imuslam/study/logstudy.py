@@ -12,7 +12,6 @@ blurred or doubled wall raises all three. VIO keeps no map: its runs are scored 
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import logging
 import time
@@ -90,7 +89,7 @@ class PreparedLog:
 
     spec: LogSpec
     where: str
-    data: Any  # LaserLog (map2d) or the opened stereo dataset (vio)
+    data: Any  # the opened dataset: a LaserLog (map2d), a LiDAR (lio) or stereo (vio) dataset
     cfg: Any
     imus: dict[str, ImuLog | None]
     truth: Trajectory | None = None
@@ -166,18 +165,18 @@ def prepare_log(spec: LogSpec, where: str) -> PreparedLog:
     data: Any
     base: ImuLog | None
     if spec.estimator == "map2d":
-        from imuslam.io.laserload import load_laser_log
+        from imuslam.io.datasets import open_dataset
         from imuslam.io.plausible import check_stamps
         from imuslam.slam2d.config import Slam2dConfig
 
         cfg = _config(Slam2dConfig, spec, where)
         try:
-            data = load_laser_log(spec.path, spec.format, spec.scan_topic, spec.imu_topic,
-                                  spec.odom_topic)  # fmt: skip
+            data = open_dataset(spec.path, "laser", fmt=spec.format, scan_topic=spec.scan_topic,
+                                imu_topic=spec.imu_topic, odom_topic=spec.odom_topic)  # fmt: skip
             check_stamps(data.t_ns, "scans", spec.path)
         except InputError as exc:
             raise InputError(f"{where} (map2d needs a 2D laser scan topic): {exc}") from None
-        base, times = data.imu, data.t_ns
+        base, times = data.imu(), data.t_ns
     elif spec.estimator == "lio":
         from imuslam.io.datasets import open_dataset
         from imuslam.lio.config import LioConfig
@@ -240,10 +239,11 @@ def _run_map2d(
     from imuslam.slam2d.output import planar_trajectory
     from imuslam.slam2d.pipeline import Slam2dPipeline
 
-    log_ = dataclasses.replace(pl.data, imu=imu)
     cfg = pl.cfg if use_imu else pl.cfg.model_copy(update={"use_imu": False})
-    run = Slam2dPipeline(log_, cfg).run_and_render()
-    q = point_map_quality(map2d_points(log_, run.result.pose_xy_yaw, cfg), pl.spec.radius_m or 0.2)
+    run = Slam2dPipeline(pl.data, cfg, imu=imu).run_and_render()
+    q = point_map_quality(
+        map2d_points(pl.data, run.result.pose_xy_yaw, cfg), pl.spec.radius_m or 0.2
+    )
     g = run.grid
     occupied = int(np.count_nonzero(g.known() & (g.prob >= 0.65)))
     m = {"map_entropy": q.map_entropy, "wall_spread_cm": q.wall_spread_cm,
