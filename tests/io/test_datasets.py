@@ -103,3 +103,44 @@ def test_euroc_folder_is_a_stereo_source_with_its_imu(shared_data: Path) -> None
     skipped = ds.skipped_frames()
     assert skipped["unreadable"] == 0 and ds.counts.listed == len(ds) + skipped["missing"]
     assert len(ds) == len(ds.t_ns) > 0
+
+
+def test_the_loaders_map_the_one_path_kind(tmp_path: Path) -> None:
+    """The IMU and the 2D laser loaders take a bag, a EuRoC folder and a simulation folder from
+    ``source_kind``, a file's format from its name or content, and name the folder they cannot read."""
+    from imuslam.io import laserload, load
+
+    bag, euroc, sim, other = (tmp_path / n for n in ("ros2", "euroc", "sim", "other"))
+    for d in (bag, euroc / "mav0", sim, other):
+        d.mkdir(parents=True)
+    (bag / "metadata.yaml").write_text("{}\n")
+    (sim / "sim.npz").write_bytes(b"")
+    assert [load.detect_format(p) for p in (bag, euroc, tmp_path / "x.mcap")] == [
+        "bag",
+        "euroc",
+        "bag",
+    ]
+    assert [laserload.detect_format(p) for p in (bag, sim, tmp_path / "x.bag")] == [
+        "bag",
+        "sim",
+        "bag",
+    ]
+    names = ("a.dat", "b.clf", "c.log.bz2", "d.gz", "e.npz")
+    assert [laserload.detect_format(tmp_path / n) for n in names] == [
+        "breezyslam", "carmen", "carmen", "carmen", "sim"
+    ]  # fmt: skip
+    (tmp_path / "imu.txt").write_text("0 0 0 9.8 0 0 0\n")
+    assert load.detect_format(tmp_path / "imu.txt") == "imutk"
+    for p in (sim, other):
+        with pytest.raises(InputError) as e:
+            load.detect_format(p)
+        assert str(e.value) == f"{p}: a folder that is neither a ROS 2 bag nor a EuRoC dataset"
+    for p in (euroc, other):
+        with pytest.raises(InputError) as e:
+            laserload.detect_format(p)
+        assert (
+            str(e.value)
+            == f"{p}: a folder without sim.npz (expected the output of imuslam simulate)"
+        )
+    with pytest.raises(InputError, match=r"x\.txt: unknown log kind; expected a CARMEN log"):
+        laserload.detect_format(tmp_path / "x.txt")

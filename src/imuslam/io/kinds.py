@@ -1,11 +1,17 @@
 """What a path holds, decided in one place: :func:`imuslam.io.datasets.open_dataset` (the LiDAR and
 stereo datasets), the IMU loader and the 2D laser loader ask :func:`source_kind` and map the answer to
-their reader, as KISS-ICP's dataset factory does with a file's kind."""
+their reader (:func:`format_of`), as KISS-ICP's dataset factory does with a file's kind."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from enum import StrEnum
 from pathlib import Path
+from typing import TypeVar
+
+from imuslam.errors import InputError
+
+T = TypeVar("T")
 
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 
@@ -44,3 +50,15 @@ def source_kind(path: str | Path) -> SourceKind:
     if any(p.glob("*.bin")) or (p / "velodyne").is_dir():
         return SourceKind.KITTI_FOLDER
     return SourceKind.FOLDER
+
+
+def format_of(path: Path, formats: Mapping[SourceKind, T], other_folder: str) -> T | None:
+    """A loader's format for ``path``: ``formats[source_kind(path)]``; a folder of another kind is one
+    line ``"{path}: {other_folder}"`` (InputError); None for a file of another kind (the loader tells
+    it by its name or content)."""
+    kind = source_kind(path)
+    if kind in formats:
+        return formats[kind]
+    if path.is_dir():
+        raise InputError(f"{path}: {other_folder}")
+    return None

@@ -15,7 +15,7 @@ import numpy as np
 from imuslam.errors import InputError
 from imuslam.interfaces.imu import ImuLog
 from imuslam.io.carmen import read_breezyslam, read_carmen
-from imuslam.io.kinds import SourceKind, source_kind
+from imuslam.io.kinds import SourceKind, format_of
 from imuslam.io.laserlog import LaserLog, check_time_order, clean_ranges, odometry_jumps
 
 LaserFormat = Literal["auto", "carmen", "breezyslam", "sim", "bag"]
@@ -23,15 +23,15 @@ LASER_FORMATS = ("auto", "carmen", "breezyslam", "sim", "bag")
 
 
 def detect_format(path: Path) -> str:
-    kind = source_kind(path)
-    if kind is SourceKind.BAG:
-        return "bag"
-    if kind is SourceKind.SIM_FOLDER:
-        return "sim"
-    if path.is_dir():
-        raise InputError(
-            f"{path}: a folder without sim.npz (expected the output of imuslam simulate)"
-        )
+    """The format of ``path`` from :func:`~imuslam.io.kinds.source_kind` (a bag, a simulation folder),
+    else from the file's name."""
+    kind = format_of(
+        path,
+        {SourceKind.BAG: "bag", SourceKind.SIM_FOLDER: "sim"},
+        "a folder without sim.npz (expected the output of imuslam simulate)",
+    )
+    if kind is not None:
+        return kind
     name = path.name.lower()
     if name.endswith(".dat"):
         return "breezyslam"

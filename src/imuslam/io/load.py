@@ -11,7 +11,7 @@ import numpy as np
 from imuslam.errors import InputError
 from imuslam.interfaces.imu import AccelUnit, GyroUnit, ImuLog
 from imuslam.io.atomic import write_atomic
-from imuslam.io.kinds import SourceKind, source_kind
+from imuslam.io.kinds import SourceKind, format_of
 from imuslam.io.readers import TimeUnit, read_csv, read_euroc, read_imutk
 
 ImuFormat = Literal["auto", "imutk", "euroc", "csv", "bag", "matlab"]
@@ -25,13 +25,13 @@ def detect_format(path: str | Path) -> ImuFormat:
     EuRoC's header -> euroc; a MATLAB v7.3 file (by its header, whatever its name) -> matlab; anything
     else -> imu_tk text (imu_tk's own logs are text named .mat)."""
     p = Path(path)
-    kind = source_kind(p)
-    if kind is SourceKind.BAG:
-        return "bag"
-    if kind is SourceKind.EUROC:
-        return "euroc"
-    if p.is_dir():
-        raise InputError(f"{p}: a folder that is neither a ROS 2 bag nor a EuRoC dataset")
+    kind: ImuFormat | None = format_of(
+        p,
+        {SourceKind.BAG: "bag", SourceKind.EUROC: "euroc"},
+        "a folder that is neither a ROS 2 bag nor a EuRoC dataset",
+    )
+    if kind is not None:
+        return kind
     head_bytes = _head(p)
     if head_bytes.startswith(_MAT_V73):
         return "matlab"
