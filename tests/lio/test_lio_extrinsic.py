@@ -55,6 +55,15 @@ def start_config(T: np.ndarray) -> LioConfig:
     return LioConfig(extrinsic=ext)
 
 
+def truth_and_extrinsic(d: LidarImuRig) -> tuple[Trajectory, ExtrinsicConfig]:
+    """The rig's true trajectory and its true extrinsic as the config states it."""
+    x, y, z, w = Rotation.from_matrix(d.T_i_l[:3, :3]).as_quat()
+    truth = ExtrinsicConfig(
+        p_i_l=tuple(d.T_i_l[:3, 3]), quat_wxyz_i_l=(w, x, y, z), time_offset_s=OFFSET_S
+    )  # type: ignore[arg-type]
+    return Trajectory(d.gt_t_ns, d.gt_p_w, d.gt_R_w_b, "truth"), truth
+
+
 def errors(c: LidarImuCalibration, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """Rotation error about the IMU axes, deg; lever-arm error, m; offset error, s."""
     rot = np.rad2deg(Rotation.from_matrix(c.R_i_l @ T[:3, :3].T).as_rotvec())
@@ -120,11 +129,7 @@ def test_lio_with_the_recovered_extrinsic_drifts_as_with_the_truth(
 
     d, c = excited
     imu = calibrated(d)
-    gt = Trajectory(d.gt_t_ns, d.gt_p_w, d.gt_R_w_b, "truth")
-    x, y, z, w = Rotation.from_matrix(d.T_i_l[:3, :3]).as_quat()
-    truth = ExtrinsicConfig(
-        p_i_l=tuple(d.T_i_l[:3, 3]), quat_wxyz_i_l=(w, x, y, z), time_offset_s=OFFSET_S
-    )  # type: ignore[arg-type]
+    gt, truth = truth_and_extrinsic(d)
     ate = {}
     for name, ext in (
         ("truth", truth),
@@ -283,11 +288,7 @@ def test_lio_on_the_street_with_the_recovered_values_drifts_as_with_the_truth(
 
     d, c = street
     imu = calibrated(d)
-    gt = Trajectory(d.gt_t_ns, d.gt_p_w, d.gt_R_w_b, "truth")
-    x, y, z, w = Rotation.from_matrix(d.T_i_l[:3, :3]).as_quat()
-    truth = ExtrinsicConfig(
-        p_i_l=tuple(d.T_i_l[:3, 3]), quat_wxyz_i_l=(w, x, y, z), time_offset_s=OFFSET_S
-    )  # type: ignore[arg-type]
+    gt, truth = truth_and_extrinsic(d)
     drift: dict[str, tuple[float, float]] = {}
     for name, ext in (
         ("truth", truth),
