@@ -895,8 +895,7 @@ STREET_CALIB_S = 30.0  # the street drive of calib_bench and tests/lio/test_lio_
 
 def _lidar_frame(tr: Trajectory, ext: ExtrinsicConfig) -> Trajectory:
     """The LiDAR's trajectory from the IMU's through the extrinsic ``ext``."""
-    T = ext.T_i_l()
-    return Trajectory(tr.t_ns, tr.p_w + tr.R_w_b @ T[:3, 3], tr.R_w_b @ T[:3, :3], tr.source)
+    return tr.of_mounted_frame(ext.T_i_l())
 
 
 def calib_bench(args: Any) -> None:

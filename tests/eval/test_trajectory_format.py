@@ -64,3 +64,26 @@ def test_a_wrong_format_names_the_right_one(shared_data: Path, tmp_path: Path) -
     assert r.exit_code == 2
     assert "give --format euroc" in " ".join(r.output.split())
     assert not (tmp_path / "o").exists()
+
+
+def test_a_mounted_frame_is_the_body_pose_times_the_mount() -> None:
+    """``Trajectory.of_mounted_frame``: each pose T_w_f equals T_w_b T_b_f, as 4 x 4 products."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from imuslam.interfaces import Trajectory
+
+    rng = np.random.default_rng(3)
+    R = Rotation.random(5, random_state=4).as_matrix()
+    tr = Trajectory(np.arange(5, dtype=np.int64) * 10**8, rng.normal(size=(5, 3)), R, "body")
+    T_b_f = np.eye(4)
+    T_b_f[:3, :3] = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()
+    T_b_f[:3, 3] = [0.1, -0.05, 0.15]
+    f = tr.of_mounted_frame(T_b_f)
+    for k in range(5):
+        T_w_b = np.eye(4)
+        T_w_b[:3, :3], T_w_b[:3, 3] = R[k], tr.p_w[k]
+        T_w_f = T_w_b @ T_b_f
+        assert np.allclose(f.R_w_b[k], T_w_f[:3, :3], atol=1e-12)
+        assert np.allclose(f.p_w[k], T_w_f[:3, 3], atol=1e-12)
+    assert np.array_equal(f.t_ns, tr.t_ns)

@@ -268,8 +268,8 @@ def _kitti(gt: Trajectory, est: Trajectory) -> float:
 
 
 def _lidar_frame(tr: Trajectory, ext: ExtrinsicConfig) -> Trajectory:
-    T = ext.T_i_l()
-    return Trajectory(tr.t_ns, tr.p_w + tr.R_w_b @ T[:3, 3], tr.R_w_b @ T[:3, :3], tr.source)
+    """The LiDAR's trajectory from the IMU's through the extrinsic ``ext``."""
+    return tr.of_mounted_frame(ext.T_i_l())
 
 
 @pytest.mark.slow

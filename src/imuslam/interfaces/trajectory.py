@@ -72,6 +72,15 @@ class Trajectory:
     def subset(self, idx: NDArray[np.int64]) -> Trajectory:
         return Trajectory(self.t_ns[idx], self.p_w[idx], self.R_w_b[idx], self.source)
 
+    def of_mounted_frame(self, T_b_f: NDArray[np.float64]) -> Trajectory:
+        """The trajectory of a frame ``f`` rigidly mounted at ``T_b_f`` (4, 4) on this trajectory's body:
+        ``R_w_f = R_w_b R_b_f``, ``p_w_f = p_w + R_w_b p_b_f`` (e.g. the LiDAR's from the IMU's and
+        ``T_i_l``)."""
+        T = np.asarray(T_b_f, dtype=np.float64)
+        return Trajectory(
+            self.t_ns, self.p_w + self.R_w_b @ T[:3, 3], self.R_w_b @ T[:3, :3], self.source
+        )
+
     @property
     def path_length(self) -> float:
         """Length of the path through the positions, m."""
