@@ -30,8 +30,10 @@ docs: $(STAMP)
 # Both cores (pytest-xdist). --dist loadscope keeps each test module on one worker, so a module-scoped
 # fixture (a VIO run, a real calibration, a 2D map) is computed once, not once per worker. Tests write only
 # under tmp_path; numba writes its caches atomically (temporary file, then rename), so two workers
-# compiling the same kernel do not collide. `make test` runs everything, slow Monte Carlo cases included.
-PYTEST_XDIST := -n auto --dist loadscope
+# compiling the same kernel do not collide; --warm-kernels has each worker compile one share of the
+# kernel families first (tests/kernel_warmup.py), so no family is compiled by both workers at once.
+# `make test` runs everything, slow Monte Carlo cases included.
+PYTEST_XDIST := -n auto --dist loadscope --warm-kernels
 
 test: lint
 	$(BIN)/pytest -q $(PYTEST_XDIST)

@@ -32,3 +32,21 @@ def shared_data() -> Path:
             raise RuntimeError(f"{SHARED_DATA} is missing in CI: the real-data tests cannot run")
         pytest.skip(f"real recorded data not found at {SHARED_DATA}")
     return SHARED_DATA
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--warm-kernels",
+        action="store_true",
+        help="with pytest-xdist: each worker first compiles one share of numba's kernels "
+        "(tests/kernel_warmup.py), so no kernel is compiled by two workers at once (make test)",
+    )
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _kernels_compiled_in_shares(request: pytest.FixtureRequest) -> None:
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")  # gw0, gw1, ... in an xdist worker
+    if request.config.getoption("--warm-kernels") and worker.startswith("gw"):
+        from kernel_warmup import warm_share
+
+        warm_share(int(worker[2:]), int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))

@@ -288,7 +288,7 @@ def update_sparse(
     r: FloatArray, Hc: FloatArray, cols: IntArray, Rm: FloatArray,
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
     P: FloatArray, off: IntArray, gate_on: bool, threshold: float,
-    kind: int, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
+    kind: int | np.int64, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
 ) -> tuple[int, FloatArray]:  # fmt: skip  # pragma: no cover - compiled
     """Chi-square gate (nis = r^T (H P H^T + R)^-1 r) and the Kalman update, the attitude by the core's
     :func:`~imuslam.ins.core.boxplus_attitude`, for a Jacobian whose nonzero columns are ``cols`` (nc,), given there as ``Hc``
@@ -379,7 +379,7 @@ def _update(
     r: FloatArray, Hc: FloatArray, cols: IntArray, Rm: FloatArray,
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
     P: FloatArray, xe: FloatArray, const: FloatArray, off: IntArray, threshold: float,
-    kind: int, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
+    kind: int | np.int64, nis_buf: FloatArray, acc_buf: NDArray[np.bool_], cnt: IntArray,
 ) -> int:  # fmt: skip  # pragma: no cover - compiled
     """:func:`update_sparse`, then the extra states' share of an accepted correction: the VO velocity
     error adds it, the clone's attitude is perturbed on the right and its position adds it."""
@@ -404,7 +404,7 @@ def _update(
 def _vo_update(
     r: FloatArray, Hc: FloatArray, cols: IntArray, Rm: FloatArray,
     p: FloatArray, v: FloatArray, R: FloatArray, ba: FloatArray, bg: FloatArray, g_n: FloatArray,
-    P: FloatArray, xe: FloatArray, const: FloatArray, off: IntArray, kind: int,
+    P: FloatArray, xe: FloatArray, const: FloatArray, off: IntArray, kind: int | np.int64,
     vo_scale: FloatArray, adapt_n: float, nis_buf: FloatArray, acc_buf: NDArray[np.bool_],
     cnt: IntArray,
 ) -> int:  # fmt: skip  # pragma: no cover - compiled
