@@ -4,6 +4,7 @@ re-localisation, the IMU tilt, and accuracy on the simulator and on real logs (I
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -11,6 +12,35 @@ import yaml
 from slam2d_helpers import RES
 
 from imuslam.slam2d import pose2
+
+if TYPE_CHECKING:
+    from imuslam.io.laserlog import LaserLog
+    from imuslam.sim.robot2d import Robot2dSim
+    from imuslam.slam2d.records import Slam2dResult
+
+
+@pytest.fixture(scope="module")
+def intel_3000(shared_data: Path) -> tuple[LaserLog, Slam2dResult]:
+    """The first 3,000 Intel scans (10 min) and their SLAM with the default config (the loop search on
+    its worker thread), run once for the tests that check that run."""
+    from imuslam.io.carmen import read_carmen
+    from imuslam.slam2d.config import Slam2dConfig
+    from imuslam.slam2d.pipeline import run_slam2d
+
+    log_ = read_carmen(shared_data / "radish_freiburg_benchmark" / "intel.clf.bz2").laser.slice(
+        0, 3000
+    )
+    return log_, run_slam2d(log_, Slam2dConfig())
+
+
+@pytest.fixture(scope="module")
+def seed000_70s() -> Robot2dSim:
+    """70 s of seed 000's drive in the room (ideal IMU), which comes back to its start after 57 s."""
+    from imuslam.sim.imu import ImuErrorSpec
+    from imuslam.sim.robot2d import simulate_robot2d
+    from imuslam.sim.trajectory import SquareLoopCcwCw
+
+    return simulate_robot2d(SquareLoopCcwCw(), 70.0, np.random.default_rng(3), ImuErrorSpec.ideal())
 
 
 def test_pose_graph_closes_a_simulated_loop() -> None:
@@ -129,22 +159,20 @@ def test_tilted_scans_are_rejected_by_gravity() -> None:
 
 
 @pytest.mark.slow
-def test_background_loop_search_equals_inline(shared_data: Path) -> None:
+def test_background_loop_search_equals_inline(intel_3000: tuple[LaserLog, Slam2dResult]) -> None:
     """The loop search on the worker thread against the same search inline, on the first 3,000 Intel
     scans: the same nodes searched, the constraints found agree (the background's intermediate
     optimisations see fewer constraints, so its guesses can differ: at least 90 % shared (node, submap)
     pairs) and every final pose within one grid cell."""
-    from imuslam.io.carmen import read_carmen
     from imuslam.slam2d.config import Slam2dConfig
     from imuslam.slam2d.pipeline import run_slam2d
 
-    log_ = read_carmen(shared_data / "radish_freiburg_benchmark" / "intel.clf.bz2").laser.slice(
-        0, 3000
-    )
+    log_, bg = intel_3000
     cfg_bg = Slam2dConfig()
+    assert cfg_bg.loop.background and bg.config == cfg_bg
     cfg_in = Slam2dConfig()
     cfg_in.loop.background = False
-    bg, inl = run_slam2d(log_, cfg_bg), run_slam2d(log_, cfg_in)
+    inl = run_slam2d(log_, cfg_in)
     assert bg.loops_searched == inl.loops_searched
     assert len(inl.loops) >= 10
     a = {(c.node, c.submap) for c in bg.loops}
@@ -198,7 +226,9 @@ def test_wide_search_bridges_an_odometry_yaw_jump() -> None:
 
 
 @pytest.mark.parametrize("context_scans", [1, 10])
-def test_revisit_check_measures_a_known_loop_error(context_scans: int) -> None:
+def test_revisit_check_measures_a_known_loop_error(
+    context_scans: int, seed000_70s: Robot2dSim
+) -> None:
     """Seed 000's drive comes back to its start after 57 s. (With ``context_scans`` 10 each returning scan
     is matched with the 9 before it at their local-SLAM poses: the same answer, and every point in cells
     the start map observed: it was made in the same room.) With the true poses as the optimised
@@ -206,14 +236,11 @@ def test_revisit_check_measures_a_known_loop_error(context_scans: int) -> None:
     the scans that return to the start match the start map at their true pose: the check finds no
     disagreement after and the injected one before, with a distinct peak. Tolerances: a cell, and the
     angle of half a cell at the room's ~3 m ranges (0.5 deg; the scans are not unwarped here)."""
-    from imuslam.sim.imu import ImuErrorSpec
-    from imuslam.sim.robot2d import simulate_robot2d
-    from imuslam.sim.trajectory import SquareLoopCcwCw
     from imuslam.slam2d.config import Slam2dConfig
     from imuslam.slam2d.records import Slam2dResult
     from imuslam.slam2d.revisit import check_revisits
 
-    sim = simulate_robot2d(SquareLoopCcwCw(), 70.0, np.random.default_rng(3), ImuErrorSpec.ideal())
+    sim = seed000_70s
     truth = sim.truth_xy_yaw
     n = len(truth)
     err = np.array([0.3, -0.2, np.deg2rad(4.0)])
@@ -341,20 +368,16 @@ def test_relation_sets_by_separation_and_loops() -> None:
 
 
 @pytest.mark.slow
-def test_intel_long_and_loop_relations_beat_odometry_by_far(shared_data: Path) -> None:
+def test_intel_long_and_loop_relations_beat_odometry_by_far(
+    shared_data: Path, intel_3000: tuple[LaserLog, Slam2dResult]
+) -> None:
     """The first 3000 scans of the Intel lab (10 min): Kümmerle 2009's metric on relations 10 m and 50 m
     apart along the corrected path and on loop relations (corrected poses within 2 m, more than 60 s
     apart). "By far": the odometry's mean error lies beyond the SLAM's mean + 2 std (the factor
     1 + 2 std / mean comes from the SLAM's own spread), in translation and in rotation, on every set."""
     from imuslam.eval.slam2d_gt import relations_against_corrected
-    from imuslam.io.carmen import read_carmen
-    from imuslam.slam2d.config import Slam2dConfig
-    from imuslam.slam2d.pipeline import run_slam2d
 
-    raw = read_carmen(shared_data / "radish_freiburg_benchmark" / "intel.clf.bz2").laser.slice(
-        0, 3000
-    )
-    res = run_slam2d(raw, Slam2dConfig())
+    raw, res = intel_3000
     assert raw.odom_xy_yaw is not None
     m = relations_against_corrected(
         shared_data / "carmen_radish_corrected_ple" / "intel-corrected.log.gz", raw,
@@ -439,7 +462,6 @@ def test_exp1_first_return_closes_by_consistency_over_time(shared_data: Path) ->
     from imuslam.io.carmen import read_breezyslam
     from imuslam.slam2d.config import Slam2dConfig
     from imuslam.slam2d.pipeline import run_slam2d
-    from imuslam.slam2d.records import Slam2dResult
     from imuslam.slam2d.revisit import RevisitCheck, check_revisits
 
     log_ = read_breezyslam(shared_data / "breezyslam_mines" / "exp1.dat")
