@@ -7,12 +7,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from imuslam.sim.world import World, distance_to_surfaces
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 
 
 def align_se2(est_xy: FloatArray, ref_xy: FloatArray) -> FloatArray:
@@ -144,8 +146,6 @@ def point_map_quality(
     """:class:`PointMapQuality` of ``points`` (N, 2) or (N, 3), world frame, m. The queries are
     ``max_queries`` of the points drawn with ``seed`` (all of them when there are fewer), so two maps of
     the same log are scored on the same number of neighbourhoods; or the given ``queries`` (Q, dim)."""
-    from scipy.spatial import cKDTree
-
     p = np.asarray(points, dtype=float)
     p = p[np.all(np.isfinite(p), axis=1)]
     dim = p.shape[1]
@@ -156,19 +156,208 @@ def point_map_quality(
         q = np.asarray(queries, dtype=float)
     else:
         q = p if len(p) <= max_queries else p[rng.choice(len(p), max_queries, replace=False)]
-    tree = cKDTree(p)
-    ent, lam = [], []
-    for nb in tree.query_ball_point(q, radius_m, workers=1):
-        if len(nb) < min_points:
-            continue
-        x = p[nb]
-        S = np.cov(x, rowvar=False)
-        ev = np.linalg.eigvalsh(S)
-        if ev[0] <= 0:
-            continue
-        ent.append(0.5 * (dim * np.log(2 * np.pi * np.e) + np.sum(np.log(ev))))
-        lam.append(ev[0])
-    if not lam:
+    # S of every neighbourhood of at least min_points points, in query order
+    covs = []
+    nbs = BallNeighbours(p, radius_m)
+    for b0 in range(0, len(q), _QUERY_BLOCK):
+        start, idx = nbs.query(q[b0 : b0 + _QUERY_BLOCK])
+        xc = _centred(p, start, idx)
+        for j in np.flatnonzero(np.diff(start) >= min_points):
+            a, b = start[j], start[j + 1]
+            if b - a < 2:  # no spread to estimate: numpy's warning and its value
+                covs.append(np.cov(p[idx[a:b]], rowvar=False))
+                continue
+            # np.cov(p[idx[a:b]], rowvar=False): the centred points' outer products over n - 1
+            x = xc[a:b]
+            S = np.dot(x.T, x)
+            S *= np.true_divide(1, b - a - 1)
+            covs.append(S)
+    if not covs:
         return PointMapQuality(float("nan"), float("nan"), float("nan"), 0, len(p))
+    ev = np.linalg.eigvalsh(np.stack(covs))  # (M, dim), ascending
+    ev = ev[~(ev[:, 0] <= 0)]  # a degenerate neighbourhood (collinear in 2D, coplanar in 3D)
+    if not len(ev):
+        return PointMapQuality(float("nan"), float("nan"), float("nan"), 0, len(p))
+    # entropy of a Gaussian with covariance S: 0.5 ln det(2 pi e S) = 0.5 (dim ln(2 pi e) + sum ln ev)
+    ent = 0.5 * (dim * np.log(2 * np.pi * np.e) + np.sum(np.log(ev), axis=1))
+    lam = ev[:, 0]
     mpv = float(np.mean(lam))
     return PointMapQuality(float(np.mean(ent)), mpv, 100 * float(np.sqrt(mpv)), len(lam), len(p))
+
+
+_QUERY_BLOCK = 1024  # queries whose neighbour lists are held at once
+# a grid of more cells than this (a radius tiny against the extent) gives way to a tree
+_MAX_CELLS = 2**62
+
+
+class BallNeighbours:
+    """The points of ``p`` (N, dim) within a radius of a query, as
+    ``scipy.spatial.cKDTree.query_ball_point`` finds them (squared distance, summed axis by axis, at
+    most ``radius_m**2``), each query's indices ascending. A uniform grid of cells one radius wide: a
+    point within the radius lies in the query's cell or a neighbouring one."""
+
+    def __init__(self, p: FloatArray, radius_m: float) -> None:
+        self.p = np.ascontiguousarray(p, dtype=float)
+        self.r = float(radius_m)
+        self.grid = False
+        if len(p) and self.r > 0 and np.isfinite(self.r):
+            self.lo = self.p.min(axis=0)
+            # wider than r: rounding never puts a neighbour two cells away
+            self.cell = self.r * (1.0 + 1e-9)
+            extent = np.floor((self.p.max(axis=0) - self.lo) / self.cell) + 1.0
+            self.grid = float(np.prod(extent)) < _MAX_CELLS
+        if self.grid:
+            self.n_cells = extent.astype(np.int64)
+            c = np.floor((self.p - self.lo) / self.cell).astype(np.int64)
+            key = np.zeros(len(p), np.int64)  # the cell's index, the first axis fastest
+            for k in range(self.p.shape[1] - 1, -1, -1):
+                key = key * self.n_cells[k] + c[:, k]
+            self.order = np.argsort(key, kind="stable")
+            self.key_sorted = key[self.order]
+            self.p_sorted = self.p[self.order]
+        else:
+            from scipy.spatial import cKDTree
+
+            self.tree = cKDTree(self.p)
+
+    def query(self, q: FloatArray) -> tuple[IntArray, IntArray]:
+        """(start (Q + 1,), idx): the neighbours of query j of ``q`` (Q, dim) are
+        ``idx[start[j]:start[j + 1]]``."""
+        q = np.ascontiguousarray(q, dtype=float).reshape(-1, self.p.shape[1])
+        if not np.all(np.isfinite(q)):
+            raise ValueError("the queries must be finite")
+        start = np.zeros(len(q) + 1, np.int64)
+        if not self.grid:
+            nbs = self.tree.query_ball_point(q, self.r, workers=1, return_sorted=True)
+            np.cumsum([len(nb) for nb in nbs], out=start[1:])
+            return start, np.array([i for nb in nbs for i in nb], np.int64)
+        grid = (self.lo, self.cell, self.n_cells, self.key_sorted, self.order)
+        args = (self.p_sorted, q, self.r, *grid)
+        _ball_scan(*args, start[1:], start, False)
+        np.cumsum(start, out=start)
+        idx = np.empty(int(start[-1]), np.int64)
+        _ball_scan(*args, start, idx, True)
+        return start, idx
+
+
+@numba.njit(cache=True)
+def _ball_scan(
+    p_sorted: FloatArray, q: FloatArray, r: float, lo: FloatArray, cell: float, n_cells: IntArray,
+    key_sorted: IntArray, order: IntArray, start: IntArray, idx: IntArray, fill: bool,
+) -> None:  # pragma: no cover - compiled  # fmt: skip
+    """For each query j, the points of the (up to) 3^dim cells about it within ``r``: their number
+    into ``start[j]`` (``fill`` false), or their indices, ascending, into ``idx[start[j]:start[j + 1]]``
+    (``fill``). ``order`` (N,) the points by cell index, ``key_sorted`` (N,) and ``p_sorted`` (N, dim)
+    their cell indices and coordinates in that order."""
+    dim = p_sorted.shape[1]
+    r2 = r * r
+    lo_c = np.empty(dim, np.int64)
+    hi_c = np.empty(dim, np.int64)
+    cur = np.empty(dim, np.int64)
+    tmp = np.empty(len(idx) if fill else 0, np.int64)
+    for j in range(q.shape[0]):
+        ok = True
+        for k in range(dim):
+            # the query's cell, clamped to one cell beyond the grid (a query farther out has none)
+            f = min(max(np.floor((q[j, k] - lo[k]) / cell), -2.0), float(n_cells[k] + 1))
+            lo_c[k] = max(int(f) - 1, 0)
+            hi_c[k] = min(int(f) + 1, n_cells[k] - 1)
+            if lo_c[k] > hi_c[k]:
+                ok = False
+        m = 0
+        base = start[j] if fill else 0
+        if ok:
+            for k in range(1, dim):
+                cur[k] = lo_c[k]
+            while True:
+                # the cells along the first axis are consecutive keys: one range of the sorted points
+                row = np.int64(0)
+                for k in range(dim - 1, 0, -1):
+                    row = row * n_cells[k] + cur[k]
+                a = np.searchsorted(key_sorted, row * n_cells[0] + lo_c[0], side="left")
+                b = np.searchsorted(key_sorted, row * n_cells[0] + hi_c[0], side="right")
+                for s in range(a, b):
+                    d2 = 0.0
+                    for k in range(dim):
+                        d = p_sorted[s, k] - q[j, k]
+                        d2 += d * d
+                    if d2 <= r2:
+                        if fill:
+                            idx[base + m] = order[s]
+                        m += 1
+                # the next row of cells over axes 1 .. dim - 1
+                k = 1
+                while k < dim:
+                    if cur[k] < hi_c[k]:
+                        cur[k] += 1
+                        break
+                    cur[k] = lo_c[k]
+                    k += 1
+                if k >= dim:
+                    break
+        if fill:
+            _merge_runs(idx[base : base + m], tmp[base : base + m])
+        else:
+            start[j] = m
+
+
+@numba.njit(cache=True)
+def _centred(p: FloatArray, start: IntArray, idx: IntArray) -> FloatArray:  # pragma: no cover
+    """(len(idx), dim) the neighbours ``p[idx]`` less the mean of their neighbourhood
+    ``idx[start[j]:start[j + 1]]``, the mean summed in index order as ``numpy.mean`` does."""
+    dim = p.shape[1]
+    out = np.empty((len(idx), dim))
+    mean = np.empty(dim)
+    for j in range(len(start) - 1):
+        a, b = start[j], start[j + 1]
+        if b <= a:
+            continue
+        for k in range(dim):
+            mean[k] = p[idx[a], k]
+        for s in range(a + 1, b):
+            for k in range(dim):
+                mean[k] += p[idx[s], k]
+        for k in range(dim):
+            mean[k] /= b - a
+        for s in range(a, b):
+            for k in range(dim):
+                out[s, k] = p[idx[s], k] - mean[k]
+    return out
+
+
+@numba.njit(cache=True)
+def _merge_runs(a: IntArray, tmp: IntArray) -> None:  # pragma: no cover - compiled
+    """Sort ``a`` in place by merging its ascending runs pairwise (a query's hits: one run per cell,
+    each cell's points in index order), ``tmp`` as long as ``a``."""
+    n = len(a)
+    while True:
+        # merge each pair of neighbouring runs into tmp; done when a is one run
+        lo = 0
+        merged = False
+        while lo < n:
+            mid = lo + 1
+            while mid < n and a[mid - 1] <= a[mid]:
+                mid += 1
+            if mid >= n:
+                tmp[lo:n] = a[lo:n]
+                break
+            hi = mid + 1
+            while hi < n and a[hi - 1] <= a[hi]:
+                hi += 1
+            i, k, o = lo, mid, lo
+            while i < mid and k < hi:
+                if a[k] < a[i]:
+                    tmp[o] = a[k]
+                    k += 1
+                else:
+                    tmp[o] = a[i]
+                    i += 1
+                o += 1
+            tmp[o : o + mid - i] = a[i:mid]
+            o += mid - i
+            tmp[o : o + hi - k] = a[k:hi]
+            merged = True
+            lo = hi
+        if not merged:
+            return
+        a[:] = tmp[:n]
