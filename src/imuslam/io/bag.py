@@ -9,12 +9,14 @@ error is an :class:`~imuslam.errors.InputError` naming the bag; a missing topic 
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from types import TracebackType
+from types import SimpleNamespace, TracebackType
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 from imuslam.errors import InputError
 from imuslam.interfaces.imu import ImuLog
@@ -197,9 +199,72 @@ class Bag:
             yield rosmsg.scan3d_from_msg(m)
 
     def scans2d(self, topic: str | None = None) -> Iterator[Scan2d]:
+        """The scans of a LaserScan / MultiEchoLaserScan topic (first echo) in time order. A ROS 1
+        connection of the standard definition (its md5 sum) is read from the message bytes directly."""
         tp = self.topic_of_type([rosmsg.LASERSCAN, rosmsg.MULTIECHO_LASERSCAN], topic)
-        for _, _, m in self.messages([tp]):
+        direct: dict[str, bool] = {}  # md5 sum -> multi-echo, of the definitions read directly
+        if self.dialect == "ros1":
+            ts = rosmsg.typestore("ros1")
+            for t, multi in ((rosmsg.LASERSCAN, False), (rosmsg.MULTIECHO_LASERSCAN, True)):
+                direct[ts.generate_msgdef(t)[1]] = multi
+        for k, (c, _, raw) in enumerate(self.raw(self.connections_of([tp]))):
+            if c.digest in direct:
+                try:
+                    m = _ros1_scan(raw, direct[c.digest])
+                except (struct.error, IndexError, ValueError) as exc:
+                    raise InputError(
+                        f"{self.path}: message {k} ({c.msgtype}) does not decode: {exc}"
+                    ) from exc
+            else:
+                m = self.deserialize(raw, c.msgtype, k)
             yield rosmsg.scan2d_from_msg(m)
+
+
+def _ros1_scan(raw: bytes, multi: bool) -> SimpleNamespace:
+    """A ROS 1 ``sensor_msgs/LaserScan`` (or ``MultiEchoLaserScan``, as the first echo of each beam:
+    inf range and 0 intensity where a beam has none) from its serialised bytes (little endian,
+    unpadded): the fields :func:`rosmsg.scan2d_from_msg` reads, with rosbags' types."""
+    _seq, sec, nanosec, n_frame = struct.unpack_from("<IiII", raw, 0)
+    o = 16 + n_frame
+    fields = struct.unpack_from("<7f", raw, o)
+    o += 28
+    if multi:
+        ranges, o = _first_echoes(raw, o, float("inf"))
+        inten, o = _first_echoes(raw, o, 0.0)
+    else:
+        ranges, o = _float32s(raw, o)
+        inten, o = _float32s(raw, o)
+    names = ("angle_min", "angle_max", "angle_increment", "time_increment", "scan_time", "range_min",
+             "range_max")  # fmt: skip
+    stamp = SimpleNamespace(sec=sec, nanosec=nanosec)
+    return SimpleNamespace(header=SimpleNamespace(stamp=stamp), **dict(zip(names, fields, strict=True)),
+                           ranges=ranges, intensities=inten)  # fmt: skip
+
+
+def _float32s(raw: bytes, o: int) -> tuple[NDArray[np.float32], int]:
+    """A ``float32[]`` at byte ``o``: (values, the offset after it)."""
+    (n,) = struct.unpack_from("<I", raw, o)
+    return np.frombuffer(raw, "<f4", n, o + 4).astype(np.float32), o + 4 + 4 * n
+
+
+def _first_echoes(raw: bytes, o: int, none: float) -> tuple[NDArray[np.float32], int]:
+    """A ``LaserEcho[]`` at byte ``o`` (a count, then per beam a count and that many float32): (each
+    beam's first echo, ``none`` for a beam without one, the offset after it)."""
+    (n,) = struct.unpack_from("<I", raw, o)
+    o += 4
+    # from here on the message is 4-byte words: each beam's count, then its echoes
+    words = np.frombuffer(raw, "<u4", (len(raw) - o) // 4, o)
+    w = words.tolist()
+    pos = [0] * n
+    k = 0
+    for b in range(n):
+        pos[b] = k
+        k += 1 + w[k]
+    if k > len(w):
+        raise ValueError(f"LaserEcho[] of {n} beams runs past the message's end")
+    at = np.asarray(pos, np.int64)
+    first = words.view("<f4")[np.minimum(at + 1, max(len(w) - 1, 0))] if n else np.zeros(0, "<f4")
+    return np.where(words[at] > 0, first, np.float32(none)).astype(np.float32), o + 4 * k
 
 
 def convert(msgtype: str, msg: Any, where: str = "") -> Any:
