@@ -19,7 +19,7 @@ from imuslam.eval.metrics import KITTI_LENGTHS, evaluate
 from imuslam.imu.model import ImuCalibration, TriadModel
 from imuslam.interfaces import ImuLog, Trajectory
 from imuslam.lio.config import ExtrinsicConfig, LioConfig
-from imuslam.lio.extrinsic import LidarImuCalibration, calibrate_lidar_imu
+from imuslam.lio.extrinsic import GyroAttitude, LidarImuCalibration, calibrate_lidar_imu
 from imuslam.sim import export
 from imuslam.sim.drive import LidarImuRig, simulate_lidar_imu_rig
 from imuslam.sim.imu_errors import SEED000_ACCEL, SEED000_GYRO
@@ -68,6 +68,18 @@ def errors(c: LidarImuCalibration, T: np.ndarray) -> tuple[np.ndarray, np.ndarra
     """Rotation error about the IMU axes, deg; lever-arm error, m; offset error, s."""
     rot = np.rad2deg(Rotation.from_matrix(c.R_i_l @ T[:3, :3].T).as_rotvec())
     return rot, c.p_i_l - T[:3, 3], c.time_offset_s - OFFSET_S
+
+
+def test_gyro_attitude_at_repeated_times_equals_slerp_at_each_time() -> None:
+    """The attitude at times repeated as a LiDAR column's points repeat them (some outside the
+    samples, clipped) is bit for bit the slerp at each time taken alone."""
+    rng = np.random.default_rng(4)
+    t = np.cumsum(rng.uniform(0.004, 0.006, 400))
+    att = GyroAttitude(t, rng.normal(size=(400, 3)), np.array([0.01, -0.02, 0.03]))
+    tq = np.repeat(rng.uniform(-0.5, 2.5, 60), rng.integers(1, 20, 60))
+    tq = np.concatenate([tq, t[::9], rng.permutation(tq)])
+    expect = [att.slerp(min(max(x, t[0]), t[-1])).as_matrix() for x in tq]
+    np.testing.assert_array_equal(att(tq), np.array(expect))
 
 
 @pytest.fixture(scope="module")

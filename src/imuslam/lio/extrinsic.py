@@ -268,7 +268,11 @@ class GyroAttitude:
         self.slerp = Slerp(t_s, Rotation.from_matrix(R))
 
     def __call__(self, t: FloatArray) -> FloatArray:
-        return np.asarray(self.slerp(np.clip(t, self.t_s[0], self.t_s[-1])).as_matrix())
+        """``R_i0_i`` (N, 3, 3) at times ``t`` (N,) s, clipped to the samples' span. Each distinct
+        time is interpolated once (a LiDAR column's points share one) and the rotations indexed back:
+        slerp is evaluated per time, so this equals interpolating at every entry of ``t``."""
+        t_u, inv = np.unique(np.clip(t, self.t_s[0], self.t_s[-1]), return_inverse=True)
+        return np.asarray(self.slerp(t_u).as_matrix())[inv.reshape(-1)]
 
 
 def lidar_odometry(
