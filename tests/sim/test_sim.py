@@ -1,5 +1,6 @@
 """The simulator against its own ground truth: IMU, LiDARs, stereo, odometry and the exported bag."""
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,13 @@ from imuslam.sim.odometry import WheelConfig, simulate_wheels
 from imuslam.sim.scenario import run_scenario
 from imuslam.sim.stereo import R_B_C_FORWARD, StereoConfig, observe, triangulate
 from imuslam.sim.trajectory import CarLoop, DiffDriveFigureEight, Handheld, Static
-from imuslam.sim.world import distance_to_surfaces, room_8x8, sample_surface_points, urban_block
+from imuslam.sim.world import (
+    World,
+    distance_to_surfaces,
+    room_8x8,
+    sample_surface_points,
+    urban_block,
+)
 
 G = 9.80665
 
@@ -107,6 +114,72 @@ def test_numba_ray_caster_matches_reference() -> None:
     b, hb = cast_rays_reference(o, d, world, 100.0)
     np.testing.assert_array_equal(ha, hb)
     np.testing.assert_allclose(a[np.isfinite(a)], b[np.isfinite(b)], rtol=1e-12)
+
+
+def _cast_rays_plain(
+    o: np.ndarray, d: np.ndarray, world: World, max_range: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every ray against every rectangle in index order, in Python floats: the arithmetic of
+    :func:`cast_rays`' test of one ray against one rectangle."""
+    c, u, v, h = (a.tolist() for a in (world.centre, world.u, world.v, world.half))
+    dist, hit = np.full(len(o), np.inf), np.full(len(o), -1)
+    for r, ((ox, oy, oz), (dx, dy, dz)) in enumerate(zip(o.tolist(), d.tolist(), strict=True)):
+        best, bq = max_range, -1
+        for q in range(len(c)):
+            nx = u[q][1] * v[q][2] - u[q][2] * v[q][1]
+            ny = u[q][2] * v[q][0] - u[q][0] * v[q][2]
+            nz = u[q][0] * v[q][1] - u[q][1] * v[q][0]
+            den = dx * nx + dy * ny + dz * nz
+            if abs(den) < 1e-12:
+                continue
+            cx, cy, cz = c[q][0] - ox, c[q][1] - oy, c[q][2] - oz
+            t = (cx * nx + cy * ny + cz * nz) / den
+            if t <= 1e-9 or t >= best:
+                continue
+            px, py, pz = dx * t - cx, dy * t - cy, dz * t - cz
+            if abs(px * u[q][0] + py * u[q][1] + pz * u[q][2]) > h[q][0]:
+                continue
+            if abs(px * v[q][0] + py * v[q][1] + pz * v[q][2]) > h[q][1]:
+                continue
+            best, bq = t, q
+        if bq >= 0:
+            dist[r], hit[r] = best, bq
+    return dist, hit
+
+
+@pytest.mark.parametrize("make_world", [room_8x8, urban_block])
+def test_ray_caster_keeps_every_hit_of_all_rectangles_bit_for_bit(
+    make_world: Callable[[], World],
+) -> None:
+    """:func:`cast_rays` tests only the rectangles within reach of each bundle of rays; its distances
+    and rectangles equal testing every rectangle exactly: on LiDAR-like columns (16 beams from one
+    origin, the origin moving), on rays aimed at rectangle corners and edge midpoints (equal
+    distances to two rectangles), on random rays and with a short range."""
+    world = make_world()
+    rng = np.random.default_rng(2)
+    el = np.deg2rad(np.arange(-15.0, 15.1, 2.0))
+    az = np.linspace(0.0, 2 * np.pi, 24, endpoint=False)
+    d_col = np.stack(
+        [np.outer(np.cos(az), np.cos(el)), np.outer(np.sin(az), np.cos(el)),
+         np.broadcast_to(np.sin(el), (az.size, el.size))], axis=-1,
+    ).reshape(-1, 3)  # fmt: skip
+    o_col = np.repeat(np.array([0.5, -0.3, 1.2]) + 0.05 * np.arange(az.size)[:, None], el.size, 0)
+    o = rng.uniform(-3, 3, size=(160, 3)) * [1, 1, 0.3] + [0, 0, 1.2]
+    q = rng.integers(0, len(world), 160)
+    s = rng.choice([-1.0, 0.0, 1.0], size=(160, 2))
+    corner = world.centre[q] + s[:, :1] * world.half[q, :1] * world.u[q]
+    corner += s[:, 1:] * world.half[q, 1:] * world.v[q]
+    d_aim = corner - o
+    d_rand = rng.normal(size=(160, 3))
+    origins = np.concatenate([o_col, o, o])
+    dirs = np.concatenate([d_col, d_aim, d_rand])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    for max_range in (100.0, 4.0):
+        a, ha = cast_rays(origins, dirs, world.centre, world.u, world.v, world.half, max_range)
+        b, hb = _cast_rays_plain(origins, dirs, world, max_range)
+        assert np.isfinite(b).sum() > 100
+        np.testing.assert_array_equal(ha, hb)
+        np.testing.assert_array_equal(a, b)
 
 
 def _pose_fn(traj, dz: float):  # type: ignore[no-untyped-def]

@@ -26,6 +26,111 @@ VLP16_ELEVATIONS_DEG = tuple(float(e) for e in np.arange(-15.0, 15.1, 2.0))
 OS1_32_ELEVATIONS_DEG = tuple(float(e) for e in np.linspace(-16.6, 16.6, 32))
 
 
+RAY_CHUNK = 64  # rays sharing one candidate list in :func:`cast_rays`
+RAY_SUBCHUNK = 8  # rays of a chunk sharing a list drawn from the chunk's
+
+
+@numba.njit(cache=True)
+def _rect_radius(u: FloatArray, v: FloatArray, half: FloatArray) -> FloatArray:  # pragma: no cover
+    """Bounding radius (Q,) of each rectangle about its centre: the largest |p| over the corners of
+    {p in span(u, v): |p.u| <= hu, |p.v| <= hv} (u, v need not be unit nor orthogonal); inf for a
+    degenerate (u nearly parallel to v) or non-finite one."""
+    Q = u.shape[0]
+    rad = np.full(Q, np.inf)
+    for q in range(Q):
+        guu = u[q, 0] * u[q, 0] + u[q, 1] * u[q, 1] + u[q, 2] * u[q, 2]
+        gvv = v[q, 0] * v[q, 0] + v[q, 1] * v[q, 1] + v[q, 2] * v[q, 2]
+        guv = u[q, 0] * v[q, 0] + u[q, 1] * v[q, 1] + u[q, 2] * v[q, 2]
+        det = guu * gvv - guv * guv
+        if not det > 1e-6 * guu * gvv:
+            continue
+        a = abs(half[q, 0])
+        r2 = 0.0
+        for b in (abs(half[q, 1]), -abs(half[q, 1])):
+            # p = al u + be v with p.u = a, p.v = b; |p|^2 = al (p.u) + be (p.v)
+            al = (a * gvv - b * guv) / det
+            be = (b * guu - a * guv) / det
+            r2 = max(r2, al * a + be * b)
+        if np.isfinite(r2):
+            rad[q] = np.sqrt(r2)
+    return rad
+
+
+@numba.njit(cache=True)
+def _chunk_candidates(
+    origins: FloatArray,
+    dirs: FloatArray,
+    r0: int,
+    r1: int,
+    centre: FloatArray,
+    rad: FloatArray,
+    max_range: float,
+    src: NDArray[np.int64],
+    n_src: int,
+    cand: NDArray[np.int64],
+) -> int:  # pragma: no cover - compiled
+    """Writes into ``cand`` (in their order) the rectangles of ``src[:n_src]`` that rays ``r0:r1`` may
+    hit and returns their count: all of them unless the rays' origins fit in a ball (centre ``oc``, radius ``ro``) and their
+    directions in a cone (axis ``ax``, half-angle ``th`` <= 1 rad). A ray from an origin within ``ro``
+    of ``oc`` that meets a rectangle's bounding sphere (radius ``rad``) before ``max_range`` |d| is a
+    ray from ``oc`` that meets the sphere grown by ``ro``, at distance ``L`` along the direction to it
+    at an angle of at most asin(grown radius / L), so within that angle plus ``th`` of ``ax``. The
+    radius, range and angle are widened by far more than their rounding (1e-6 relative, 1e-5 rad)."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    ax = np.zeros(3)
+    dmax = 0.0
+    full = not (abs(max_range) < np.inf)
+    for r in range(r0, r1):
+        nd = np.sqrt(dirs[r, 0] * dirs[r, 0] + dirs[r, 1] * dirs[r, 1] + dirs[r, 2] * dirs[r, 2])
+        if not (0.0 < nd < np.inf):
+            full = True
+        dmax = max(dmax, nd)
+        for k in range(3):
+            if not abs(origins[r, k]) < np.inf:
+                full = True
+            lo[k] = min(lo[k], origins[r, k])
+            hi[k] = max(hi[k], origins[r, k])
+            ax[k] += dirs[r, k] / nd
+    na = np.sqrt(ax[0] * ax[0] + ax[1] * ax[1] + ax[2] * ax[2])
+    if not full and na > 0.5 * (r1 - r0):
+        ax /= na
+        cmin = 1.0
+        for r in range(r0, r1):
+            nd = np.sqrt(
+                dirs[r, 0] * dirs[r, 0] + dirs[r, 1] * dirs[r, 1] + dirs[r, 2] * dirs[r, 2]
+            )
+            cmin = min(cmin, (dirs[r, 0] * ax[0] + dirs[r, 1] * ax[1] + dirs[r, 2] * ax[2]) / nd)
+        th = np.arccos(max(-1.0, cmin)) + 1e-5
+        full = not th < 1.0
+    else:
+        full = True
+    if full:
+        cand[:n_src] = src[:n_src]
+        return n_src
+    oc = 0.5 * (lo + hi)
+    ro = 0.5 * np.sqrt((hi[0] - lo[0]) ** 2 + (hi[1] - lo[1]) ** 2 + (hi[2] - lo[2]) ** 2)
+    reach = max_range * dmax
+    cth, sth = np.cos(th), np.sin(th)
+    n = 0
+    for j in range(n_src):
+        q = src[j]
+        wx, wy, wz = centre[q, 0] - oc[0], centre[q, 1] - oc[1], centre[q, 2] - oc[2]
+        L = np.sqrt(wx * wx + wy * wy + wz * wz)
+        rr = rad[q] + ro
+        rr += 1e-6 * (L + rr + abs(reach)) + 1e-6
+        if L > rr:  # oc outside the grown sphere (NaN or inf anywhere keeps the rectangle)
+            if L - rr >= reach:
+                continue
+            sb = rr / L  # sin of the sphere's angular radius
+            cb = np.sqrt(1.0 - sb * sb)
+            if (wx * ax[0] + wy * ax[1] + wz * ax[2]) / L < cth * cb - sth * sb:
+                continue  # angle to the sphere's centre > th + its angular radius (th + it < pi)
+        cand[n] = q
+        n += 1
+    return n
+
+
 @numba.njit(cache=True, parallel=True)
 def cast_rays(
     origins: FloatArray,
@@ -36,37 +141,62 @@ def cast_rays(
     half: FloatArray,
     max_range: float,
 ) -> tuple[FloatArray, NDArray[np.int64]]:  # pragma: no cover - compiled
-    """First hit distance (R,) along unit rays (inf for none) and the rectangle hit (-1 for none)."""
+    """First hit distance (R,) along unit rays (inf for none) and the rectangle hit (-1 for none).
+
+    Each ``RAY_CHUNK`` rays keep the rectangles :func:`_chunk_candidates` finds within their reach,
+    each ``RAY_SUBCHUNK`` of them those of these within theirs, and every ray tests its list in index
+    order with the arithmetic of a test against all rectangles: the ones left out are never hit
+    within the range, so the distances and the rectangles hit (the first of equal distances) are
+    those of testing every rectangle."""
     R = dirs.shape[0]
     Q = centre.shape[0]
     dist = np.full(R, np.inf)
     hit = np.full(R, -1, dtype=np.int64)
-    for r in numba.prange(R):
-        ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
-        dx, dy, dz = dirs[r, 0], dirs[r, 1], dirs[r, 2]
-        best = max_range
-        bq = -1
-        for q in range(Q):
-            nx = u[q, 1] * v[q, 2] - u[q, 2] * v[q, 1]
-            ny = u[q, 2] * v[q, 0] - u[q, 0] * v[q, 2]
-            nz = u[q, 0] * v[q, 1] - u[q, 1] * v[q, 0]
-            den = dx * nx + dy * ny + dz * nz
-            if abs(den) < 1e-12:
-                continue
-            cx, cy, cz = centre[q, 0] - ox, centre[q, 1] - oy, centre[q, 2] - oz
-            t = (cx * nx + cy * ny + cz * nz) / den
-            if t <= 1e-9 or t >= best:
-                continue
-            px, py, pz = dx * t - cx, dy * t - cy, dz * t - cz  # hit point relative to the centre
-            if abs(px * u[q, 0] + py * u[q, 1] + pz * u[q, 2]) > half[q, 0]:
-                continue
-            if abs(px * v[q, 0] + py * v[q, 1] + pz * v[q, 2]) > half[q, 1]:
-                continue
-            best = t
-            bq = q
-        if bq >= 0:
-            dist[r] = best
-            hit[r] = bq
+    every = np.arange(Q)
+    normal = np.empty((Q, 3))
+    for q in range(Q):
+        normal[q, 0] = u[q, 1] * v[q, 2] - u[q, 2] * v[q, 1]
+        normal[q, 1] = u[q, 2] * v[q, 0] - u[q, 0] * v[q, 2]
+        normal[q, 2] = u[q, 0] * v[q, 1] - u[q, 1] * v[q, 0]
+    rad = _rect_radius(u, v, half)
+    n_chunks = (R + RAY_CHUNK - 1) // RAY_CHUNK
+    for c in numba.prange(n_chunks):
+        r0 = c * RAY_CHUNK
+        r1 = min(R, r0 + RAY_CHUNK)
+        near = np.empty(Q, dtype=np.int64)
+        n_near = _chunk_candidates(origins, dirs, r0, r1, centre, rad, max_range, every, Q, near)
+        cand = np.empty(Q, dtype=np.int64)
+        for s0 in range(r0, r1, RAY_SUBCHUNK):
+            s1 = min(r1, s0 + RAY_SUBCHUNK)
+            nc = _chunk_candidates(
+                origins, dirs, s0, s1, centre, rad, max_range, near, n_near, cand
+            )
+            for r in range(s0, s1):
+                ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
+                dx, dy, dz = dirs[r, 0], dirs[r, 1], dirs[r, 2]
+                best = max_range
+                bq = -1
+                for k in range(nc):
+                    q = cand[k]
+                    nx, ny, nz = normal[q, 0], normal[q, 1], normal[q, 2]
+                    den = dx * nx + dy * ny + dz * nz
+                    if abs(den) < 1e-12:
+                        continue
+                    cx, cy, cz = centre[q, 0] - ox, centre[q, 1] - oy, centre[q, 2] - oz
+                    t = (cx * nx + cy * ny + cz * nz) / den
+                    if t <= 1e-9 or t >= best:
+                        continue
+                    # the hit point relative to the centre
+                    px, py, pz = dx * t - cx, dy * t - cy, dz * t - cz
+                    if abs(px * u[q, 0] + py * u[q, 1] + pz * u[q, 2]) > half[q, 0]:
+                        continue
+                    if abs(px * v[q, 0] + py * v[q, 1] + pz * v[q, 2]) > half[q, 1]:
+                        continue
+                    best = t
+                    bq = q
+                if bq >= 0:
+                    dist[r] = best
+                    hit[r] = bq
     return dist, hit
 
 
