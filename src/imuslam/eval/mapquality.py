@@ -230,7 +230,9 @@ class BallNeighbours:
         if not self.grid:
             nbs = self.tree.query_ball_point(q, self.r, workers=1, return_sorted=True)
             np.cumsum([len(nb) for nb in nbs], out=start[1:])
-            return start, np.array([i for nb in nbs for i in nb], np.int64)
+            return start, np.concatenate(
+                [np.zeros(0, np.int64), *(np.asarray(nb, np.int64) for nb in nbs)]
+            )
         grid = (self.lo, self.cell, self.n_cells, self.key_sorted, self.order)
         args = (self.p_sorted, q, self.r, *grid)
         _ball_scan(*args, start[1:], start, False)
@@ -254,7 +256,6 @@ def _ball_scan(
     lo_c = np.empty(dim, np.int64)
     hi_c = np.empty(dim, np.int64)
     cur = np.empty(dim, np.int64)
-    tmp = np.empty(len(idx) if fill else 0, np.int64)
     for j in range(q.shape[0]):
         ok = True
         for k in range(dim):
@@ -296,7 +297,7 @@ def _ball_scan(
                 if k >= dim:
                     break
         if fill:
-            _merge_runs(idx[base : base + m], tmp[base : base + m])
+            idx[base : base + m] = np.sort(idx[base : base + m])  # one ascending run per cell
         else:
             start[j] = m
 
@@ -323,41 +324,3 @@ def _centred(p: FloatArray, start: IntArray, idx: IntArray) -> FloatArray:  # pr
             for k in range(dim):
                 out[s, k] = p[idx[s], k] - mean[k]
     return out
-
-
-@numba.njit(cache=True)
-def _merge_runs(a: IntArray, tmp: IntArray) -> None:  # pragma: no cover - compiled
-    """Sort ``a`` in place by merging its ascending runs pairwise (a query's hits: one run per cell,
-    each cell's points in index order), ``tmp`` as long as ``a``."""
-    n = len(a)
-    while True:
-        # merge each pair of neighbouring runs into tmp; done when a is one run
-        lo = 0
-        merged = False
-        while lo < n:
-            mid = lo + 1
-            while mid < n and a[mid - 1] <= a[mid]:
-                mid += 1
-            if mid >= n:
-                tmp[lo:n] = a[lo:n]
-                break
-            hi = mid + 1
-            while hi < n and a[hi - 1] <= a[hi]:
-                hi += 1
-            i, k, o = lo, mid, lo
-            while i < mid and k < hi:
-                if a[k] < a[i]:
-                    tmp[o] = a[k]
-                    k += 1
-                else:
-                    tmp[o] = a[i]
-                    i += 1
-                o += 1
-            tmp[o : o + mid - i] = a[i:mid]
-            o += mid - i
-            tmp[o : o + hi - k] = a[k:hi]
-            merged = True
-            lo = hi
-        if not merged:
-            return
-        a[:] = tmp[:n]
