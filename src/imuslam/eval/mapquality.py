@@ -297,7 +297,7 @@ def _ball_scan(
                 if k >= dim:
                     break
         if fill:
-            idx[base : base + m] = np.sort(idx[base : base + m])  # one ascending run per cell
+            idx[base : base + m] = np.sort(idx[base : base + m])  # index order, as cKDTree
         else:
             start[j] = m
 
